@@ -1,0 +1,29 @@
+from setuptools import find_packages, setup
+
+package_name = "grasp_fc_ros"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+    ],
+    # rclpy and the grasp_fc_msgs interfaces come from the ROS prefix, not PyPI.
+    install_requires=["setuptools", "numpy", "clarabel"],
+    extras_require={"experiment": ["matplotlib", "trimesh", "scipy"]},
+    zip_safe=True,
+    maintainer="grasp_fc_ros maintainers",
+    maintainer_email="maintainers@grasp-fc-ros.dev",
+    description="Fast, exact force-closure test for multi-finger frictional grasps.",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [
+            "grasp-fc-node = grasp_fc_ros.node:main",
+            "grasp-fc-demo = grasp_fc_ros.demo:main",
+            "grasp-fc-experiment = grasp_fc_ros.experiment.cli:main",
+        ],
+    },
+)
