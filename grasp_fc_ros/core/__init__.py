@@ -1,0 +1,38 @@
+"""ROS-free core of grasp_fc_ros: numpy and clarabel only.
+
+Force closure of n hard point contacts with Coulomb friction, after Niparnan, Phoka and
+Sudsang, "Heuristic Approach for Multiple Queries of 3D N-Finger Frictional Force
+Closure Grasp":
+
+* :mod:`.torque_sets` -- the torque set of one friction cone: a fan, a plane or {0};
+* :mod:`.positive_span` -- do fans and planes positively span R^3?
+* :mod:`.torque_filter` -- the paper's necessary condition (the filter);
+* :mod:`.exact_test` -- the exact test, a second-order cone program (Clarabel);
+* :mod:`.pipeline` -- the filter, then the exact test on the survivors;
+* :mod:`.grasp_input` -- shapes and per-grasp validation;
+* :mod:`.tolerances` -- every numerical tolerance, with the reason for its value.
+
+Example
+-------
+>>> import numpy as np
+>>> from grasp_fc_ros.core import check_force_closure
+>>> positions = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0]], float)
+>>> result = check_force_closure(positions, -positions, mu=0.5)
+>>> bool(result.force_closure)
+True
+"""
+
+from .grasp_input import GraspValidation, validate_grasps
+from .pipeline import ForceClosureResult, Status, check_force_closure, exact_force_closure
+from .torque_filter import ORIGIN_CHOICES, torque_filter
+
+__all__ = [
+    "ORIGIN_CHOICES",
+    "ForceClosureResult",
+    "GraspValidation",
+    "Status",
+    "check_force_closure",
+    "exact_force_closure",
+    "torque_filter",
+    "validate_grasps",
+]

@@ -1,0 +1,161 @@
+"""Input handling: shapes, broadcasting and per-grasp validation.
+
+A grasp is n contacts, each a position (3,), an inward normal (3,) of any non-zero
+length, and a friction coefficient mu > 0. Public functions accept one grasp
+(arrays (n, 3)) or a batch (arrays (N, n, 3)); internally everything is a batch.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .tolerances import ZERO_NORMAL_NORM
+
+MIN_CONTACTS = 2
+
+
+@dataclass(frozen=True)
+class GraspBatch:
+    """Validated, normalised input of a batch of N grasps with n contacts each.
+
+    Attributes
+    ----------
+    positions : ndarray, shape (N, n, 3)
+        Contact positions, in the caller's length unit.
+    normals : ndarray, shape (N, n, 3)
+        Unit inward normals.
+    mu : ndarray, shape (N, n)
+        Friction coefficients, all finite and > 0.
+    single : bool
+        True if the caller passed one grasp; results are then returned 0-d.
+    """
+
+    positions: np.ndarray
+    normals: np.ndarray
+    mu: np.ndarray
+    single: bool
+
+    def unbatch(self, values: np.ndarray) -> np.ndarray:
+        """Return per-grasp ``values`` (N,) as the caller expects: 0-d for one grasp."""
+        return values[0] if self.single else values
+
+
+@dataclass(frozen=True)
+class GraspValidation:
+    """Per-grasp validity of a batch.
+
+    Attributes
+    ----------
+    valid : ndarray of bool, shape (N,)
+        True where the grasp can be tested.
+    reasons : list of str, length N
+        Empty string where valid, otherwise what is wrong, naming grasp and contact.
+    """
+
+    valid: np.ndarray
+    reasons: list[str]
+
+
+def _as_batch_arrays(positions, normals, mu):
+    """Coerce inputs to float arrays of shape (N, n, 3), (N, n, 3), (N, n).
+
+    Raises
+    ------
+    ValueError
+        If the shapes do not describe one grasp or a batch of grasps.
+    """
+    p = np.asarray(positions, dtype=np.float64)
+    nrm = np.asarray(normals, dtype=np.float64)
+    if p.ndim not in (2, 3) or p.shape[-1] != 3:
+        raise ValueError(
+            f"positions must have shape (n, 3) or (N, n, 3), got {p.shape}")
+    if nrm.shape != p.shape:
+        raise ValueError(
+            f"normals must have the same shape as positions {p.shape}, got {nrm.shape}")
+    single = p.ndim == 2
+    if single:
+        p, nrm = p[None], nrm[None]
+    n_grasps, n_contacts = p.shape[:2]
+    m = np.asarray(mu, dtype=np.float64)
+    if single and m.ndim >= 1:
+        m = m[None]
+    try:
+        m = np.broadcast_to(m, (n_grasps, n_contacts))
+    except ValueError:
+        hint = " (for one mu per grasp pass an (N, 1) array)" if m.ndim == 1 else ""
+        raise ValueError(
+            f"mu of shape {np.shape(mu)} does not broadcast to (grasps, contacts) = "
+            f"{(n_grasps, n_contacts)}{hint}") from None
+    return p, nrm, m, single
+
+
+def _first_per_grasp(bad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For a mask (N, n): which grasps have a True, and the first such contact."""
+    return bad.any(axis=1), bad.argmax(axis=1)
+
+
+def validate_grasps(positions, normals, mu) -> GraspValidation:
+    """Check every grasp of a batch and say what is wrong with the bad ones.
+
+    Parameters
+    ----------
+    positions, normals : array_like, shape (N, n, 3) or (n, 3)
+        Contact positions and inward normals.
+    mu : array_like
+        Friction coefficients, broadcastable to (N, n).
+
+    Returns
+    -------
+    GraspValidation
+        ``valid`` (N,) and ``reasons``; a single grasp is reported as a batch of one.
+
+    Raises
+    ------
+    ValueError
+        Only if the shapes themselves are wrong; bad values are reported per grasp.
+    """
+    p, nrm, m, _ = _as_batch_arrays(positions, normals, mu)
+    n_grasps, n_contacts = p.shape[:2]
+    reasons = [""] * n_grasps
+    if n_contacts < MIN_CONTACTS:
+        reasons = [f"grasp {g}: has {n_contacts} contacts, needs at least {MIN_CONTACTS}"
+                   for g in range(n_grasps)]
+        return GraspValidation(np.zeros(n_grasps, dtype=bool), reasons)
+
+    with np.errstate(invalid="ignore", over="ignore"):
+        normal_length = np.linalg.norm(nrm, axis=2)
+    checks = (
+        (~np.isfinite(p).all(axis=2), "position is not finite"),
+        (~np.isfinite(nrm).all(axis=2), "normal is not finite"),
+        (normal_length <= ZERO_NORMAL_NORM, "normal has zero length"),
+        (~np.isfinite(m), "friction coefficient is not finite"),
+        (~(m > 0), "friction coefficient must be > 0"),
+    )
+    valid = np.ones(n_grasps, dtype=bool)
+    # Report the first problem of each grasp: a grasp already found bad is skipped.
+    for bad, what in checks:
+        has_bad, first = _first_per_grasp(bad)
+        for g in np.flatnonzero(has_bad & valid):
+            reasons[g] = f"grasp {g}, contact {first[g]}: {what}"
+        valid &= ~has_bad
+    return GraspValidation(valid, reasons)
+
+
+def prepare_grasps(positions, normals, mu) -> GraspBatch:
+    """Validate input and return it as a normalised batch.
+
+    Raises
+    ------
+    ValueError
+        On wrong shapes or any bad value, naming the first bad grasps and contacts.
+    """
+    validation = validate_grasps(positions, normals, mu)
+    if not validation.valid.all():
+        bad = [r for r in validation.reasons if r]
+        more = f" (and {len(bad) - 3} more)" if len(bad) > 3 else ""
+        raise ValueError("invalid grasp input: " + "; ".join(bad[:3]) + more)
+    p, nrm, m, single = _as_batch_arrays(positions, normals, mu)
+    unit_normals = nrm / np.linalg.norm(nrm, axis=2, keepdims=True)
+    return GraspBatch(p, unit_normals, np.ascontiguousarray(m), single)

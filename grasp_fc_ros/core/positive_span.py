@@ -1,0 +1,125 @@
+"""Positive span of R^3 by torque sets: fans, planes and null sets (paper section IV-B).
+
+A family of torque sets positively spans R^3 when every torque is a non-negative
+combination of members of the sets. It fails exactly when some non-zero direction c
+has c . v >= 0 for every v in every set (all sets lie in one closed half-space).
+
+* With a plane P (normal a) among the sets: P together with the rest spans R^3 iff the
+  rest reaches both open sides of P. A fan reaches the side of the sign of a . v of its
+  boundary torques; another plane reaches both sides unless it is parallel to P. If one
+  side is missing, c = a or c = -a separates.
+* With fans only: the separating directions form a polyhedral cone whose extreme rays
+  are perpendicular to two of the boundary torques. So the torques fail to span iff,
+  for some pair (v_i, v_j) of non-parallel boundary torques, c = v_i x v_j has all
+  boundary torques on one closed side. If no pair is non-parallel the torques span a
+  line at most and cannot span R^3.
+
+Everything is vectorised over a batch of independent problems; there is no per-problem
+Python loop and no solver.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from .tolerances import PARALLEL_TOL, SPAN_TOL
+from .torque_sets import TorqueSetKind, TorqueSets, cross, dot
+
+#: Problems handled per vectorised pass of the pair test: the (pairs, problems)
+#: intermediates of this many problems stay in a core's cache.
+_PAIR_TEST_CHUNK = 2048
+
+
+def positively_spans(sets: TorqueSets) -> np.ndarray:
+    """Whether the torque sets of each problem positively span R^3.
+
+    Parameters
+    ----------
+    sets : TorqueSets
+        ``kind`` of shape (m, B) and vectors of shape (3, m, B): m torque sets for each
+        of B problems.
+
+    Returns
+    -------
+    ndarray of bool, shape (B,)
+        False only where a separating direction was found: the sets certainly do not
+        positively span R^3 (up to ``SPAN_TOL``).
+    """
+    has_plane = (sets.kind == TorqueSetKind.PLANE).any(axis=0)
+    spans = np.empty(sets.kind.shape[1], dtype=bool)
+    if has_plane.any():
+        spans[has_plane] = _spans_with_plane(sets.subset((slice(None), has_plane)))
+    fans_only = ~has_plane
+    if fans_only.any():
+        spans[fans_only] = _fans_span(sets.subset((slice(None), fans_only)))
+    return spans
+
+
+def _spans_with_plane(sets: TorqueSets) -> np.ndarray:
+    """Positive span for problems that contain at least one plane. Shapes (m, B)."""
+    is_plane = sets.kind == TorqueSetKind.PLANE
+    pivot = is_plane.argmax(axis=0)
+    normal = sets.axis[:, pivot, np.arange(pivot.size)][:, None, :]    # (3, 1, B)
+
+    is_fan = sets.kind == TorqueSetKind.FAN
+    side_first = dot(sets.first, normal)
+    side_second = dot(sets.second, normal)
+    reaches_pos = is_fan & ((side_first > SPAN_TOL) | (side_second > SPAN_TOL))
+    reaches_neg = is_fan & ((side_first < -SPAN_TOL) | (side_second < -SPAN_TOL))
+
+    tilt = cross(sets.axis, normal)
+    crossing_plane = is_plane & (dot(tilt, tilt) > PARALLEL_TOL ** 2)
+    return ((reaches_pos | crossing_plane).any(axis=0)
+            & (reaches_neg | crossing_plane).any(axis=0))
+
+
+@lru_cache(maxsize=64)
+def _pairs(n_vectors: int) -> tuple[np.ndarray, np.ndarray]:
+    return np.triu_indices(n_vectors, 1)
+
+
+def _fans_span(sets: TorqueSets) -> np.ndarray:
+    """Positive span for problems whose sets are fans or null sets. Shapes (m, B).
+
+    Null sets contribute zero vectors, which lie on every side of every plane and
+    make no pair non-parallel, so they need no special case.
+    """
+    vectors = np.concatenate((sets.first, sets.second), axis=1)        # (3, K, B)
+    first, second = _pairs(vectors.shape[1])
+    n_problems = vectors.shape[2]
+    spans = np.empty(n_problems, dtype=bool)
+    for start in range(0, n_problems, _PAIR_TEST_CHUNK):
+        chunk = slice(start, start + _PAIR_TEST_CHUNK)
+        spans[chunk] = ~_has_separating_pair(vectors[:, :, chunk], first, second)
+    return spans
+
+
+def _has_separating_pair(vectors: np.ndarray, first: np.ndarray,
+                         second: np.ndarray) -> np.ndarray:
+    """Whether some pair's cross product has all vectors on one closed side.
+
+    Parameters
+    ----------
+    vectors : ndarray, shape (3, K, B)
+        K unit (or zero) vectors of each of B problems, component-first.
+    first, second : ndarray of int, shape (P,)
+        The pairs to try.
+
+    Returns
+    -------
+    ndarray of bool, shape (B,)
+    """
+    normals = cross(vectors[:, first], vectors[:, second])             # (3, P, B)
+    lowest = np.full(normals.shape[1:], np.inf)
+    highest = np.full(normals.shape[1:], -np.inf)
+    for k in range(vectors.shape[1]):
+        side = dot(normals, vectors[:, k][:, None, :])
+        np.minimum(lowest, side, out=lowest)
+        np.maximum(highest, side, out=highest)
+    length = np.sqrt(dot(normals, normals))
+    slack = SPAN_TOL * length
+    one_side = (lowest >= -slack) | (highest <= slack)
+    is_pair = length > PARALLEL_TOL
+    return (one_side & is_pair).any(axis=0) | ~is_pair.any(axis=0)

@@ -1,0 +1,45 @@
+"""Numerical tolerances of the core, in one place.
+
+Every decision that compares a floating-point value with a threshold uses one of
+these constants. All of them are dimensionless: positions enter only through unit
+directions or through a grasp normalised to unit size, and forces are normalised so
+that the normal components sum to at most one.
+"""
+
+#: Normals shorter than this carry no usable direction: after normalisation their
+#: rounding noise would be as large as the direction itself.
+ZERO_NORMAL_NORM = 1e-12
+
+#: Fans of the torque filter are widened by this angle (radians) on each side.
+#: Their boundary directions come out of arcsin and cross products with errors of a
+#: few 1e-16; widening by far more than that makes every computed fan contain the
+#: true one, so rounding can only make the filter pass more grasps, never reject a
+#: force-closure grasp.
+FAN_WIDEN_RAD = 1e-9
+
+#: A fan whose (widened) half-angle comes this close to 90 degrees is replaced by its
+#: whole plane. Near the half-plane case the two boundary torques become opposite and
+#: stop describing the set (and arcsin is ill-conditioned there), so the larger set is
+#: the sound stand-in.
+HALF_PLANE_MARGIN_RAD = 1e-6
+
+#: A candidate separating direction c rejects a set of unit torque directions only if
+#: every direction satisfies c . v >= -SPAN_TOL * |c|. Far below FAN_WIDEN_RAD, so a
+#: widened fan that truly crosses the separating plane is never mistaken for one that
+#: does not.
+SPAN_TOL = 1e-12
+
+#: Two cross products shorter than this (for unit inputs) are treated as parallel:
+#: the pair does not define a separating plane.
+PARALLEL_TOL = 1e-12
+
+#: The grasp map of a grasp normalised to unit size has rank 6 only if its smallest
+#: singular value exceeds this fraction of its largest. Below it, collinear or
+#: coincident contacts leave a wrench direction that no contact force can resist.
+RANK_TOL = 1e-9
+
+#: Force closure is reported only for a verified internal force that lies at least
+#: this deep inside every friction cone (mu * f_n - |f_t| >= MARGIN_TOL, with the normal
+#: forces summing to one). Grasps closer to the boundary are numerically marginal: the
+#: solver's own accuracy (about 1e-8) could not tell them from non-force-closure ones.
+MARGIN_TOL = 1e-6

@@ -1,0 +1,99 @@
+"""The torque-space filter: a necessary condition for force closure (paper section III).
+
+If a grasp is force closure its wrenches positively span R^6, so their projections on
+torque space positively span R^3 for every choice of origin (Proposition 3.1). The
+filter tries a few origins placed at contact points (whose own torque set is then null
+and is left out) and rejects the grasp when the torque sets of the other contacts fail
+to positively span R^3 about any of them.
+
+Origins:
+
+* ``"seed"`` -- the paper's choice. q is the contact with the smallest x coordinate
+  minus (1, 0, 0), a point outside the contacts' convex hull; the origins are the
+  contacts nearest to and furthest from q.
+* ``"all"`` -- every contact in turn. Still sound, and rejects more grasps that are not
+  force closure, at n/2 times the cost.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from .grasp_input import GraspBatch, prepare_grasps
+from .positive_span import positively_spans
+from .torque_sets import cone_torque_sets, dot, friction_half_angle_sine
+
+ORIGIN_CHOICES = ("seed", "all")
+
+
+def torque_filter(positions, normals, mu, origins: str = "seed") -> np.ndarray:
+    """Necessary condition for force closure: do the torque sets positively span R^3?
+
+    Parameters
+    ----------
+    positions : array_like, shape (n, 3) or (N, n, 3)
+        Contact positions (any length unit).
+    normals : array_like, same shape as ``positions``
+        Inward contact normals, any non-zero length.
+    mu : float or array_like broadcastable to (N, n)
+        Friction coefficients, > 0.
+    origins : {"seed", "all"}
+        Which contacts serve as torque origins (see module docstring).
+
+    Returns
+    -------
+    ndarray of bool, shape () for one grasp or (N,)
+        True: the grasp passes (it may be force closure). False: it is certainly not
+        force closure.
+
+    Raises
+    ------
+    ValueError
+        On bad input (naming grasp and contact) or an unknown ``origins``.
+    """
+    grasps = prepare_grasps(positions, normals, mu)
+    return grasps.unbatch(passes_torque_filter(grasps, origins))
+
+
+def passes_torque_filter(grasps: GraspBatch, origins: str = "seed") -> np.ndarray:
+    """:func:`torque_filter` on validated input. Returns shape (N,)."""
+    # Component-first copies, (3, n, N): the grasp axis becomes the contiguous one.
+    points = np.ascontiguousarray(grasps.positions.transpose(2, 1, 0))
+    normals = np.ascontiguousarray(grasps.normals.transpose(2, 1, 0))
+    mu = np.ascontiguousarray(grasps.mu.T)
+    n_contacts, n_grasps = mu.shape
+
+    origin = _origin_indices(points, origins)                          # (O, N)
+    others = _other_contacts(n_contacts)[origin].transpose(2, 0, 1)    # (n-1, O, N)
+    grasp = np.arange(n_grasps)
+    lever_arms = points[:, others, grasp] - points[:, origin, grasp][:, None]
+    n_problems = origin.size
+    sets = cone_torque_sets(
+        lever_arms.reshape(3, n_contacts - 1, n_problems),
+        normals[:, others, grasp].reshape(3, n_contacts - 1, n_problems),
+        friction_half_angle_sine(mu[others, grasp]).reshape(n_contacts - 1, n_problems))
+    return positively_spans(sets).reshape(origin.shape).all(axis=0)
+
+
+def _origin_indices(points: np.ndarray, origins: str) -> np.ndarray:
+    """Indices (O, N) of the contacts used as origins; ``points`` is (3, n, N)."""
+    n_contacts, n_grasps = points.shape[1:]
+    if origins == "all":
+        return np.broadcast_to(np.arange(n_contacts)[:, None], (n_contacts, n_grasps))
+    if origins != "seed":
+        raise ValueError(f"origins must be one of {ORIGIN_CHOICES}, got {origins!r}")
+    grasp = np.arange(n_grasps)
+    q = points[:, points[0].argmin(axis=0), grasp]
+    q[0] -= 1.0
+    offset = points - q[:, None, :]
+    squared_distance = dot(offset, offset)                             # (n, N)
+    return np.stack((squared_distance.argmin(axis=0), squared_distance.argmax(axis=0)))
+
+
+@lru_cache(maxsize=64)
+def _other_contacts(n_contacts: int) -> np.ndarray:
+    """Table (n, n-1): row i lists every contact index except i."""
+    index = np.arange(n_contacts)
+    return np.array([np.delete(index, i) for i in range(n_contacts)])
