@@ -1,0 +1,345 @@
+"""The ``force_closure`` ROS 2 node: grasp contacts in, force-closure verdicts out.
+
+Interfaces (package ``grasp_fc_msgs``):
+
+- subscribes ``contacts`` (ContactArray), publishes one ForceClosureVerdict per
+  query on ``verdicts``;
+- subscribes ``contacts_batch`` (ContactArrayBatch), publishes one
+  ForceClosureVerdictArray per batch on ``verdicts_batch``;
+- serves ``check_force_closure`` (CheckForceClosure);
+- publishes ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) once a second.
+
+The node is a thin layer: it converts messages to numpy arrays, groups grasps by
+contact count, and hands each group to :func:`grasp_fc_ros.core.check_force_closure`.
+Every query gets exactly one verdict carrying its id; bad queries are answered with
+``INVALID_INPUT`` and a reason, internal errors with ``SOLVER_FAILURE``.
+
+Run it with ``grasp-fc-node`` or ``python -m grasp_fc_ros.node`` (``--ros-args -p
+name:=value`` sets parameters).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import sys
+import time
+from collections import deque
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from grasp_fc_msgs.msg import (
+    ContactArray,
+    ContactArrayBatch,
+    ForceClosureVerdict,
+    ForceClosureVerdictArray,
+)
+from grasp_fc_msgs.srv import CheckForceClosure
+from rcl_interfaces.msg import IntegerRange, ParameterDescriptor, ParameterType, SetParametersResult
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from grasp_fc_ros.conversions import (
+    PackedGrasps,
+    Verdicts,
+    batch_to_packed,
+    contact_arrays_to_packed,
+    verdicts_to_array_msg,
+    verdicts_to_msgs,
+)
+from grasp_fc_ros.core import Status, check_force_closure, validate_grasps
+
+NODE_NAME = "force_closure"
+DIAGNOSTICS_PERIOD_S = 1.0
+WARN_THROTTLE_S = 2.0
+MIN_CONTACTS = 2
+# Processing times kept for the diagnostics' mean and p99.
+TIMING_WINDOW = 2000
+FILTER_ORIGINS = ("seed", "all")
+# Upper bounds of the integer parameters: beyond these a single message would not fit
+# any sensible memory budget.
+MAX_QOS_DEPTH = 100_000
+MAX_CONTACTS_LIMIT = 10_000
+MAX_BATCH_LIMIT = 10_000_000
+
+# The wire status codes are the core's Status values.
+assert all(getattr(ForceClosureVerdict, s.name) == s.value for s in Status)
+
+
+def _int_descriptor(description, low, high, read_only=False):
+    return ParameterDescriptor(
+        type=ParameterType.PARAMETER_INTEGER, description=description, read_only=read_only,
+        integer_range=[IntegerRange(from_value=low, to_value=high, step=1)])
+
+
+PARAMETERS = {
+    # name: (default, descriptor)
+    "friction_coefficient": (0.5, ParameterDescriptor(
+        type=ParameterType.PARAMETER_DOUBLE,
+        description="Coulomb friction coefficient for contacts that give none (<= 0)",
+        additional_constraints="finite and > 0")),
+    "use_filter": (True, ParameterDescriptor(
+        type=ParameterType.PARAMETER_BOOL,
+        description="Run the torque-space filter before the exact test")),
+    "filter_origins": ("seed", ParameterDescriptor(
+        type=ParameterType.PARAMETER_STRING,
+        description="Torque origins of the filter: 'seed' (the paper's) or 'all'",
+        additional_constraints="one of: " + ", ".join(FILTER_ORIGINS))),
+    "qos_depth": (100, _int_descriptor(
+        "History depth of the reliable topics' QoS (applied at start-up)", 1, MAX_QOS_DEPTH,
+        read_only=True)),
+    "max_contacts": (64, _int_descriptor(
+        "Largest number of contacts accepted in one grasp", MIN_CONTACTS, MAX_CONTACTS_LIMIT)),
+    "max_batch": (100_000, _int_descriptor(
+        "Largest number of grasps accepted in one batch message or service request",
+        1, MAX_BATCH_LIMIT)),
+}
+
+
+def check_parameter(name: str, value) -> str:
+    """Return why ``value`` is not acceptable for parameter ``name`` ('' if it is)."""
+    if name == "friction_coefficient":
+        if not (math.isfinite(value) and value > 0):
+            return f"friction_coefficient must be finite and > 0, got {value}"
+    elif name == "filter_origins" and value not in FILTER_ORIGINS:
+        return f"filter_origins must be one of {FILTER_ORIGINS}, got {value!r}"
+    return ""
+
+
+class _Statistics:
+    """Counters and processing times reported on /diagnostics."""
+
+    def __init__(self):
+        self.counts = {s: 0 for s in Status}
+        self.queries = 0
+        self.callback_errors = 0
+        self.seconds = {"conversion": 0.0, "filter": 0.0, "exact": 0.0}
+        self.processing_s = deque(maxlen=TIMING_WINDOW)
+
+    def add_verdicts(self, status: np.ndarray):
+        self.queries += len(status)
+        for code, count in zip(*np.unique(status, return_counts=True)):
+            self.counts[Status(int(code))] += int(count)
+
+    def key_values(self) -> list[KeyValue]:
+        times_ms = np.asarray(self.processing_s) * 1e3
+        mean_ms = float(times_ms.mean()) if len(times_ms) else 0.0
+        p99_ms = float(np.percentile(times_ms, 99)) if len(times_ms) else 0.0
+        decided_by_exact = self.counts[Status.FORCE_CLOSURE] + self.counts[Status.NOT_FORCE_CLOSURE]
+        values = {
+            "queries": self.queries,
+            "force_closure": self.counts[Status.FORCE_CLOSURE],
+            "rejected_by_filter": self.counts[Status.FILTERED_OUT],
+            "decided_by_exact_test": decided_by_exact,
+            "invalid_input": self.counts[Status.INVALID_INPUT],
+            "solver_failures": self.counts[Status.SOLVER_FAILURE],
+            "callback_errors": self.callback_errors,
+            "processing_time_mean_ms": f"{mean_ms:.3f}",
+            "processing_time_p99_ms": f"{p99_ms:.3f}",
+            "conversion_time_total_s": f"{self.seconds['conversion']:.3f}",
+            "filter_time_total_s": f"{self.seconds['filter']:.3f}",
+            "exact_time_total_s": f"{self.seconds['exact']:.3f}",
+        }
+        return [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+
+
+def _rename_grasp(reason: str, index: int) -> str:
+    """Make a core reason ('grasp k, contact c: ...') name the grasp's index in the message."""
+    return re.sub(r"^grasp \d+", f"grasp {index}", reason)
+
+
+class ForceClosureNode(Node):
+    """Answers force-closure queries on topics and a service; see the module docstring."""
+
+    def __init__(self, **kwargs):
+        super().__init__(NODE_NAME, **kwargs)
+        self._stats = _Statistics()
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(self._after_set_parameters)
+        for name, (default, descriptor) in PARAMETERS.items():
+            self.declare_parameter(name, default, descriptor)
+
+        qos = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
+                         depth=self.get_parameter("qos_depth").value)
+        self._verdict_pub = self.create_publisher(ForceClosureVerdict, "verdicts", qos)
+        self._batch_pub = self.create_publisher(ForceClosureVerdictArray, "verdicts_batch", qos)
+        self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_subscription(ContactArray, "contacts", self._on_contacts, qos)
+        self.create_subscription(ContactArrayBatch, "contacts_batch", self._on_batch, qos)
+        self.create_service(CheckForceClosure, "check_force_closure", self._on_service)
+        self.create_timer(DIAGNOSTICS_PERIOD_S, self._publish_diagnostics)
+        self.get_logger().info("ready: topics contacts, contacts_batch; service check_force_closure")
+
+    # --- parameters -------------------------------------------------------------------
+
+    def _on_set_parameters(self, parameters) -> SetParametersResult:
+        reasons = [check_parameter(p.name, p.value) for p in parameters]
+        reasons = [r for r in reasons if r]
+        return SetParametersResult(successful=not reasons, reason="; ".join(reasons))
+
+    def _after_set_parameters(self, parameters):
+        # Cached so the hot path does not look parameters up per message.
+        for p in parameters:
+            setattr(self, "_" + p.name, p.value)
+
+    # --- callbacks: each catches everything, so that spin never dies ------------------
+
+    def _on_contacts(self, msg: ContactArray):
+        try:
+            verdicts = self._answer(lambda: contact_arrays_to_packed([msg]))
+        except Exception as exc:  # noqa: BLE001 - any failure must still be answered
+            verdicts = self._failure_verdicts(np.array([msg.id], dtype=np.uint64), exc)
+        self._verdict_pub.publish(verdicts_to_msgs(verdicts)[0])
+
+    def _on_batch(self, msg: ContactArrayBatch):
+        try:
+            verdicts = self._answer(lambda: batch_to_packed(msg))
+            out = verdicts_to_array_msg(verdicts, msg.header)
+        except Exception as exc:  # noqa: BLE001
+            ids = np.frombuffer(msg.ids, dtype=np.uint64) if len(msg.ids) else np.empty(0, np.uint64)
+            out = verdicts_to_array_msg(self._failure_verdicts(ids, exc), msg.header)
+        self._batch_pub.publish(out)
+
+    def _on_service(self, request, response):
+        try:
+            verdicts = self._answer(lambda: contact_arrays_to_packed(request.grasps))
+        except Exception as exc:  # noqa: BLE001
+            ids = np.array([g.id for g in request.grasps], dtype=np.uint64)
+            verdicts = self._failure_verdicts(ids, exc)
+        response.verdicts = verdicts_to_msgs(verdicts)
+        return response
+
+    def _failure_verdicts(self, ids: np.ndarray, exc: Exception) -> Verdicts:
+        self._stats.callback_errors += 1
+        self.get_logger().error(f"internal error while answering {len(ids)} queries: {exc!r}",
+                                throttle_duration_sec=WARN_THROTTLE_S)
+        status = np.full(len(ids), Status.SOLVER_FAILURE, dtype=np.uint8)
+        self._stats.add_verdicts(status)
+        return Verdicts(ids=ids, force_closure=np.zeros(len(ids), bool), status=status,
+                        margin=np.full(len(ids), np.nan),
+                        messages=[f"internal error: {exc}"] * len(ids))
+
+    # --- evaluation -------------------------------------------------------------------
+
+    def _answer(self, convert) -> Verdicts:
+        """Convert a message with ``convert()`` and decide all its grasps."""
+        start = time.perf_counter()
+        packed = convert()
+        self._stats.seconds["conversion"] += time.perf_counter() - start
+        verdicts = self.evaluate(packed)
+        for note in packed.notes:
+            self.get_logger().warning(f"malformed batch: {note}",
+                                      throttle_duration_sec=WARN_THROTTLE_S)
+        invalid = np.flatnonzero(verdicts.status == Status.INVALID_INPUT)
+        if len(invalid):
+            self.get_logger().warning(
+                f"{len(invalid)} of {len(verdicts)} queries invalid, e.g. id "
+                f"{verdicts.ids[invalid[0]]}: {verdicts.messages[invalid[0]]}",
+                throttle_duration_sec=WARN_THROTTLE_S)
+        self._stats.add_verdicts(verdicts.status)
+        self._stats.processing_s.append(time.perf_counter() - start)
+        return verdicts
+
+    def evaluate(self, packed: PackedGrasps) -> Verdicts:
+        """Decide every grasp of ``packed``; one verdict per grasp, in order.
+
+        Grasps are grouped by contact count and each group goes through the core in
+        one batched call. Invalid grasps get ``INVALID_INPUT``; a failing group gets
+        ``SOLVER_FAILURE`` without spoiling the other groups.
+        """
+        n_grasps = len(packed)
+        verdicts = Verdicts(ids=packed.ids, force_closure=np.zeros(n_grasps, bool),
+                            status=np.full(n_grasps, Status.INVALID_INPUT, dtype=np.uint8),
+                            margin=np.full(n_grasps, np.nan), messages=[""] * n_grasps)
+        if n_grasps > self._max_batch:
+            verdicts.messages = [f"{n_grasps} grasps exceed max_batch={self._max_batch}"] * n_grasps
+            return verdicts
+        for i, reason in packed.unreadable.items():
+            verdicts.messages[i] = reason
+        counts = packed.counts
+        eligible = np.ones(n_grasps, bool)
+        eligible[list(packed.unreadable)] = False
+        for i in np.flatnonzero(eligible & ((counts < MIN_CONTACTS) | (counts > self._max_contacts))):
+            eligible[i] = False
+            verdicts.messages[i] = (f"grasp {i}: {counts[i]} contacts; a grasp needs "
+                                    f"{MIN_CONTACTS} to max_contacts={self._max_contacts}")
+        # Contact friction <= 0 means the node default (NaN stays NaN and is rejected).
+        mu = np.where(packed.mu <= 0, self._friction_coefficient, packed.mu)
+        starts = packed.starts
+        for n in np.unique(counts[eligible]):
+            group = np.flatnonzero(eligible & (counts == n))
+            rows = starts[group, None] + np.arange(n)
+            try:
+                self._evaluate_group(group, packed.positions[rows], packed.normals[rows],
+                                     mu[rows], verdicts)
+            except Exception as exc:  # noqa: BLE001 - one group must not spoil the others
+                self._stats.callback_errors += 1
+                self.get_logger().error(f"core failed on {len(group)} grasps of {n} contacts: "
+                                        f"{exc!r}", throttle_duration_sec=WARN_THROTTLE_S)
+                verdicts.status[group] = Status.SOLVER_FAILURE
+                for i in group:
+                    verdicts.messages[i] = f"internal error: {exc}"
+        return verdicts
+
+    def _evaluate_group(self, group, positions, normals, mu, verdicts: Verdicts):
+        """Decide grasps ``group`` (batch indices) with equal contact count, in place."""
+        validation = validate_grasps(positions, normals, mu)
+        for k in np.flatnonzero(~validation.valid):
+            verdicts.messages[group[k]] = _rename_grasp(validation.reasons[k], int(group[k]))
+        valid = validation.valid
+        if not valid.any():
+            return
+        result = check_force_closure(positions[valid], normals[valid], mu[valid],
+                                     use_filter=self._use_filter, origins=self._filter_origins)
+        target = group[valid]
+        verdicts.status[target] = result.status
+        verdicts.force_closure[target] = result.force_closure
+        verdicts.margin[target] = result.margin
+        self._stats.seconds["filter"] += result.timing.get("filter_s", 0.0)
+        self._stats.seconds["exact"] += result.timing.get("exact_s", 0.0)
+
+    # --- diagnostics ------------------------------------------------------------------
+
+    def _publish_diagnostics(self):
+        try:
+            failures = self._stats.counts[Status.SOLVER_FAILURE] + self._stats.callback_errors
+            status = DiagnosticStatus(
+                level=DiagnosticStatus.WARN if failures else DiagnosticStatus.OK,
+                name=f"{self.get_name()}: force-closure queries",
+                message=(f"{failures} solver failures or internal errors" if failures
+                         else "ok"),
+                hardware_id="none",
+                values=self._stats.key_values())
+            msg = DiagnosticArray(status=[status])
+            msg.header.stamp = self.get_clock().now().to_msg()
+            self._diag_pub.publish(msg)
+        except Exception as exc:  # noqa: BLE001 - diagnostics must never stop the node
+            self._stats.callback_errors += 1
+            self.get_logger().error(f"diagnostics failed: {exc!r}",
+                                    throttle_duration_sec=WARN_THROTTLE_S)
+
+
+def main(args=None) -> int:
+    """Run the node until Ctrl-C or SIGTERM; return the process exit code."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = ForceClosureNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ParameterException as exc:
+        print(f"{NODE_NAME}: bad parameter: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,182 @@
+"""ROS-specific test helpers for the node tests (imported by test/test_node*.py).
+
+Importing this module picks a ROS_DOMAIN_ID of its own for this test run (derived
+from the process id) *before* rclpy is initialised, so that parallel runs on one
+machine cannot hear each other. Child processes inherit it through the environment.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+# Domain ids 1..100: well inside the range FastDDS maps to valid UDP ports.
+os.environ["ROS_DOMAIN_ID"] = str(1 + os.getpid() % 100)
+# Keep discovery on this machine (no multicast on the network).
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+
+import pytest  # noqa: E402
+import rclpy  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+
+from grasp_fc_msgs.msg import ContactArray, ContactArrayBatch  # noqa: E402
+from grasp_fc_msgs.msg import ForceClosureVerdict, ForceClosureVerdictArray  # noqa: E402
+from grasp_fc_msgs.srv import CheckForceClosure  # noqa: E402
+
+RELIABLE = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
+                      depth=1000)
+DISCOVERY_TIMEOUT_S = 20.0
+REPLY_TIMEOUT_S = 20.0
+NODE_EXIT_TIMEOUT_S = 10.0
+
+
+class SpinThread:
+    """Spin one node on its own executor in a daemon thread."""
+
+    def __init__(self, node: Node):
+        self.node = node
+        self.executor = SingleThreadedExecutor()
+        self.executor.add_node(node)
+        self.thread = threading.Thread(target=self._spin, daemon=True)
+        self.thread.start()
+
+    def _spin(self):
+        try:
+            self.executor.spin()
+        except Exception:  # noqa: BLE001 - shutdown while spinning ends the thread quietly
+            pass
+
+    def stop(self):
+        self.executor.shutdown()
+        self.thread.join(timeout=5.0)
+        self.node.destroy_node()
+
+
+class Client:
+    """A test client: publishes queries, collects verdicts, calls the service.
+
+    All waiting uses timeouts; messages are collected by the client's own spin thread.
+    """
+
+    def __init__(self, name: str = "grasp_fc_test_client"):
+        self.node = Node(name)
+        self._lock = threading.Condition()
+        self.verdicts: list[ForceClosureVerdict] = []
+        self.batches: list[ForceClosureVerdictArray] = []
+        self.diagnostics = []
+        self.contacts_pub = self.node.create_publisher(ContactArray, "contacts", RELIABLE)
+        self.batch_pub = self.node.create_publisher(ContactArrayBatch, "contacts_batch", RELIABLE)
+        self.node.create_subscription(ForceClosureVerdict, "verdicts", self._on_verdict, RELIABLE)
+        self.node.create_subscription(ForceClosureVerdictArray, "verdicts_batch",
+                                      self._on_batch, RELIABLE)
+        from diagnostic_msgs.msg import DiagnosticArray
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
+        self.service = self.node.create_client(CheckForceClosure, "check_force_closure")
+        self.spinner = SpinThread(self.node)
+
+    def _on_verdict(self, msg):
+        with self._lock:
+            self.verdicts.append(msg)
+            self._lock.notify_all()
+
+    def _on_batch(self, msg):
+        with self._lock:
+            self.batches.append(msg)
+            self._lock.notify_all()
+
+    def _on_diagnostics(self, msg):
+        with self._lock:
+            self.diagnostics.append(msg)
+            self._lock.notify_all()
+
+    def wait_connected(self, timeout=DISCOVERY_TIMEOUT_S):
+        """Wait until the node's service, subscriptions and publishers are matched."""
+        deadline = time.monotonic() + timeout
+        assert self.service.wait_for_service(timeout_sec=timeout), "service not found"
+        while time.monotonic() < deadline:
+            if (self.contacts_pub.get_subscription_count() > 0
+                    and self.batch_pub.get_subscription_count() > 0
+                    and self.node.count_publishers("verdicts") > 0
+                    and self.node.count_publishers("verdicts_batch") > 0):
+                # Publisher matching is not symmetric in time; a short grace period lets the
+                # node's publishers match our subscriptions too.
+                time.sleep(0.5)
+                return
+            time.sleep(0.05)
+        raise AssertionError("node topics not matched within timeout")
+
+    def wait_for(self, attribute: str, count: int, timeout=REPLY_TIMEOUT_S):
+        """Wait until ``len(self.<attribute>) >= count``; return a copy of the list."""
+        with self._lock:
+            ok = self._lock.wait_for(lambda: len(getattr(self, attribute)) >= count, timeout)
+            items = list(getattr(self, attribute))
+        assert ok, f"received {len(items)} of {count} {attribute} within {timeout} s"
+        return items
+
+    def clear(self):
+        with self._lock:
+            self.verdicts.clear()
+            self.batches.clear()
+            self.diagnostics.clear()
+
+    def call(self, grasps, timeout=REPLY_TIMEOUT_S):
+        """Call the service with ContactArray messages; return the verdict list."""
+        request = CheckForceClosure.Request(grasps=list(grasps))
+        done = threading.Event()
+        future = self.service.call_async(request)
+        future.add_done_callback(lambda _: done.set())
+        assert done.wait(timeout), "service call timed out"
+        return future.result().verdicts
+
+    def close(self):
+        self.spinner.stop()
+
+
+@pytest.fixture(scope="session")
+def ros():
+    """rclpy initialised once for the session; shut down at the end."""
+    rclpy.init()
+    yield
+    rclpy.try_shutdown()
+
+
+def node_command() -> list[str]:
+    """The node's console script, installed next to this interpreter."""
+    script = Path(sys.executable).with_name("grasp-fc-node")
+    if not script.exists():
+        found = shutil.which("grasp-fc-node")
+        if found is None:
+            pytest.fail("console script grasp-fc-node not installed "
+                        "(pip install -e . into this venv)")
+        script = Path(found)
+    return [str(script)]
+
+
+class NodeProcess:
+    """The node as a separate process; stop() asserts a clean exit."""
+
+    def __init__(self, command: list[str], extra_env: dict | None = None):
+        env = dict(os.environ)
+        env.update(extra_env or {})
+        self.proc = subprocess.Popen(command, env=env, stdout=subprocess.PIPE,
+                                     stderr=subprocess.PIPE, text=True)
+
+    def stop(self, sig=signal.SIGTERM) -> tuple[int, str, str]:
+        """Send ``sig``; return (exit code, stdout, stderr)."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        try:
+            out, err = self.proc.communicate(timeout=NODE_EXIT_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            out, err = self.proc.communicate()
+            raise AssertionError(f"node did not exit after {sig!r}; stderr:\n{err}")
+        return self.proc.returncode, out, err
