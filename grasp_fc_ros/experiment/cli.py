@@ -1,0 +1,211 @@
+"""Console script ``grasp-fc-experiment``: the paper's Tables I and II, the peer, plots.
+
+Example::
+
+    grasp-fc-experiment --out bench_out            # paper size: 100,000 grasps per object
+    grasp-fc-experiment --quick --out /tmp/quick   # small version (the test suite runs it)
+    grasp-fc-experiment --objects mug --mesh part.stl --fingers 4 --grasps 20000
+"""
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from grasp_fc_ros.objects import OBJECT_NAMES, load_surface, make_object
+
+DEFAULT_OBJECTS = ("box", "ellipsoid", "torus", "l_block", "star_prism", "mug")
+DEFAULT_MU = math.tan(math.radians(10.0))
+DEFAULT_SIDES_SWEEP = (4, 6, 8, 12, 16)
+FINGER_RANGE = (3, 12)
+# Grasps drawn to find the example force-closure and rejected grasps.
+EXAMPLE_GRASPS = 400
+
+# Full-size defaults, and the --quick ones (explicit flags override both).
+FULL = {"grasps": 100_000, "points": 5000, "peer_grasps": 500, "sides_grasps": 50,
+        "sides_pool": 1000, "sweep_grasps": 500}
+QUICK = {"grasps": 300, "points": 1000, "peer_grasps": 20, "sides_grasps": 4,
+         "sides_pool": 100, "sweep_grasps": 30}
+
+
+def _positive_int(text):
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+def _positive_float(text):
+    value = float(text)
+    if not value > 0.0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return value
+
+
+def _int_list(text):
+    try:
+        values = [int(part) for part in text.split(",") if part]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}")
+    if not values or min(values) < 3:
+        raise argparse.ArgumentTypeError(f"need integers >= 3, got {text!r}")
+    return values
+
+
+def build_parser():
+    parser = argparse.ArgumentParser(
+        prog="grasp-fc-experiment",
+        description="Reproduce the seed paper's experiment (Tables I and II): time the exact "
+                    "force-closure test with and without the torque filter on random grasps, "
+                    "compare with a linearized (pyramid + Qhull) peer, and plot the results.")
+    parser.add_argument("--objects", nargs="*", choices=OBJECT_NAMES, default=None,
+                        help=f"built-in objects (default: {' '.join(DEFAULT_OBJECTS)}; "
+                             "pass no names with --mesh to use only meshes)")
+    parser.add_argument("--mesh", action="append", default=[], metavar="PATH",
+                        help="mesh (.obj/.stl/.ply) or point cloud with outward normals "
+                             "(.npz/.ply) to add as an object; repeatable")
+    parser.add_argument("--fingers", type=_positive_int, default=6,
+                        help="contacts per grasp (default 6, as in the paper)")
+    parser.add_argument("--mu", type=_positive_float, default=DEFAULT_MU,
+                        help="friction coefficient (default tan 10 deg = 0.1763)")
+    parser.add_argument("--grasps", type=_positive_int,
+                        help=f"grasps per object (default {FULL['grasps']:,}; "
+                             f"quick {QUICK['grasps']})")
+    parser.add_argument("--points", type=_positive_int,
+                        help=f"surface points per object (default {FULL['points']})")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--out", type=Path, default=Path("bench_out"),
+                        help="output folder (default ./bench_out)")
+    parser.add_argument("--quick", action="store_true",
+                        help="small, fast version (smoke test; numbers are not meaningful)")
+    parser.add_argument("--peer-grasps", type=_positive_int,
+                        help="grasps per object given to the slow linearized peer "
+                             f"(default {FULL['peer_grasps']}; it takes ~15 ms per grasp)")
+    parser.add_argument("--peer-sides", type=_positive_int, default=8,
+                        help="pyramid sides of the peer in the main comparison (default 8)")
+    parser.add_argument("--sides-sweep", type=_int_list, default=list(DEFAULT_SIDES_SWEEP),
+                        help="pyramid sides for the peer sweep (default 4,6,8,12,16)")
+    parser.add_argument("--sides-grasps", type=_positive_int,
+                        help="force-closure grasps per object in the pyramid-sides sweep, "
+                             "plus a fifth as many others "
+                             f"(default {FULL['sides_grasps']})")
+    parser.add_argument("--sides-pool", type=_positive_int,
+                        help="random grasps per object the sides sweep picks them from "
+                             f"(default {FULL['sides_pool']})")
+    parser.add_argument("--sweep-grasps", type=_positive_int,
+                        help="grasps per object and finger count in the throughput sweep "
+                             f"over n = {FINGER_RANGE[0]}..{FINGER_RANGE[1]} "
+                             f"(default {FULL['sweep_grasps']})")
+    return parser
+
+
+def resolve_settings(args):
+    """Fill the size options left unset from the full or the quick defaults."""
+    defaults = QUICK if args.quick else FULL
+    for key, value in defaults.items():
+        if getattr(args, key) is None:
+            setattr(args, key, value)
+    if args.objects is None:
+        args.objects = list(DEFAULT_OBJECTS)
+    if not args.objects and not args.mesh:
+        raise SystemExit("grasp-fc-experiment: no objects (give --objects names or --mesh)")
+    return args
+
+
+def load_objects(args):
+    surfaces = [make_object(name, n_points=args.points, seed=args.seed) for name in args.objects]
+    for path in args.mesh:
+        try:
+            surfaces.append(load_surface(path, n_points=args.points, seed=args.seed))
+        except (OSError, ValueError) as error:
+            raise SystemExit(f"grasp-fc-experiment: {error}")
+    too_small = [s.name for s in surfaces if len(s) < args.fingers]
+    if too_small:
+        raise SystemExit(f"grasp-fc-experiment: fewer than {args.fingers} points on "
+                         f"{', '.join(too_small)}")
+    return surfaces
+
+
+def _stream(seed, *keys):
+    """Independent, reproducible random stream for one part of the experiment."""
+    return np.random.default_rng([seed, *keys])
+
+
+def pick_example(surfaces, n_fingers, mu, seed):
+    """A surface with one force-closure grasp and one filter-rejected grasp, or None."""
+    from grasp_fc_ros.core import check_force_closure
+    from grasp_fc_ros.objects import sample_grasps
+
+    preferred = sorted(surfaces, key=lambda s: s.name != "mug")
+    for surface in preferred:
+        positions, normals = sample_grasps(surface, EXAMPLE_GRASPS, n_fingers,
+                                           _stream(seed, 3))
+        result = check_force_closure(positions, normals, mu)
+        fc = np.flatnonzero(result.force_closure)
+        rejected = np.flatnonzero(result.filtered_out)
+        if fc.size and rejected.size:
+            return surface, (positions[fc[0]], normals[fc[0]]), \
+                (positions[rejected[0]], normals[rejected[0]])
+    return None
+
+
+def run(args):
+    """Run everything and write the outputs into args.out. Returns the report path."""
+    from . import measure, plots, report
+
+    start = time.perf_counter()
+    surfaces = load_objects(args)
+    args.out.mkdir(parents=True, exist_ok=True)
+    results = []
+    for index, surface in enumerate(surfaces):
+        print(f"[{surface.name}] {args.grasps:,} grasps ...", file=sys.stderr, flush=True)
+        result = measure.measure_object(surface, args.fingers, args.mu, args.grasps,
+                                        _stream(args.seed, 0, index), args.peer_grasps,
+                                        args.peer_sides)
+        print(f"[{surface.name}] unfiltered {result.unfiltered.wall_s:.1f} s, filtered "
+              f"{result.seed.wall_s:.1f} s, speedup {result.speedup:.2f}, specificity "
+              f"{result.seed.specificity:.3f}", file=sys.stderr, flush=True)
+        results.append(result)
+    print("throughput against fingers ...", file=sys.stderr, flush=True)
+    finger_rows = measure.finger_sweep(surfaces, range(FINGER_RANGE[0], FINGER_RANGE[1] + 1),
+                                       args.mu, args.sweep_grasps, _stream(args.seed, 1))
+    print("peer against pyramid sides ...", file=sys.stderr, flush=True)
+    sides_rows = measure.sides_sweep(surfaces, args.fingers, args.mu, args.sides_sweep,
+                                     args.sides_grasps, args.sides_pool, _stream(args.seed, 2))
+
+    out = args.out
+    report.write_csv(out / report.RESULTS_CSV, [report.result_row(r) for r in results])
+    report.write_csv(out / report.FINGERS_CSV, [report.finger_row(r) for r in finger_rows])
+    report.write_csv(out / report.PEER_SIDES_CSV,
+                     [report.sides_row(r) for r in sides_rows])
+    names = dict(report.PLOTS)
+    plots.plot_speedup(results, out / names["speedup"])
+    plots.plot_specificity(results, out / names["specificity"])
+    plots.plot_finger_sweep(finger_rows, out / names["fingers"])
+    plots.plot_peer_sides(sides_rows, out / names["peer_sides"])
+    example = pick_example(surfaces, args.fingers, args.mu, args.seed)
+    if example is None:
+        del names["grasp_example"]
+    else:
+        plots.plot_grasp_example(*example, args.mu, out / names["grasp_example"])
+    total = time.perf_counter() - start
+    text = report.markdown_report(results, finger_rows, sides_rows,
+                                  {"command": report.command_line(), "seed": args.seed},
+                                  total, names)
+    path = out / report.REPORT_MD
+    path.write_text(text)
+    print(f"report: {path} ({total:.1f} s)", file=sys.stderr)
+    return path
+
+
+def main(argv=None):
+    args = resolve_settings(build_parser().parse_args(argv))
+    run(args)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,162 @@
+"""PNG plots of the experiment (matplotlib, Agg backend: no display needed)."""
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402  (after choosing the backend)
+import numpy as np  # noqa: E402
+
+from .paper import PAPER_AVG_SPECIFICITY, PAPER_AVG_SPEEDUP  # noqa: E402
+
+DPI = 120
+SEED_COLOUR = "#1f77b4"
+ALL_COLOUR = "#ff7f0e"
+PAPER_COLOUR = "#555555"
+FC_COLOUR = "#2ca02c"
+REJECTED_COLOUR = "#d62728"
+# Length of a drawn friction cone relative to the object's size.
+CONE_LENGTH_FRACTION = 0.22
+
+
+def _save(fig, path):
+    fig.tight_layout()
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+
+
+def _grouped_bars(ax, names, seed_values, all_values):
+    x = np.arange(len(names))
+    width = 0.38
+    ax.bar(x - width / 2, seed_values, width, label='origins="seed" (paper)', color=SEED_COLOUR)
+    ax.bar(x + width / 2, all_values, width, label='origins="all"', color=ALL_COLOUR)
+    ax.set_xticks(x, names, rotation=20)
+
+
+def plot_speedup(results, path):
+    """Unfiltered time / filtered time per object."""
+    fig, ax = plt.subplots(figsize=(7, 4))
+    _grouped_bars(ax, [r.name for r in results], [r.speedup for r in results],
+                  [r.speedup_all for r in results])
+    ax.axhline(PAPER_AVG_SPEEDUP, color=PAPER_COLOUR, linestyle="--",
+               label=f"paper average ({PAPER_AVG_SPEEDUP:.2f})")
+    ax.axhline(1.0, color="black", linewidth=0.8)
+    ax.set_ylabel("speedup (unfiltered / filtered time)")
+    ax.set_title(f"Table I: speedup from the torque filter "
+                 f"({results[0].grasps:,} grasps per object, n = {results[0].n_fingers})")
+    ax.legend(loc="lower right", fontsize=8)
+    _save(fig, path)
+
+
+def plot_specificity(results, path):
+    """Share of non-force-closure grasps the filter rejects, per object."""
+    fig, ax = plt.subplots(figsize=(7, 4))
+    _grouped_bars(ax, [r.name for r in results], [r.seed.specificity for r in results],
+                  [r.all_origins.specificity for r in results])
+    ax.axhline(PAPER_AVG_SPECIFICITY, color=PAPER_COLOUR, linestyle="--",
+               label=f"paper average ({PAPER_AVG_SPECIFICITY:.3f})")
+    ax.set_ylim(0.0, 1.0)
+    ax.set_ylabel("specificity (non-FC rejected / all non-FC)")
+    ax.set_title("Table II: specificity of the torque filter")
+    ax.legend(loc="lower right", fontsize=8)
+    _save(fig, path)
+
+
+def plot_finger_sweep(rows, path):
+    """Throughput of both pipelines, and the filter's specificity, against n."""
+    n = [r.n_fingers for r in rows]
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 6), sharex=True,
+                                      gridspec_kw={"height_ratios": [2, 1]})
+    top.plot(n, [r.filtered_per_s for r in rows], "o-", color=SEED_COLOUR,
+             label="filter + exact test")
+    top.plot(n, [r.unfiltered_per_s for r in rows], "s-", color=PAPER_COLOUR,
+             label="exact test only")
+    top.set_yscale("log")
+    top.set_ylabel("throughput (grasps / s)")
+    top.set_title(f"Throughput against the number of fingers ({rows[0].grasps:,} grasps each)")
+    top.legend(fontsize=8)
+    top.grid(True, which="both", alpha=0.3)
+    bottom.plot(n, [r.specificity for r in rows], "o-", color=SEED_COLOUR, label="specificity")
+    bottom.plot(n, [r.force_closure / r.grasps for r in rows], "^-", color=FC_COLOUR,
+                label="force-closure share")
+    bottom.set_ylim(0.0, 1.0)
+    bottom.set_xlabel("number of fingers n")
+    bottom.set_xticks(n)
+    bottom.legend(fontsize=8)
+    bottom.grid(True, alpha=0.3)
+    _save(fig, path)
+
+
+def plot_peer_sides(rows, path):
+    """Linearized peer: missed force-closure grasps and time against pyramid sides."""
+    sides = [r.sides for r in rows]
+    fig, ax = plt.subplots(figsize=(7, 4))
+    ax.plot(sides, [100.0 * r.missed_share for r in rows], "o-", color=REJECTED_COLOUR,
+            label="force-closure grasps the peer misses (%)")
+    ax.set_xlabel("pyramid sides m")
+    ax.set_ylabel("% of force-closure grasps", color=REJECTED_COLOUR)
+    ax.set_xticks(sides)
+    ax.set_ylim(bottom=0.0)
+    ax.grid(True, alpha=0.3)
+    time_axis = ax.twinx()
+    time_axis.plot(sides, [r.ms_per_grasp for r in rows], "d:", color=SEED_COLOUR,
+                   label="peer time (ms / grasp)")
+    time_axis.set_ylabel("ms per grasp", color=SEED_COLOUR)
+    time_axis.set_ylim(bottom=0.0)
+    lines, labels = ax.get_legend_handles_labels()
+    more_lines, more_labels = time_axis.get_legend_handles_labels()
+    ax.legend(lines + more_lines, labels + more_labels, fontsize=8, loc="upper center")
+    ax.set_title(f"Linearized peer vs exact test ({rows[0].fc_grasps:,} force-closure grasps)")
+    _save(fig, path)
+
+
+def _cone_mesh(apex, axis, half_angle, length, segments=24):
+    """Surface grid of a circular cone opening from apex along axis."""
+    axis = axis / np.linalg.norm(axis)
+    helper = np.eye(3)[np.argmin(np.abs(axis))]
+    u = np.cross(axis, helper)
+    u /= np.linalg.norm(u)
+    v = np.cross(axis, u)
+    angle = np.linspace(0.0, 2.0 * np.pi, segments)
+    along = np.array([0.0, length])
+    rim = (np.cos(angle)[:, None] * u + np.sin(angle)[:, None] * v) * np.tan(half_angle)
+    directions = axis + rim  # (segments, 3)
+    grid = apex + along[None, :, None] * directions[:, None, :]  # (segments, 2, 3)
+    return grid[..., 0], grid[..., 1], grid[..., 2]
+
+
+def _draw_grasp(ax, surface, positions, normals, mu, colour, title):
+    ax.scatter(*surface.points.T, s=1.0, color="#8a8a8a", alpha=0.3, depthshade=False)
+    size = np.ptp(surface.points, axis=0).max()
+    half_angle = np.arctan(mu)
+    for p, n in zip(positions, normals):
+        # the finger pushes along n into the object; draw its cone on the finger's
+        # side (outside the surface) so it is not hidden by the object
+        xs, ys, zs = _cone_mesh(p, -n, half_angle, CONE_LENGTH_FRACTION * size)
+        ax.plot_surface(xs, ys, zs, color=colour, alpha=0.35, linewidth=0)
+        tip = p - CONE_LENGTH_FRACTION * size * n
+        ax.plot(*np.column_stack([tip, p]), color=colour, linewidth=1.2)
+    ax.scatter(*positions.T, s=30, color=colour, edgecolor="black", depthshade=False)
+    centre = surface.points.mean(axis=0)
+    reach = 0.5 * size + CONE_LENGTH_FRACTION * size
+    for setter, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):
+        setter(c - reach, c + reach)
+    ax.set_box_aspect((1, 1, 1), zoom=1.35)
+    ax.set_axis_off()
+    ax.set_title(title, fontsize=10)
+
+
+def plot_grasp_example(surface, fc_grasp, rejected_grasp, mu, path):
+    """An object with one force-closure grasp and one grasp the filter rejects."""
+    fig = plt.figure(figsize=(11, 5.5))
+    for index, ((positions, normals), colour, title) in enumerate((
+            (fc_grasp, FC_COLOUR, "force closure (exact test)"),
+            (rejected_grasp, REJECTED_COLOUR, "rejected by the torque filter"))):
+        ax = fig.add_subplot(1, 2, index + 1, projection="3d")
+        ax.view_init(elev=22, azim=-50)
+        _draw_grasp(ax, surface, positions, normals, mu, colour, title)
+    fig.suptitle(f"{surface.name}: {len(fc_grasp[0])}-finger grasps, mu = {mu:.3f}; friction "
+                 "cones (half-angle atan mu) drawn on the finger's side of the surface",
+                 fontsize=10)
+    fig.subplots_adjust(left=0.0, right=1.0, bottom=0.0, top=0.92, wspace=0.0)
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)

@@ -1,0 +1,116 @@
+"""Runs the experiment's --quick version once and checks its outputs, and tests the peer."""
+
+import csv
+import math
+
+import numpy as np
+import pytest
+
+pytest.importorskip("matplotlib")
+pytest.importorskip("scipy")
+
+from grasp_fc_ros.experiment import cli, report  # noqa: E402
+from grasp_fc_ros.experiment.linearized_peer import (linearized_force_closure,  # noqa: E402
+                                                     pyramid_edges)
+from grasp_fc_ros.objects import make_object  # noqa: E402
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture(scope="module")
+def quick_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("experiment")
+    assert cli.main(["--quick", "--out", str(out)]) == 0
+    return out
+
+
+def _rows(path):
+    with open(path, newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+def test_quick_run_writes_report_csv_and_plots(quick_run):
+    for name in (report.REPORT_MD, report.RESULTS_CSV, report.FINGERS_CSV,
+                 report.PEER_SIDES_CSV, *report.PLOTS.values()):
+        assert (quick_run / name).stat().st_size > 0, name
+    for name in report.PLOTS.values():
+        assert (quick_run / name).read_bytes()[:8] == PNG_MAGIC, name
+    text = (quick_run / report.REPORT_MD).read_text()
+    for heading in ("Table I", "Table II", "Per-query cost", "linearized peer"):
+        assert heading in text
+
+
+def test_quick_run_numbers_are_consistent(quick_run):
+    rows = _rows(quick_run / report.RESULTS_CSV)
+    assert [r["object"] for r in rows] == list(cli.DEFAULT_OBJECTS)
+    for r in rows:
+        grasps = int(r["grasps"])
+        assert grasps == cli.QUICK["grasps"]
+        fc = int(r["fc_unfiltered"])
+        # soundness: the filter never changes a verdict, with either choice of origins
+        assert int(r["fc_filtered"]) == fc and int(r["fc_filtered_all"]) == fc
+        assert int(r["unsound"]) == 0 and int(r["unsound_all"]) == 0
+        assert int(r["verdict_mismatches"]) == 0 and int(r["verdict_mismatches_all"]) == 0
+        for suffix in ("", "_all"):
+            passed = int(r["passed_filter" + suffix])
+            false_pos = int(r["false_positives" + suffix])
+            assert passed == fc + false_pos
+            specificity = (grasps - passed) / (grasps - fc)
+            assert math.isclose(float(r["specificity" + suffix]), specificity, abs_tol=1e-4)
+        # "all" origins include the seed ones, so it rejects at least as much
+        assert int(r["passed_filter_all"]) <= int(r["passed_filter"])
+        assert math.isclose(float(r["speedup"]),
+                            float(r["unfiltered_s"]) / float(r["filtered_s"]), rel_tol=0.01)
+        assert int(r["peer_grasps"]) == cli.QUICK["peer_grasps"]
+
+
+def test_quick_run_sweeps_cover_requested_ranges(quick_run):
+    fingers = _rows(quick_run / report.FINGERS_CSV)
+    assert [int(r["fingers"]) for r in fingers] == list(range(cli.FINGER_RANGE[0],
+                                                              cli.FINGER_RANGE[1] + 1))
+    sides = _rows(quick_run / report.PEER_SIDES_CSV)
+    assert [int(r["sides"]) for r in sides] == list(cli.DEFAULT_SIDES_SWEEP)
+    # an inscribed pyramid never turns a non-force-closure grasp into force closure
+    assert all(int(r["false_fc"]) == 0 for r in sides)
+
+
+def test_cli_rejects_bad_arguments(tmp_path):
+    with pytest.raises(SystemExit):
+        cli.main(["--quick", "--objects", "teapot", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit, match="no such file"):
+        cli.main(["--quick", "--objects", "--mesh", str(tmp_path / "nope.stl"),
+                  "--out", str(tmp_path)])
+
+
+def test_pyramid_edges_lie_on_the_cone():
+    normals = np.array([[0.0, 0.0, 2.0], [1.0, 1.0, 0.0]])
+    mu = 0.3
+    edges = pyramid_edges(normals, mu, sides=8)
+    assert edges.shape == (2, 8, 3)
+    unit_normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+    cosines = np.einsum("nmk,nk->nm", edges, unit_normals)
+    np.testing.assert_allclose(cosines, 1.0 / np.sqrt(1.0 + mu * mu))
+
+
+def test_peer_on_textbook_grasps():
+    # six contacts at the centres of a cube's faces, pushing inward: force closure
+    # with friction; two opposite contacts alone never are (no torque about their axis)
+    axes = np.vstack([np.eye(3), -np.eye(3)])
+    positions, normals = axes, -axes
+    assert linearized_force_closure(positions, normals, 0.5)
+    assert not linearized_force_closure(positions[[0, 3]], normals[[0, 3]], 0.5)
+    # all contacts pushing the same way: no force closure
+    assert not linearized_force_closure(positions, np.tile([0.0, 0.0, 1.0], (6, 1)), 0.5)
+
+
+def test_peer_never_accepts_what_the_exact_test_rejects():
+    core = pytest.importorskip("grasp_fc_ros.core")
+    surface = make_object("l_block", n_points=1000, seed=0)
+    from grasp_fc_ros.objects import sample_grasps
+
+    positions, normals = sample_grasps(surface, 60, 6, np.random.default_rng(5))
+    mu = math.tan(math.radians(10.0))
+    exact = core.check_force_closure(positions, normals, mu, use_filter=False).force_closure
+    peer = linearized_force_closure(positions, normals, mu, sides=8)
+    assert not np.any(peer & ~exact)
+    assert exact.any() and peer.any()
