@@ -61,14 +61,20 @@ node: setup
 test: setup-test
 	GRASP_FC_REQUIRE_COLCON=1 $(VENV_PY) -m pytest $(PYTEST_ARGS) test
 
+# Each benchmark runs if its file exists; *_ARGS pass flags to one of them.
+BENCH_CORE_ARGS ?=
+BENCH_ROS_ARGS ?=
+EXPERIMENT_ARGS ?= --out $(BENCH_OUT)/experiment
+
 bench: setup
 	@mkdir -p $(BENCH_OUT)
 	@ran=0; \
-	for script in benchmarks/bench_core.py benchmarks/bench_ros.py; do \
-	  if [ -f "$$script" ]; then \
-	    echo "== $$script"; $(VENV_PY) "$$script" $(ARGS); ran=1; \
-	  fi; \
-	done; \
+	if [ -f benchmarks/bench_core.py ]; then \
+	  echo "== benchmarks/bench_core.py"; $(VENV_PY) benchmarks/bench_core.py $(BENCH_CORE_ARGS); ran=1; \
+	fi; \
+	if [ -f benchmarks/bench_ros.py ]; then \
+	  echo "== benchmarks/bench_ros.py"; $(VENV_PY) benchmarks/bench_ros.py $(BENCH_ROS_ARGS); ran=1; \
+	fi; \
 	if [ -f grasp_fc_ros/experiment/cli.py ]; then \
 	  echo "== grasp-fc-experiment"; $(VENV)/bin/grasp-fc-experiment $(EXPERIMENT_ARGS); ran=1; \
 	fi; \

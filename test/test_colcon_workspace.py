@@ -3,7 +3,7 @@
 The venv running these tests stands in for a ROS 2 Jazzy install (the underlay):
 it is laid out as a ROS prefix. colcon comes from PyPI (`make test` installs it).
 The workspace follows the README's recipe: the repository in ``src/``, and colcon
-given both the repository and its ``msg_defs/`` as base paths, because colcon's crawl
+given ``src`` and the repository's ``msg_defs/`` as base paths, because colcon's crawl
 stops at the repository root, which is a package itself.
 """
 
@@ -77,7 +77,7 @@ def workspace(tmp_path_factory):
     src = root / "src" / "grasp_fc_ros"
     shutil.copytree(REPO, src, ignore=_ignore_venvs_and_debris)
     env = _underlay_env(root)
-    base_paths = ["--base-paths", "src/grasp_fc_ros", "src/grasp_fc_ros/msg_defs"]
+    base_paths = ["--base-paths", "src", "src/grasp_fc_ros/msg_defs"]
     listed = _run([colcon, "list", *base_paths], root, env)
     crawled = _run([colcon, "list", "--names-only"], root, env)
     order = _run([colcon, "list", "--topological-order", "--names-only", *base_paths],
