@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 import re
 import sys
+import threading
 import time
 from collections import deque
 
@@ -110,39 +111,57 @@ def check_parameter(name: str, value) -> str:
 
 
 class _Statistics:
-    """Counters and processing times reported on /diagnostics."""
+    """Counters and processing times reported on /diagnostics (thread-safe)."""
 
     def __init__(self):
+        self._lock = threading.Lock()
         self.counts = {s: 0 for s in Status}
         self.queries = 0
         self.callback_errors = 0
-        self.seconds = {"conversion": 0.0, "filter": 0.0, "exact": 0.0}
+        self.seconds = {"conversion_s": 0.0, "filter_s": 0.0, "exact_s": 0.0}
         self.processing_s = deque(maxlen=TIMING_WINDOW)
 
-    def add_verdicts(self, status: np.ndarray):
-        self.queries += len(status)
-        for code, count in zip(*np.unique(status, return_counts=True)):
-            self.counts[Status(int(code))] += int(count)
+    def record(self, status: np.ndarray, seconds: dict, processing_s: float):
+        """Count one answered message: its verdict codes and where its time went."""
+        codes, counts = np.unique(status, return_counts=True)
+        with self._lock:
+            self.queries += len(status)
+            for code, count in zip(codes.tolist(), counts.tolist()):
+                self.counts[Status(code)] += count
+            for key in self.seconds:
+                self.seconds[key] += seconds.get(key, 0.0)
+            self.processing_s.append(processing_s)
 
-    def key_values(self) -> list[KeyValue]:
-        times_ms = np.asarray(self.processing_s) * 1e3
+    def count_error(self):
+        with self._lock:
+            self.callback_errors += 1
+
+    def failures(self) -> int:
+        with self._lock:
+            return self.counts[Status.SOLVER_FAILURE] + self.callback_errors
+
+    def key_values(self, pending: int) -> list[KeyValue]:
+        with self._lock:
+            times_ms = np.array(self.processing_s) * 1e3
+            counts = dict(self.counts)
+            values = {
+                "queries": self.queries,
+                "force_closure": counts[Status.FORCE_CLOSURE],
+                "rejected_by_filter": counts[Status.FILTERED_OUT],
+                "decided_by_exact_test": (counts[Status.FORCE_CLOSURE]
+                                          + counts[Status.NOT_FORCE_CLOSURE]),
+                "invalid_input": counts[Status.INVALID_INPUT],
+                "solver_failures": counts[Status.SOLVER_FAILURE],
+                "callback_errors": self.callback_errors,
+                "pending_single_queries": pending,
+                "conversion_time_total_s": f"{self.seconds['conversion_s']:.3f}",
+                "filter_time_total_s": f"{self.seconds['filter_s']:.3f}",
+                "exact_time_total_s": f"{self.seconds['exact_s']:.3f}",
+            }
         mean_ms = float(times_ms.mean()) if len(times_ms) else 0.0
         p99_ms = float(np.percentile(times_ms, 99)) if len(times_ms) else 0.0
-        decided_by_exact = self.counts[Status.FORCE_CLOSURE] + self.counts[Status.NOT_FORCE_CLOSURE]
-        values = {
-            "queries": self.queries,
-            "force_closure": self.counts[Status.FORCE_CLOSURE],
-            "rejected_by_filter": self.counts[Status.FILTERED_OUT],
-            "decided_by_exact_test": decided_by_exact,
-            "invalid_input": self.counts[Status.INVALID_INPUT],
-            "solver_failures": self.counts[Status.SOLVER_FAILURE],
-            "callback_errors": self.callback_errors,
-            "processing_time_mean_ms": f"{mean_ms:.3f}",
-            "processing_time_p99_ms": f"{p99_ms:.3f}",
-            "conversion_time_total_s": f"{self.seconds['conversion']:.3f}",
-            "filter_time_total_s": f"{self.seconds['filter']:.3f}",
-            "exact_time_total_s": f"{self.seconds['exact']:.3f}",
-        }
+        values["processing_time_mean_ms"] = f"{mean_ms:.3f}"
+        values["processing_time_p99_ms"] = f"{p99_ms:.3f}"
         return [KeyValue(key=k, value=str(v)) for k, v in values.items()]
 
 
@@ -157,6 +176,10 @@ class ForceClosureNode(Node):
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         self._stats = _Statistics()
+        # Single-grasp topic queries waiting for the worker thread, oldest first.
+        self._pending: deque[ContactArray] = deque()
+        self._pending_ready = threading.Condition()
+        self._stopping = False
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
         for name, (default, descriptor) in PARAMETERS.items():
@@ -171,6 +194,9 @@ class ForceClosureNode(Node):
         self.create_subscription(ContactArrayBatch, "contacts_batch", self._on_batch, qos)
         self.create_service(CheckForceClosure, "check_force_closure", self._on_service)
         self.create_timer(DIAGNOSTICS_PERIOD_S, self._publish_diagnostics)
+        self._worker = threading.Thread(target=self._single_query_loop, daemon=True,
+                                        name="single_queries")
+        self._worker.start()
         self.get_logger().info("ready: topics contacts, contacts_batch; service check_force_closure")
 
     # --- parameters -------------------------------------------------------------------
@@ -188,17 +214,17 @@ class ForceClosureNode(Node):
     # --- callbacks: each catches everything, so that spin never dies ------------------
 
     def _on_contacts(self, msg: ContactArray):
-        try:
-            verdicts = self._answer(lambda: contact_arrays_to_packed([msg]))
-        except Exception as exc:  # noqa: BLE001 - any failure must still be answered
-            verdicts = self._failure_verdicts(np.array([msg.id], dtype=np.uint64), exc)
-        self._verdict_pub.publish(verdicts_to_msgs(verdicts)[0])
+        # Only queue it: the worker thread decides queued queries together, in one core
+        # call per contact count, which is what makes thousands of queries/s possible.
+        with self._pending_ready:
+            self._pending.append(msg)
+            self._pending_ready.notify()
 
     def _on_batch(self, msg: ContactArrayBatch):
         try:
             verdicts = self._answer(lambda: batch_to_packed(msg))
             out = verdicts_to_array_msg(verdicts, msg.header)
-        except Exception as exc:  # noqa: BLE001
+        except Exception as exc:  # noqa: BLE001 - any failure must still be answered
             ids = np.frombuffer(msg.ids, dtype=np.uint64) if len(msg.ids) else np.empty(0, np.uint64)
             out = verdicts_to_array_msg(self._failure_verdicts(ids, exc), msg.header)
         self._batch_pub.publish(out)
@@ -212,12 +238,43 @@ class ForceClosureNode(Node):
         response.verdicts = verdicts_to_msgs(verdicts)
         return response
 
+    # --- single-grasp queries: a worker thread, in arrival order ----------------------
+
+    def _single_query_loop(self):
+        try:
+            while True:
+                with self._pending_ready:
+                    self._pending_ready.wait_for(lambda: self._pending or self._stopping)
+                    if self._stopping:
+                        return
+                    take = min(len(self._pending), self._max_batch)
+                    msgs = [self._pending.popleft() for _ in range(take)]
+                self._answer_single_queries(msgs)
+        except Exception as exc:  # noqa: BLE001 - e.g. publishing after shutdown
+            if rclpy.ok(context=self.context):
+                self.get_logger().error(f"single-query worker stopped: {exc!r}")
+
+    def _answer_single_queries(self, msgs: list[ContactArray]):
+        try:
+            verdicts = self._answer(lambda: contact_arrays_to_packed(msgs))
+        except Exception as exc:  # noqa: BLE001
+            verdicts = self._failure_verdicts(np.array([m.id for m in msgs], np.uint64), exc)
+        for verdict in verdicts_to_msgs(verdicts):
+            self._verdict_pub.publish(verdict)
+
+    def destroy_node(self):
+        with self._pending_ready:
+            self._stopping = True
+            self._pending_ready.notify()
+        self._worker.join()
+        return super().destroy_node()
+
     def _failure_verdicts(self, ids: np.ndarray, exc: Exception) -> Verdicts:
-        self._stats.callback_errors += 1
+        self._stats.count_error()
         self.get_logger().error(f"internal error while answering {len(ids)} queries: {exc!r}",
                                 throttle_duration_sec=WARN_THROTTLE_S)
         status = np.full(len(ids), Status.SOLVER_FAILURE, dtype=np.uint8)
-        self._stats.add_verdicts(status)
+        self._stats.record(status, {}, 0.0)
         return Verdicts(ids=ids, force_closure=np.zeros(len(ids), bool), status=status,
                         margin=np.full(len(ids), np.nan),
                         messages=[f"internal error: {exc}"] * len(ids))
@@ -225,11 +282,11 @@ class ForceClosureNode(Node):
     # --- evaluation -------------------------------------------------------------------
 
     def _answer(self, convert) -> Verdicts:
-        """Convert a message with ``convert()`` and decide all its grasps."""
+        """Convert a message with ``convert()``, decide all its grasps, count and warn."""
         start = time.perf_counter()
         packed = convert()
-        self._stats.seconds["conversion"] += time.perf_counter() - start
-        verdicts = self.evaluate(packed)
+        seconds = {"conversion_s": time.perf_counter() - start}
+        verdicts = self.evaluate(packed, seconds)
         for note in packed.notes:
             self.get_logger().warning(f"malformed batch: {note}",
                                       throttle_duration_sec=WARN_THROTTLE_S)
@@ -239,12 +296,14 @@ class ForceClosureNode(Node):
                 f"{len(invalid)} of {len(verdicts)} queries invalid, e.g. id "
                 f"{verdicts.ids[invalid[0]]}: {verdicts.messages[invalid[0]]}",
                 throttle_duration_sec=WARN_THROTTLE_S)
-        self._stats.add_verdicts(verdicts.status)
-        self._stats.processing_s.append(time.perf_counter() - start)
+        self._stats.record(verdicts.status, seconds, time.perf_counter() - start)
         return verdicts
 
-    def evaluate(self, packed: PackedGrasps) -> Verdicts:
+    def evaluate(self, packed: PackedGrasps, seconds: dict | None = None) -> Verdicts:
         """Decide every grasp of ``packed``; one verdict per grasp, in order.
+
+        Time spent in the core's stages is added to ``seconds['filter_s']`` and
+        ``seconds['exact_s']`` when a dict is given.
 
         Grasps are grouped by contact count and each group goes through the core in
         one batched call. Invalid grasps get ``INVALID_INPUT``; a failing group gets
@@ -273,10 +332,13 @@ class ForceClosureNode(Node):
             group = np.flatnonzero(eligible & (counts == n))
             rows = starts[group, None] + np.arange(n)
             try:
-                self._evaluate_group(group, packed.positions[rows], packed.normals[rows],
-                                     mu[rows], verdicts)
+                timing = self._evaluate_group(group, packed.positions[rows],
+                                              packed.normals[rows], mu[rows], verdicts)
+                if seconds is not None:
+                    for key in ("filter_s", "exact_s"):
+                        seconds[key] = seconds.get(key, 0.0) + timing.get(key, 0.0)
             except Exception as exc:  # noqa: BLE001 - one group must not spoil the others
-                self._stats.callback_errors += 1
+                self._stats.count_error()
                 self.get_logger().error(f"core failed on {len(group)} grasps of {n} contacts: "
                                         f"{exc!r}", throttle_duration_sec=WARN_THROTTLE_S)
                 verdicts.status[group] = Status.SOLVER_FAILURE
@@ -284,40 +346,44 @@ class ForceClosureNode(Node):
                     verdicts.messages[i] = f"internal error: {exc}"
         return verdicts
 
-    def _evaluate_group(self, group, positions, normals, mu, verdicts: Verdicts):
-        """Decide grasps ``group`` (batch indices) with equal contact count, in place."""
+    def _evaluate_group(self, group, positions, normals, mu, verdicts: Verdicts) -> dict:
+        """Decide grasps ``group`` (batch indices) with equal contact count, in place.
+
+        Returns the core's timing dict ({} when no grasp was valid).
+        """
         validation = validate_grasps(positions, normals, mu)
         for k in np.flatnonzero(~validation.valid):
             verdicts.messages[group[k]] = _rename_grasp(validation.reasons[k], int(group[k]))
         valid = validation.valid
         if not valid.any():
-            return
+            return {}
         result = check_force_closure(positions[valid], normals[valid], mu[valid],
                                      use_filter=self._use_filter, origins=self._filter_origins)
         target = group[valid]
         verdicts.status[target] = result.status
         verdicts.force_closure[target] = result.force_closure
         verdicts.margin[target] = result.margin
-        self._stats.seconds["filter"] += result.timing.get("filter_s", 0.0)
-        self._stats.seconds["exact"] += result.timing.get("exact_s", 0.0)
+        return result.timing
 
     # --- diagnostics ------------------------------------------------------------------
 
     def _publish_diagnostics(self):
         try:
-            failures = self._stats.counts[Status.SOLVER_FAILURE] + self._stats.callback_errors
+            failures = self._stats.failures()
+            with self._pending_ready:
+                pending = len(self._pending)
             status = DiagnosticStatus(
                 level=DiagnosticStatus.WARN if failures else DiagnosticStatus.OK,
                 name=f"{self.get_name()}: force-closure queries",
                 message=(f"{failures} solver failures or internal errors" if failures
                          else "ok"),
                 hardware_id="none",
-                values=self._stats.key_values())
+                values=self._stats.key_values(pending))
             msg = DiagnosticArray(status=[status])
             msg.header.stamp = self.get_clock().now().to_msg()
             self._diag_pub.publish(msg)
         except Exception as exc:  # noqa: BLE001 - diagnostics must never stop the node
-            self._stats.callback_errors += 1
+            self._stats.count_error()
             self.get_logger().error(f"diagnostics failed: {exc!r}",
                                     throttle_duration_sec=WARN_THROTTLE_S)
 
@@ -334,6 +400,11 @@ def main(args=None) -> int:
     except ParameterException as exc:
         print(f"{NODE_NAME}: bad parameter: {exc}", file=sys.stderr)
         return 1
+    except Exception:
+        # A signal can shut the context down while the executor builds its next wait
+        # set; rclpy then raises an RCLError instead of ExternalShutdownException.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.destroy_node()

@@ -7,6 +7,7 @@ machine cannot hear each other. Child processes inherit it through the environme
 
 from __future__ import annotations
 
+import atexit
 import os
 import shutil
 import signal
@@ -72,6 +73,7 @@ class Client:
         self.verdicts: list[ForceClosureVerdict] = []
         self.batches: list[ForceClosureVerdictArray] = []
         self.diagnostics = []
+        self._sent = 0
         self.contacts_pub = self.node.create_publisher(ContactArray, "contacts", RELIABLE)
         self.batch_pub = self.node.create_publisher(ContactArrayBatch, "contacts_batch", RELIABLE)
         self.node.create_subscription(ForceClosureVerdict, "verdicts", self._on_verdict, RELIABLE)
@@ -121,6 +123,24 @@ class Client:
         assert ok, f"received {len(items)} of {count} {attribute} within {timeout} s"
         return items
 
+    def request_batch(self, msg: ContactArrayBatch, timeout=REPLY_TIMEOUT_S):
+        """Publish a batch and return the ForceClosureVerdictArray answering it.
+
+        The reply is recognised by a unique header.frame_id (the node copies the
+        query's header), so a stray earlier reply cannot be mistaken for it.
+        """
+        self._sent += 1
+        msg.header.frame_id = f"{self.node.get_name()}/{self._sent}"
+        self.batch_pub.publish(msg)
+        with self._lock:
+            ok = self._lock.wait_for(
+                lambda: any(b.header.frame_id == msg.header.frame_id for b in self.batches),
+                timeout)
+            replies = [b for b in self.batches if b.header.frame_id == msg.header.frame_id]
+        assert ok, f"no reply to batch {msg.header.frame_id} within {timeout} s"
+        assert len(replies) == 1, f"{len(replies)} replies to one batch"
+        return replies[0]
+
     def clear(self):
         with self._lock:
             self.verdicts.clear()
@@ -142,10 +162,14 @@ class Client:
 
 @pytest.fixture(scope="session")
 def ros():
-    """rclpy initialised once for the session; shut down at the end."""
-    rclpy.init()
-    yield
-    rclpy.try_shutdown()
+    """rclpy initialised once for the whole run; shut down when the process exits.
+
+    Every test module that imports this fixture gets its own copy of it, so it must
+    not initialise twice.
+    """
+    if not rclpy.ok():
+        rclpy.init()
+        atexit.register(rclpy.try_shutdown)
 
 
 def node_command() -> list[str]:

@@ -79,8 +79,7 @@ def subset(verdicts, index):
 
 
 def send_batch(client, msg):
-    client.batch_pub.publish(msg)
-    return verdict_array_to_numpy(client.wait_for("batches", 1)[0])
+    return verdict_array_to_numpy(client.request_batch(msg))
 
 
 def test_batch_verdicts_match_core_with_ids_in_order(client, grasps):
