@@ -21,15 +21,17 @@ Python loop and no solver.
 from __future__ import annotations
 
 from functools import lru_cache
+from itertools import combinations
 
 import numpy as np
 
 from .tolerances import PARALLEL_TOL, SPAN_TOL
 from .torque_sets import TorqueSetKind, TorqueSets, cross, dot
 
-#: Problems handled per vectorised pass of the pair test: the (pairs, problems)
-#: intermediates of this many problems stay in a core's cache.
-_PAIR_TEST_CHUNK = 2048
+#: Problems handled per vectorised pass of the pair test: long enough to amortise
+#: numpy's per-call overhead over the loop on triples, short enough that the
+#: (pairs, problems) intermediates stay in a core's cache.
+_PAIR_TEST_CHUNK = 4096
 
 
 def positively_spans(sets: TorqueSets) -> np.ndarray:
@@ -76,8 +78,14 @@ def _spans_with_plane(sets: TorqueSets) -> np.ndarray:
 
 
 @lru_cache(maxsize=64)
-def _pairs(n_vectors: int) -> tuple[np.ndarray, np.ndarray]:
-    return np.triu_indices(n_vectors, 1)
+def _pairs_and_triples(n_vectors: int):
+    """Pairs (a < b) as two index arrays (P,), and every triple (a < b < c) as the pair
+    indices of (a, b), (a, c), (b, c) plus the index c: a list of 4-tuples."""
+    first, second = np.triu_indices(n_vectors, 1)
+    pair_index = {(a, b): p for p, (a, b) in enumerate(zip(first, second))}
+    triples = [(pair_index[a, b], pair_index[a, c], pair_index[b, c], c)
+               for a, b, c in combinations(range(n_vectors), 3)]
+    return first, second, triples
 
 
 def _fans_span(sets: TorqueSets) -> np.ndarray:
@@ -87,37 +95,67 @@ def _fans_span(sets: TorqueSets) -> np.ndarray:
     make no pair non-parallel, so they need no special case.
     """
     vectors = np.concatenate((sets.first, sets.second), axis=1)        # (3, K, B)
-    first, second = _pairs(vectors.shape[1])
-    n_problems = vectors.shape[2]
-    spans = np.empty(n_problems, dtype=bool)
-    for start in range(0, n_problems, _PAIR_TEST_CHUNK):
-        chunk = slice(start, start + _PAIR_TEST_CHUNK)
-        spans[chunk] = ~_has_separating_pair(vectors[:, :, chunk], first, second)
+    spans = ~_separates_at_mean(vectors)
+    undecided = np.flatnonzero(spans)
+    pairs_and_triples = _pairs_and_triples(vectors.shape[1])
+    for start in range(0, undecided.size, _PAIR_TEST_CHUNK):
+        chunk = undecided[start:start + _PAIR_TEST_CHUNK]
+        spans[chunk] = ~_has_separating_pair(vectors[:, :, chunk], *pairs_and_triples)
     return spans
 
 
-def _has_separating_pair(vectors: np.ndarray, first: np.ndarray,
-                         second: np.ndarray) -> np.ndarray:
+def _separates_at_mean(vectors: np.ndarray) -> np.ndarray:
+    """Cheap first try: does the mean of the vectors itself separate them?
+
+    When all vectors lie in a half-space their mean usually does, and checking one
+    direction costs K dot products instead of the pair test's K (K - 1) / 2.
+
+    Parameters
+    ----------
+    vectors : ndarray, shape (3, K, B)
+
+    Returns
+    -------
+    ndarray of bool, shape (B,)
+    """
+    mean = vectors.sum(axis=1)                                         # (3, B)
+    lowest = dot(mean, vectors[:, 0])
+    for k in range(1, vectors.shape[1]):
+        np.minimum(lowest, dot(mean, vectors[:, k]), out=lowest)
+    length = np.sqrt(dot(mean, mean))
+    return (length > PARALLEL_TOL) & (lowest >= -SPAN_TOL * length)
+
+
+def _has_separating_pair(vectors: np.ndarray, first: np.ndarray, second: np.ndarray,
+                         triples: list) -> np.ndarray:
     """Whether some pair's cross product has all vectors on one closed side.
+
+    The side of v_c for the pair (v_a, v_b) is the triple product det(v_a, v_b, v_c),
+    and each triple product serves three pairs: (a, b) sees +det, (a, c) sees -det and
+    (b, c) sees +det. Computing each once costs 120 instead of 450 dot products for
+    six fingers (K = 10). A pair's own two vectors are on its plane (side 0).
 
     Parameters
     ----------
     vectors : ndarray, shape (3, K, B)
         K unit (or zero) vectors of each of B problems, component-first.
     first, second : ndarray of int, shape (P,)
-        The pairs to try.
+        The pairs (a < b).
+    triples : list of (int, int, int, int)
+        Per triple a < b < c: the pair indices of (a, b), (a, c), (b, c), and c.
 
     Returns
     -------
     ndarray of bool, shape (B,)
     """
     normals = cross(vectors[:, first], vectors[:, second])             # (3, P, B)
-    lowest = np.full(normals.shape[1:], np.inf)
-    highest = np.full(normals.shape[1:], -np.inf)
-    for k in range(vectors.shape[1]):
-        side = dot(normals, vectors[:, k][:, None, :])
-        np.minimum(lowest, side, out=lowest)
-        np.maximum(highest, side, out=highest)
+    lowest = np.zeros(normals.shape[1:])
+    highest = np.zeros(normals.shape[1:])
+    for ab, ac, bc, c in triples:
+        det = dot(normals[:, ab], vectors[:, c])
+        for pair, side in ((ab, det), (bc, det), (ac, -det)):
+            np.minimum(lowest[pair], side, out=lowest[pair])
+            np.maximum(highest[pair], side, out=highest[pair])
     length = np.sqrt(dot(normals, normals))
     slack = SPAN_TOL * length
     one_side = (lowest >= -slack) | (highest <= slack)

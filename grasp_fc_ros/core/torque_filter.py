@@ -62,19 +62,19 @@ def passes_torque_filter(grasps: GraspBatch, origins: str = "seed") -> np.ndarra
     # Component-first copies, (3, n, N): the grasp axis becomes the contiguous one.
     points = np.ascontiguousarray(grasps.positions.transpose(2, 1, 0))
     normals = np.ascontiguousarray(grasps.normals.transpose(2, 1, 0))
-    mu = np.ascontiguousarray(grasps.mu.T)
-    n_contacts, n_grasps = mu.shape
+    sin_half_angle = friction_half_angle_sine(np.ascontiguousarray(grasps.mu.T))
+    others_of = _other_contacts(points.shape[1])
 
-    origin = _origin_indices(points, origins)                          # (O, N)
-    others = _other_contacts(n_contacts)[origin].transpose(2, 0, 1)    # (n-1, O, N)
-    grasp = np.arange(n_grasps)
-    lever_arms = points[:, others, grasp] - points[:, origin, grasp][:, None]
-    n_problems = origin.size
-    sets = cone_torque_sets(
-        lever_arms.reshape(3, n_contacts - 1, n_problems),
-        normals[:, others, grasp].reshape(3, n_contacts - 1, n_problems),
-        friction_half_angle_sine(mu[others, grasp]).reshape(n_contacts - 1, n_problems))
-    return positively_spans(sets).reshape(origin.shape).all(axis=0)
+    passing = np.ones(points.shape[2], dtype=bool)
+    # One origin after another: a grasp rejected about one origin is not tried again.
+    for origin in _origin_indices(points, origins):
+        grasp = np.flatnonzero(passing)
+        others = others_of[origin[grasp]].T                            # (n-1, N')
+        lever_arms = points[:, others, grasp] - points[:, origin[grasp], grasp][:, None]
+        sets = cone_torque_sets(lever_arms, normals[:, others, grasp],
+                                sin_half_angle[others, grasp])
+        passing[grasp] = positively_spans(sets)
+    return passing
 
 
 def _origin_indices(points: np.ndarray, origins: str) -> np.ndarray:
