@@ -1,0 +1,20 @@
+"""The core benchmark script runs and prints its figures (tiny sizes; no timing asserted)."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_core.py"
+
+
+def test_core_benchmark_prints_per_stage_figures():
+    done = subprocess.run(
+        [sys.executable, str(SCRIPT), "--grasps", "1500", "--sweep-grasps", "200",
+         "--repeats", "1", "--fingers", "6", "3"],
+        capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    table = [line.split() for line in lines if line.strip()[:2] in ("6 ", "3 ")]
+    assert [row[0] for row in table] == ["6", "3"]
+    assert all(float(value) > 0 for row in table for value in row[1:7])
+    assert any(line.startswith("six fingers: filter") for line in lines)
