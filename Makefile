@@ -26,12 +26,13 @@ PYTEST_ARGS ?= --timeout=600
 ARGS ?=
 
 VENV_PY := $(VENV)/bin/python
-PIP_INSTALL := $(VENV_PY) -m pip install --disable-pip-version-check --progress-bar off
+PIP_INSTALL := $(VENV_PY) -m pip install --disable-pip-version-check --quiet
 
 DEPS_STAMP := $(VENV)/.stamp-deps
 TEST_DEPS_STAMP := $(VENV)/.stamp-test-deps
 MSGS_STAMP := $(VENV)/.stamp-msgs
 PKG_STAMP := $(VENV)/.stamp-grasp-fc-ros
+MSGS_LOG := $(BUILD_DIR)/grasp_fc_msgs.log
 
 # Every file and folder under msg_defs/: the folders too, so that adding or removing
 # a .msg also rebuilds.
@@ -99,6 +100,7 @@ $(VENV)/pyvenv.cfg:
 	$(PYTHON) -m venv $(VENV)
 
 $(DEPS_STAMP): requirements.txt constraints.txt $(VENV)/pyvenv.cfg
+	@echo "installing the pinned packages into $(VENV) (the first time takes a few minutes)"
 	$(PIP_INSTALL) -r requirements.txt -c constraints.txt
 	touch $@
 
@@ -108,7 +110,10 @@ $(TEST_DEPS_STAMP): requirements-test.txt constraints.txt $(DEPS_STAMP)
 
 $(MSGS_STAMP): $(MSG_INPUTS) scripts/build_msgs.sh $(DEPS_STAMP)
 	bash scripts/check_prereqs.sh $(VENV_PY)
-	bash scripts/build_msgs.sh $(VENV) $(BUILD_DIR)/grasp_fc_msgs
+	@mkdir -p $(BUILD_DIR)
+	@echo "building grasp_fc_msgs into $(VENV) (log: $(MSGS_LOG))"
+	@bash scripts/build_msgs.sh $(VENV) $(BUILD_DIR)/grasp_fc_msgs > $(MSGS_LOG) 2>&1 || \
+	  { tail -n 40 $(MSGS_LOG) >&2; echo "message build failed; full log: $(MSGS_LOG)" >&2; exit 1; }
 	touch $@
 
 # Editable, so code changes need no reinstall; through PEP 660 so that pip writes the
