@@ -374,7 +374,7 @@ class ForceClosureNode(Node):
                 pending = len(self._pending)
             status = DiagnosticStatus(
                 level=DiagnosticStatus.WARN if failures else DiagnosticStatus.OK,
-                name=f"{self.get_name()}: force-closure queries",
+                name=f"{self.get_fully_qualified_name()}: force-closure queries",
                 message=(f"{failures} solver failures or internal errors" if failures
                          else "ok"),
                 hardware_id="none",
