@@ -14,6 +14,11 @@ contact count, and hands each group to :func:`grasp_fc_ros.core.check_force_clos
 Every query gets exactly one verdict carrying its id; bad queries are answered with
 ``INVALID_INPUT`` and a reason, internal errors with ``SOLVER_FAILURE``.
 
+Single-grasp topic queries are only queued by their subscription callback; a worker
+thread decides whatever has queued up in one call per contact count and publishes the
+verdicts in arrival order. One core call per query would cap the rate at the core's
+per-call cost. Batches and service requests are answered in their callbacks.
+
 Run it with ``grasp-fc-node`` or ``python -m grasp_fc_ros.node`` (``--ros-args -p
 name:=value`` sets parameters).
 """
