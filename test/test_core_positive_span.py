@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from scipy.optimize import linprog
 
+from grasp_fc_ros.core import positive_span
 from grasp_fc_ros.core.positive_span import positively_spans
 from grasp_fc_ros.core.torque_sets import TorqueSetKind, TorqueSets
 
@@ -54,9 +55,13 @@ def random_sets(rng, n_sets, plane_probability):
             np.array(generators).reshape(-1, 3))
 
 
+@pytest.mark.parametrize("triple_loop_from", [0, 10**9], ids=["triple-loop", "broadcast"])
 @pytest.mark.parametrize("plane_probability", [0.0, 0.15, 0.5])
 @pytest.mark.parametrize("n_sets", [1, 2, 3, 5, 8])
-def test_agrees_with_linear_programming(n_sets, plane_probability):
+def test_agrees_with_linear_programming(n_sets, plane_probability, triple_loop_from,
+                                        monkeypatch):
+    """Both forms of the pair test (chosen by batch size) against the LP."""
+    monkeypatch.setattr(positive_span, "_TRIPLE_LOOP_MIN_PROBLEMS", triple_loop_from)
     rng = np.random.default_rng(n_sets * 100 + int(plane_probability * 10))
     problems = [random_sets(rng, n_sets, plane_probability) for _ in range(60)]
     sets = TorqueSets(np.stack([p[0] for p in problems], axis=1),
