@@ -8,9 +8,12 @@ stops at the repository root, which is a package itself.
 """
 
 import os
+import select
 import shutil
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -27,6 +30,10 @@ NOT_SOURCE = shutil.ignore_patterns(
     ".pytest_cache", ".hypothesis",
 )
 COLCON_TIMEOUT_S = 600
+NODE_READY_TIMEOUT_S = 30.0
+NODE_EXIT_TIMEOUT_S = 10.0
+# What the node logs once its topics and service are up.
+NODE_READY_TEXT = "ready"
 
 pytestmark = pytest.mark.timeout(COLCON_TIMEOUT_S)
 
@@ -104,12 +111,55 @@ def test_recipe_builds_the_messages_before_the_node_package(workspace):
     assert workspace["order"] == ["grasp_fc_msgs", "grasp_fc_ros"]
 
 
-def test_install_space_holds_the_console_scripts(workspace):
+def _installed_script(workspace, script):
+    """Return the path of a console script in the install space, or None."""
     install = workspace["root"] / "install" / "grasp_fc_ros"
+    # lib/<package>/ is where `ros2 run` looks; bin/ is setuptools' default.
+    for candidate in (install / "lib" / "grasp_fc_ros" / script, install / "bin" / script):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def test_install_space_holds_the_console_scripts(workspace):
     for script in CONSOLE_SCRIPTS:
-        # lib/<package>/ is where `ros2 run` looks; bin/ is setuptools' default.
-        candidates = [install / "lib" / "grasp_fc_ros" / script, install / "bin" / script]
-        assert any(c.is_file() for c in candidates), f"{script} not in {install}"
+        assert _installed_script(workspace, script), f"{script} not installed"
+
+
+def test_node_from_the_workspace_starts_and_stops_cleanly(workspace):
+    """The workspace's grasp-fc-node comes up and ends with exit code 0 on Ctrl-C."""
+    node = _installed_script(workspace, "grasp-fc-node")
+    assert node, "grasp-fc-node not installed"
+    env = dict(workspace["env"], ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               # A domain of its own (FastDDS takes ids up to 232).
+               ROS_DOMAIN_ID=str(150 + os.getpid() % 80))
+    env.pop("PYTHONPATH", None)
+    process = subprocess.Popen(["sh", "-c", f'. install/setup.sh && exec "{node}"'],
+                               cwd=workspace["root"], env=env, stdout=subprocess.PIPE,
+                               stderr=subprocess.STDOUT, text=True)
+    try:
+        output = _read_until(process, NODE_READY_TEXT, NODE_READY_TIMEOUT_S)
+        assert NODE_READY_TEXT in output, f"node did not get ready:\n{output}"
+        process.send_signal(signal.SIGINT)
+        rest, _ = process.communicate(timeout=NODE_EXIT_TIMEOUT_S)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    assert process.returncode == 0, f"exit code {process.returncode}:\n{output}{rest}"
+    assert "Traceback" not in output + rest
+
+
+def _read_until(process, text, timeout_s):
+    """Return the process's output up to the line containing ``text`` (or the deadline)."""
+    output = ""
+    deadline = time.monotonic() + timeout_s
+    while text not in output and process.poll() is None:
+        remaining = deadline - time.monotonic()
+        if remaining <= 0 or not select.select([process.stdout], [], [], remaining)[0]:
+            break
+        output += process.stdout.readline()
+    return output
 
 
 def test_sourced_workspace_imports_its_own_build(workspace):
