@@ -15,6 +15,8 @@ SHELL := /bin/bash
 .SHELLFLAGS := -eu -o pipefail -c
 .DEFAULT_GOAL := help
 .DELETE_ON_ERROR:
+# The setup steps write into one venv; the message build is parallel inside itself.
+.NOTPARALLEL:
 
 PYTHON ?= python3.11
 VENV ?= .venv
