@@ -11,6 +11,7 @@ import argparse
 import math
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -95,6 +96,9 @@ def build_parser():
     parser.add_argument("--sides-pool", type=_positive_int,
                         help="random grasps per object the sides sweep picks them from "
                              f"(default {FULL['sides_pool']})")
+    parser.add_argument("--jobs", type=_positive_int, default=1,
+                        help="objects measured in parallel processes (default 1; each timed "
+                             "call stays single-threaded, so use at most one job per free core)")
     parser.add_argument("--sweep-grasps", type=_positive_int,
                         help="grasps per object and finger count in the throughput sweep "
                              f"over n = {FINGER_RANGE[0]}..{FINGER_RANGE[1]} "
@@ -152,23 +156,44 @@ def pick_example(surfaces, n_fingers, mu, seed):
     return None
 
 
+def _measure_one(surface, index, args):
+    from . import measure
+
+    result = measure.measure_object(surface, args.fingers, args.mu, args.grasps,
+                                    _stream(args.seed, 0, index), args.peer_grasps,
+                                    args.peer_sides)
+    print(f"[{surface.name}] unfiltered {result.unfiltered.wall_s:.1f} s, filtered "
+          f"{result.seed.wall_s:.1f} s, speedup {result.speedup:.2f}, specificity "
+          f"{result.seed.specificity:.3f}", file=sys.stderr, flush=True)
+    return result
+
+
+def measure_objects(surfaces, args):
+    """Tables I and II for every surface, in args.jobs processes; results in input order."""
+    print(f"{len(surfaces)} objects x {args.grasps:,} grasps, {args.jobs} job(s) ...",
+          file=sys.stderr, flush=True)
+    if args.jobs == 1:
+        return [_measure_one(s, i, args) for i, s in enumerate(surfaces)]
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        futures = [pool.submit(_measure_one, s, i, args) for i, s in enumerate(surfaces)]
+        return [future.result() for future in futures]
+
+
 def run(args):
-    """Run everything and write the outputs into args.out. Returns the report path."""
+    """Run everything and write the outputs into args.out.
+
+    Returns
+    -------
+    report_path : pathlib.Path
+    problems : list of str
+        Soundness violations found (the filter changed a verdict); empty when sound.
+    """
     from . import measure, plots, report
 
     start = time.perf_counter()
     surfaces = load_objects(args)
     args.out.mkdir(parents=True, exist_ok=True)
-    results = []
-    for index, surface in enumerate(surfaces):
-        print(f"[{surface.name}] {args.grasps:,} grasps ...", file=sys.stderr, flush=True)
-        result = measure.measure_object(surface, args.fingers, args.mu, args.grasps,
-                                        _stream(args.seed, 0, index), args.peer_grasps,
-                                        args.peer_sides)
-        print(f"[{surface.name}] unfiltered {result.unfiltered.wall_s:.1f} s, filtered "
-              f"{result.seed.wall_s:.1f} s, speedup {result.speedup:.2f}, specificity "
-              f"{result.seed.specificity:.3f}", file=sys.stderr, flush=True)
-        results.append(result)
+    results = measure_objects(surfaces, args)
     print("throughput against fingers ...", file=sys.stderr, flush=True)
     finger_rows = measure.finger_sweep(surfaces, range(FINGER_RANGE[0], FINGER_RANGE[1] + 1),
                                        args.mu, args.sweep_grasps, _stream(args.seed, 1))
@@ -193,18 +218,23 @@ def run(args):
         plots.plot_grasp_example(*example, args.mu, out / names["grasp_example"])
     total = time.perf_counter() - start
     text = report.markdown_report(results, finger_rows, sides_rows,
-                                  {"command": report.command_line(), "seed": args.seed},
+                                  {"command": report.command_line(), "seed": args.seed,
+                                   "jobs": args.jobs},
                                   total, names)
     path = out / report.REPORT_MD
     path.write_text(text)
+    problems = report.soundness_problems(results)
+    for line in problems:
+        print(f"SOUNDNESS VIOLATION: {line}", file=sys.stderr)
     print(f"report: {path} ({total:.1f} s)", file=sys.stderr)
-    return path
+    return path, problems
 
 
 def main(argv=None):
+    """Entry point; exit status 1 if the filter changed any verdict, else 0."""
     args = resolve_settings(build_parser().parse_args(argv))
-    run(args)
-    return 0
+    _, problems = run(args)
+    return 1 if problems else 0
 
 
 if __name__ == "__main__":

@@ -40,10 +40,13 @@ def plot_speedup(results, path):
     ax.axhline(PAPER_AVG_SPEEDUP, color=PAPER_COLOUR, linestyle="--",
                label=f"paper average ({PAPER_AVG_SPEEDUP:.2f})")
     ax.axhline(1.0, color="black", linewidth=0.8)
+    tallest = max([PAPER_AVG_SPEEDUP] + [r.speedup_all for r in results]
+                  + [r.speedup for r in results])
+    ax.set_ylim(0.0, 1.3 * tallest)  # room for the legend above the bars
     ax.set_ylabel("speedup (unfiltered / filtered time)")
     ax.set_title(f"Table I: speedup from the torque filter "
                  f"({results[0].grasps:,} grasps per object, n = {results[0].n_fingers})")
-    ax.legend(loc="lower right", fontsize=8)
+    ax.legend(loc="upper center", ncol=3, fontsize=8)
     _save(fig, path)
 
 
@@ -54,10 +57,11 @@ def plot_specificity(results, path):
                   [r.all_origins.specificity for r in results])
     ax.axhline(PAPER_AVG_SPECIFICITY, color=PAPER_COLOUR, linestyle="--",
                label=f"paper average ({PAPER_AVG_SPECIFICITY:.3f})")
-    ax.set_ylim(0.0, 1.0)
+    ax.set_ylim(0.0, 1.25)  # room for the legend above the bars
+    ax.set_yticks(np.linspace(0.0, 1.0, 6))
     ax.set_ylabel("specificity (non-FC rejected / all non-FC)")
     ax.set_title("Table II: specificity of the torque filter")
-    ax.legend(loc="lower right", fontsize=8)
+    ax.legend(loc="upper center", ncol=3, fontsize=8)
     _save(fig, path)
 
 

@@ -8,7 +8,9 @@ from importlib import metadata
 
 from .paper import (PAPER_AVG_FALSE_POSITIVES, PAPER_AVG_FC, PAPER_AVG_FILTERED_S,
                     PAPER_AVG_SPECIFICITY, PAPER_AVG_SPEEDUP, PAPER_AVG_UNFILTERED_S,
-                    PAPER_EXACT_MS, PAPER_FILTER_MS, PAPER_TABLE_I, PAPER_TABLE_II)
+                    PAPER_EXACT_MS, PAPER_FILTER_MS, PAPER_GRASPS, PAPER_IMPLIED_PASSED_MS,
+                    PAPER_IMPLIED_REJECTED_MS, PAPER_PASSED_SHARE, PAPER_TABLE_I,
+                    PAPER_TABLE_II)
 
 RESULTS_CSV = "results.csv"
 FINGERS_CSV = "fingers.csv"
@@ -23,6 +25,19 @@ PLOTS = {
 }
 
 
+def exact_ms_split(r):
+    """Exact-test ms per grasp on the grasps the filter passes and on those it rejects.
+
+    Both runs time their exact stage: the filtered run's covers the passed grasps,
+    the unfiltered run's all of them, so the difference is the rejected grasps' cost.
+    """
+    rejected = r.grasps - r.seed.passed
+    passed_ms = 1e3 * r.seed.exact_s / r.seed.passed if r.seed.passed else float("nan")
+    rejected_ms = (1e3 * (r.unfiltered.exact_s - r.seed.exact_s) / rejected
+                   if rejected else float("nan"))
+    return passed_ms, rejected_ms
+
+
 def result_row(r):
     """One object's measurements as a flat CSV row (times in seconds)."""
     filter_ms = 1e3 * r.seed.filter_s / r.grasps
@@ -34,8 +49,8 @@ def result_row(r):
         "fingers": r.n_fingers,
         "mu": f"{r.mu:.6f}",
         "grasps": r.grasps,
-        "unfiltered_s": f"{r.unfiltered.wall_s:.3f}",
-        "filtered_s": f"{r.seed.wall_s:.3f}",
+        "unfiltered_s": f"{r.unfiltered.wall_s:.6f}",
+        "filtered_s": f"{r.seed.wall_s:.6f}",
         "speedup": f"{r.speedup:.3f}",
         "fc_unfiltered": r.force_closure,
         "fc_filtered": r.seed.force_closure,
@@ -44,7 +59,7 @@ def result_row(r):
         "specificity": f"{r.seed.specificity:.4f}",
         "unsound": r.seed.unsound,
         "verdict_mismatches": r.seed.verdict_mismatches,
-        "filtered_all_s": f"{r.all_origins.wall_s:.3f}",
+        "filtered_all_s": f"{r.all_origins.wall_s:.6f}",
         "speedup_all": f"{r.speedup_all:.3f}",
         "fc_filtered_all": r.all_origins.force_closure,
         "passed_filter_all": r.all_origins.passed,
@@ -58,6 +73,8 @@ def result_row(r):
         "exact_ms_per_query": f"{exact_ms:.5f}",
         "exact_over_filter": f"{exact_ms / filter_ms:.1f}" if filter_ms else "nan",
         "pipeline_ms_per_grasp": f"{pipeline_ms:.5f}",
+        "exact_ms_passed": f"{exact_ms_split(r)[0]:.5f}",
+        "exact_ms_rejected": f"{exact_ms_split(r)[1]:.5f}",
         "peer_sides": r.peer.sides,
         "peer_grasps": r.peer.grasps,
         "peer_ms_per_grasp": f"{r.peer.ms_per_grasp:.4f}",
@@ -130,6 +147,15 @@ def _table(header, rows):
     return "\n".join(lines)
 
 
+def soundness_problems(results):
+    """Lines describing every object where the filter changed a verdict (empty if none)."""
+    return [f"{r.name}, origins={stats.origins!r}: the filter rejected {stats.unsound} "
+            f"force-closure grasps; {stats.verdict_mismatches} verdicts differ from the "
+            "unfiltered run"
+            for r in results for stats in (r.seed, r.all_origins)
+            if stats.unsound or stats.verdict_mismatches]
+
+
 def markdown_report(results, finger_rows, sides_rows, settings, total_s, plots):
     """The report as markdown text."""
     r0 = results[0]
@@ -141,6 +167,7 @@ def markdown_report(results, finger_rows, sides_rows, settings, total_s, plots):
     peer_fc_missed = sum(r.peer.missed_fc for r in results)
     peer_false = sum(r.peer.false_fc for r in results)
     peer_ratio = _mean(peer_ms) / _mean(pipeline_ms)
+    splits = [exact_ms_split(r) for r in results]
     out = [
         "# Force-closure filter experiment (reproduction of the seed paper, section V)",
         "",
@@ -151,7 +178,8 @@ def markdown_report(results, finger_rows, sides_rows, settings, total_s, plots):
         f"seed {settings['seed']}",
         f"- Total wall time of this run: {total_s:.1f} s",
         "- Times are wall-clock seconds of `check_force_closure` on the whole batch "
-        "(validation included), single process.",
+        "(validation included); each timed call runs in one process on one core "
+        f"({settings['jobs']} object(s) measured at a time).",
         "",
         "## Table I: running time",
         "",
@@ -204,16 +232,34 @@ def markdown_report(results, finger_rows, sides_rows, settings, total_s, plots):
         "## Per-query cost",
         "",
         _table(["object", "filter (ms/query)", "exact test (ms/query)", "ratio exact/filter",
+                "exact on passed (ms)", "exact on rejected (ms)",
                 "filtered pipeline (ms/grasp)"],
-               [[r.name, f"{f:.4f}", f"{e:.4f}", f"{e / f:.0f}" if f else "nan", f"{p:.4f}"]
-                for r, f, e, p in zip(results, filter_ms, exact_ms, pipeline_ms)]
+               [[r.name, f"{f:.4f}", f"{e:.4f}", f"{e / f:.0f}" if f else "nan",
+                 f"{split[0]:.4f}", f"{split[1]:.4f}", f"{p:.4f}"]
+                for r, f, e, p, split in zip(results, filter_ms, exact_ms, pipeline_ms, splits)]
                + [["**average**", f"{_mean(filter_ms):.4f}", f"{_mean(exact_ms):.4f}",
-                   f"{_mean(exact_ms) / _mean(filter_ms):.0f}", f"{_mean(pipeline_ms):.4f}"]]),
+                   f"{_mean(exact_ms) / _mean(filter_ms):.0f}",
+                   f"{_mean(s[0] for s in splits):.4f}", f"{_mean(s[1] for s in splits):.4f}",
+                   f"{_mean(pipeline_ms):.4f}"]]),
         "",
         f"Paper: filter {PAPER_FILTER_MS} ms, exact test {PAPER_EXACT_MS} ms per query "
         f"(ratio {PAPER_EXACT_MS / PAPER_FILTER_MS:.0f}). Filter time is the pipeline's own "
         "'filter_s' stage time over all grasps; exact time is the unfiltered run's 'exact_s' "
-        "over all grasps.",
+        "over all grasps. 'Exact on passed' is the filtered run's exact stage per grasp it "
+        "passed; 'exact on rejected' is what the unfiltered run spent, per grasp, on the "
+        "grasps the filter rejects (difference of the two exact stages).",
+        "",
+        "If the exact test cost the same on every grasp, the speedup could not exceed "
+        "1 / (share of grasps passing the filter + filter cost / exact cost): "
+        + ", ".join(f"{r.name} {1.0 / (r.seed.passed / r.grasps + f / e):.2f}"
+                    for r, f, e in zip(results, filter_ms, exact_ms))
+        + f". The paper's averages ({PAPER_PASSED_SHARE * PAPER_GRASPS:,.0f} of "
+        f"{PAPER_GRASPS:,} grasps passing, "
+        f"{PAPER_FILTER_MS} vs {PAPER_EXACT_MS} ms) give "
+        f"{1.0 / (PAPER_PASSED_SHARE + PAPER_FILTER_MS / PAPER_EXACT_MS):.2f}, yet it reports "
+        f"{PAPER_AVG_SPEEDUP}: its Table I implies the exact test cost about "
+        f"{PAPER_IMPLIED_REJECTED_MS:.1f} ms on a rejected grasp and "
+        f"{PAPER_IMPLIED_PASSED_MS:.1f} ms on a passed one.",
         "",
         "## The linearized peer (GraspIt!/Dex-Net style)",
         "",
@@ -257,6 +303,11 @@ def markdown_report(results, finger_rows, sides_rows, settings, total_s, plots):
         "## Plots",
         "",
     ]
+    problems = soundness_problems(results)
+    if problems:
+        warning = ["**SOUNDNESS VIOLATION: the filter changed verdicts (it must never "
+                   "reject a force-closure grasp):**", ""] + [f"- {line}" for line in problems]
+        out[2:2] = warning + [""]
     out += [f"![{key}]({name})" for key, name in plots.items()]
     out.append("")
     return "\n".join(out)
