@@ -22,6 +22,8 @@ DEFAULT_OBJECTS = ("box", "ellipsoid", "torus", "l_block", "star_prism", "mug")
 DEFAULT_MU = math.tan(math.radians(10.0))
 DEFAULT_SIDES_SWEEP = (4, 6, 8, 12, 16)
 FINGER_RANGE = (3, 12)
+# Object drawn in the example figure when measured (its shape reads best in 3-D).
+EXAMPLE_OBJECT = "torus"
 # Grasps drawn to find the example force-closure and rejected grasps.
 EXAMPLE_GRASPS = 400
 
@@ -143,7 +145,7 @@ def pick_example(surfaces, n_fingers, mu, seed):
     from grasp_fc_ros.core import check_force_closure
     from grasp_fc_ros.objects import sample_grasps
 
-    preferred = sorted(surfaces, key=lambda s: s.name != "mug")
+    preferred = sorted(surfaces, key=lambda s: s.name != EXAMPLE_OBJECT)
     for surface in preferred:
         positions, normals = sample_grasps(surface, EXAMPLE_GRASPS, n_fingers,
                                            _stream(seed, 3))

@@ -14,6 +14,7 @@ ALL_COLOUR = "#ff7f0e"
 PAPER_COLOUR = "#555555"
 FC_COLOUR = "#2ca02c"
 REJECTED_COLOUR = "#d62728"
+LIGHT_DIRECTION = np.array([-0.4, -0.5, 0.77])
 # Length of a drawn friction cone relative to the object's size.
 CONE_LENGTH_FRACTION = 0.22
 
@@ -129,7 +130,11 @@ def _cone_mesh(apex, axis, half_angle, length, segments=24):
 
 
 def _draw_grasp(ax, surface, positions, normals, mu, colour, title):
-    ax.scatter(*surface.points.T, s=1.0, color="#8a8a8a", alpha=0.3, depthshade=False)
+    # shade the points by their outward normal against a light from above-front,
+    # a cheap depth cue for a point cloud
+    brightness = 0.5 + 0.4 * (-surface.normals @ LIGHT_DIRECTION)
+    ax.scatter(*surface.points.T, s=1.5, c=brightness, cmap="Greys_r", vmin=0.0, vmax=1.0,
+               alpha=0.5, depthshade=False)
     size = np.ptp(surface.points, axis=0).max()
     half_angle = np.arctan(mu)
     for p, n in zip(positions, normals):
@@ -144,7 +149,7 @@ def _draw_grasp(ax, surface, positions, normals, mu, colour, title):
     reach = 0.5 * size + CONE_LENGTH_FRACTION * size
     for setter, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):
         setter(c - reach, c + reach)
-    ax.set_box_aspect((1, 1, 1), zoom=1.35)
+    ax.set_box_aspect((1, 1, 1), zoom=1.6)
     ax.set_axis_off()
     ax.set_title(title, fontsize=10)
 
@@ -156,11 +161,11 @@ def plot_grasp_example(surface, fc_grasp, rejected_grasp, mu, path):
             (fc_grasp, FC_COLOUR, "force closure (exact test)"),
             (rejected_grasp, REJECTED_COLOUR, "rejected by the torque filter"))):
         ax = fig.add_subplot(1, 2, index + 1, projection="3d")
-        ax.view_init(elev=22, azim=-50)
+        ax.view_init(elev=35, azim=-60)
         _draw_grasp(ax, surface, positions, normals, mu, colour, title)
     fig.suptitle(f"{surface.name}: {len(fc_grasp[0])}-finger grasps, mu = {mu:.3f}; friction "
                  "cones (half-angle atan mu) drawn on the finger's side of the surface",
-                 fontsize=10)
-    fig.subplots_adjust(left=0.0, right=1.0, bottom=0.0, top=0.92, wspace=0.0)
+                 fontsize=10, y=0.99)
+    fig.subplots_adjust(left=0.0, right=1.0, bottom=0.0, top=0.88, wspace=0.0)
     fig.savefig(path, dpi=DPI)
     plt.close(fig)

@@ -3,8 +3,10 @@
 import csv
 import os
 import platform
+import subprocess
 import sys
 from importlib import metadata
+from pathlib import Path
 
 from .paper import (PAPER_AVG_FALSE_POSITIVES, PAPER_AVG_FC, PAPER_AVG_FILTERED_S,
                     PAPER_AVG_SPECIFICITY, PAPER_AVG_SPEEDUP, PAPER_AVG_UNFILTERED_S,
@@ -136,6 +138,20 @@ def machine_description():
             f"{platform.release()}, Python {platform.python_version()}, {', '.join(versions)}")
 
 
+def code_version():
+    """The git commit of the package's checkout, marked '+ local changes' when dirty."""
+    source = Path(__file__).resolve().parents[2]
+    try:
+        commit = subprocess.run(["git", "-C", str(source), "rev-parse", "--short", "HEAD"],
+                                capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(source), "status", "--porcelain",
+                                "--untracked-files=no", "grasp_fc_ros"],
+                               capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown (not a git checkout)"
+    return f"git {commit}" + (" + local changes" if dirty else "")
+
+
 def _mean(values):
     values = list(values)
     return sum(values) / len(values)
@@ -173,6 +189,7 @@ def markdown_report(results, finger_rows, sides_rows, settings, total_s, plots):
         "",
         f"- Command: `{settings['command']}`",
         f"- Machine: {machine_description()}",
+        f"- Code: {code_version()}",
         f"- Setting: {r0.grasps:,} random {r0.n_fingers}-finger grasps per object "
         f"(distinct contacts drawn from {r0.n_points:,} surface points), mu = {r0.mu:.4f}, "
         f"seed {settings['seed']}",
