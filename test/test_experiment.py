@@ -114,3 +114,14 @@ def test_peer_never_accepts_what_the_exact_test_rejects():
     peer = linearized_force_closure(positions, normals, mu, sides=8)
     assert not np.any(peer & ~exact)
     assert exact.any() and peer.any()
+
+
+def test_cli_adds_mesh_files_as_objects(tmp_path):
+    trimesh = pytest.importorskip("trimesh")
+    path = tmp_path / "part.stl"
+    trimesh.creation.icosphere(radius=0.05).export(path)
+    args = cli.resolve_settings(cli.build_parser().parse_args(
+        ["--quick", "--objects", "box", "--mesh", str(path), "--points", "300"]))
+    surfaces = cli.load_objects(args)
+    assert [s.name for s in surfaces] == ["box", "part"]
+    assert all(len(s) == 300 for s in surfaces)
