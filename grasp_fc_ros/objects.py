@@ -12,6 +12,7 @@ level; trimesh is imported lazily, for mesh and PLY files only.
 Lengths are in metres.
 """
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -97,7 +98,7 @@ class ContactSurface:
 @dataclass(frozen=True)
 class _Patch:
     nominal_area: float
-    sample: object  # callable (rng, k) -> (points (k', 3), inward normals (k', 3)), k' <= k
+    sample: Callable  # (rng, k) -> (points (k', 3), inward normals (k', 3)), k' <= k
 
 
 def _disk_patch(radius, z, normal_z, inner_radius=0.0, center=(0.0, 0.0)):
@@ -365,7 +366,9 @@ def _bbox_centre(name):
         polygon, height = _L_BLOCK
         return np.append(0.5 * (np.min(polygon, axis=0) + np.max(polygon, axis=0)), 0.5 * height)
     if name == "star_prism":
-        return np.array([0.0, 0.0, 0.5 * _STAR[3]])
+        n_tips, outer, inner, height = _STAR
+        polygon = _star_polygon(n_tips, outer, inner)
+        return np.append(0.5 * (polygon.min(axis=0) + polygon.max(axis=0)), 0.5 * height)
     if name == "mug":
         r_out, _, height, _, handle_major, handle_minor = _MUG
         x_max = _mug_handle_centre()[0] + handle_major + handle_minor

@@ -23,6 +23,13 @@ def test_built_in_object_has_unit_inward_normals(name):
     assert not np.any(_inside(name, surface.points - step)), "a point lies inside the solid"
 
 
+@pytest.mark.parametrize("name", OBJECT_NAMES)
+def test_built_in_object_is_centred_on_its_bounding_box(name):
+    surface = make_object(name, n_points=4000, seed=0)
+    centre = 0.5 * (surface.points.min(axis=0) + surface.points.max(axis=0))
+    np.testing.assert_allclose(centre, 0.0, atol=2e-3)  # sampling misses the extremes by < 2 mm
+
+
 def test_at_least_six_objects_including_non_convex():
     assert len(OBJECT_NAMES) >= 6
     assert set(NON_CONVEX) <= set(OBJECT_NAMES)
