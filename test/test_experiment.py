@@ -77,6 +77,8 @@ def test_quick_run_sweeps_cover_requested_ranges(quick_run):
 def test_cli_rejects_bad_arguments(tmp_path):
     with pytest.raises(SystemExit):
         cli.main(["--quick", "--objects", "teapot", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit):
+        cli.main(["--quick", "--fingers", "1", "--out", str(tmp_path)])
     with pytest.raises(SystemExit, match="no such file"):
         cli.main(["--quick", "--objects", "--mesh", str(tmp_path / "nope.stl"),
                   "--out", str(tmp_path)])

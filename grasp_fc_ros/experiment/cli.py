@@ -41,6 +41,13 @@ def _positive_int(text):
     return value
 
 
+def _finger_count(text):
+    value = int(text)
+    if value < 2:
+        raise argparse.ArgumentTypeError(f"a grasp needs at least 2 fingers, got {value}")
+    return value
+
+
 def _positive_float(text):
     value = float(text)
     if not value > 0.0:
@@ -70,7 +77,7 @@ def build_parser():
     parser.add_argument("--mesh", action="append", default=[], metavar="PATH",
                         help="mesh (.obj/.stl/.ply) or point cloud with outward normals "
                              "(.npz/.ply) to add as an object; repeatable")
-    parser.add_argument("--fingers", type=_positive_int, default=6,
+    parser.add_argument("--fingers", type=_finger_count, default=6,
                         help="contacts per grasp (default 6, as in the paper)")
     parser.add_argument("--mu", type=_positive_float, default=DEFAULT_MU,
                         help="friction coefficient (default tan 10 deg = 0.1763)")
