@@ -43,7 +43,7 @@ from grasp_fc_ros.conversions import (
     verdict_array_to_numpy,
 )
 from grasp_fc_ros.core import Status
-from grasp_fc_ros.node import ForceClosureNode
+from grasp_fc_ros.node import ForceClosureNode, shutdown_rclpy
 from grasp_fc_ros.objects import OBJECT_NAMES, make_object, sample_grasps
 
 N_FINGERS = 6
@@ -221,7 +221,7 @@ def main(argv=None) -> int:
         print("\ninterrupted", file=sys.stderr)
         return 130
     finally:
-        rclpy.try_shutdown()
+        shutdown_rclpy()
 
 
 if __name__ == "__main__":

@@ -44,7 +44,7 @@ from grasp_fc_msgs.msg import (
 from grasp_fc_msgs.srv import CheckForceClosure
 from rcl_interfaces.msg import IntegerRange, ParameterDescriptor, ParameterType, SetParametersResult
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -398,8 +398,13 @@ def main(args=None) -> int:
     rclpy.init(args=args)
     node = None
     try:
+        # The executor exists before the node logs "ready": a Ctrl-C right after that
+        # line must not land inside the executor's constructor (which then leaves a
+        # half-built executor whose __del__ prints a traceback).
+        executor = SingleThreadedExecutor()
         node = ForceClosureNode()
-        rclpy.spin(node)
+        executor.add_node(node)
+        executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except ParameterException as exc:
@@ -413,8 +418,21 @@ def main(args=None) -> int:
     finally:
         if node is not None:
             node.destroy_node()
-        rclpy.try_shutdown()
+        shutdown_rclpy()
     return 0
+
+
+def shutdown_rclpy():
+    """Shut rclpy down unless a signal already did.
+
+    ``try_shutdown`` checks the context and then shuts it down; rclpy's signal handler
+    can shut it down in between, and the second shutdown raises RCLError.
+    """
+    try:
+        rclpy.try_shutdown()
+    except Exception:  # noqa: BLE001 - rclpy raises its private RCLError here
+        if rclpy.ok():
+            raise
 
 
 if __name__ == "__main__":
