@@ -25,7 +25,7 @@ import numpy as np  # noqa: E402
 from grasp_fc_ros.core import check_force_closure  # noqa: E402
 from grasp_fc_ros.core.grasp_input import prepare_grasps  # noqa: E402
 from grasp_fc_ros.core.pipeline import run_pipeline  # noqa: E402
-from grasp_fc_ros.core.torque_filter import passes_torque_filter  # noqa: E402
+from grasp_fc_ros.core.torque_space_filter import passes_torque_filter  # noqa: E402
 from grasp_fc_ros.objects import OBJECT_NAMES, make_object, sample_grasps  # noqa: E402
 
 MU = float(np.tan(np.radians(10.0)))

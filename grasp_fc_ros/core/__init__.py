@@ -6,7 +6,7 @@ Closure Grasp":
 
 * :mod:`.torque_sets` -- the torque set of one friction cone: a fan, a plane or {0};
 * :mod:`.positive_span` -- do fans and planes positively span R^3?
-* :mod:`.torque_filter` -- the paper's necessary condition (the filter);
+* :mod:`.torque_space_filter` -- the paper's necessary condition (the filter);
 * :mod:`.exact_test` -- the exact test, a second-order cone program (Clarabel);
 * :mod:`.pipeline` -- the filter, then the exact test on the survivors;
 * :mod:`.grasp_input` -- shapes and per-grasp validation;
@@ -24,7 +24,7 @@ True
 
 from .grasp_input import GraspValidation, validate_grasps
 from .pipeline import ForceClosureResult, Status, check_force_closure, exact_force_closure
-from .torque_filter import ORIGIN_CHOICES, torque_filter
+from .torque_space_filter import ORIGIN_CHOICES, torque_filter
 
 __all__ = [
     "ORIGIN_CHOICES",

@@ -136,13 +136,18 @@ def _normalised_grasp_map(positions: np.ndarray) -> np.ndarray:
 
 
 def _tangent_bases(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit tangents (..., 3) orthogonal to each unit normal (..., 3) and each other."""
-    # Cross with the coordinate axis least aligned with the normal: never degenerate.
-    helper = np.zeros_like(normals)
-    np.put_along_axis(helper, np.abs(normals).argmin(axis=-1)[..., None], 1.0, axis=-1)
-    first = np.cross(normals, helper)
-    first /= np.linalg.norm(first, axis=-1, keepdims=True)
-    return first, np.cross(normals, first)
+    """Two unit tangents (..., 3) orthogonal to each unit normal (..., 3) and each other.
+
+    The branch-free orthonormal basis of Duff et al., "Building an Orthonormal Basis,
+    Revisited" (JCGT 2017): elementwise only, well-conditioned for every unit normal.
+    """
+    x, y, z = normals[..., 0], normals[..., 1], normals[..., 2]
+    sign = np.where(z >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + z)
+    b = x * y * a
+    first = np.stack((1.0 + sign * x * x * a, sign * b, -sign * x), axis=-1)
+    second = np.stack((b, sign + y * y * a, -y), axis=-1)
+    return first, second
 
 
 @lru_cache(maxsize=32)
@@ -151,7 +156,9 @@ def _socp_pattern(n_grasps: int, n_contacts: int):
 
     Rows: 6N equilibrium rows, then N force-bound rows, then 3 rows per contact for its
     second-order cone. Columns: per grasp, 3n forces then the margin t.
-    Returns (rows, cols, csc_order, shape, cones).
+    Returns (indices, indptr, csc_order, shape, cones, zero P): the CSC structure of A,
+    the order that puts values listed row-block by row-block into CSC order, and the
+    cone list and the (empty) quadratic cost Clarabel needs.
     """
     n_vars = 3 * n_contacts + 1
     grasp = np.arange(n_grasps)[:, None, None]
@@ -178,7 +185,9 @@ def _socp_pattern(n_grasps: int, n_contacts: int):
                               shape=shape)
     cones = ([clarabel.ZeroConeT(6 * n_grasps), clarabel.NonnegativeConeT(n_grasps)]
              + [clarabel.SecondOrderConeT(3)] * (n_grasps * n_contacts))
-    return order.indices, order.indptr, order.data.astype(np.int64) - 1, shape, cones
+    no_quadratic_cost = sparse.csc_matrix((shape[1], shape[1]))
+    return (order.indices, order.indptr, order.data.astype(np.int64) - 1, shape, cones,
+            no_quadratic_cost)
 
 
 def _solve_batch(grasps: GraspBatch, grasp_map: np.ndarray, row_space: np.ndarray,
@@ -199,14 +208,13 @@ def _solve_batch(grasps: GraspBatch, grasp_map: np.ndarray, row_space: np.ndarra
         -np.stack([mu[..., None] * normals, tangent, bitangent], axis=2).ravel(),
         np.ones(n_grasps * n_contacts),                                # -(mu n.f - t)
     ])
-    indices, indptr, order, shape, cones = _socp_pattern(n_grasps, n_contacts)
+    indices, indptr, order, shape, cones, p = _socp_pattern(n_grasps, n_contacts)
     a = sparse.csc_matrix((values[order], indices, indptr), shape=shape)
     b = np.zeros(shape[0])
     b[6 * n_grasps:7 * n_grasps] = 1.0
     n_vars = 3 * n_contacts + 1
     q = np.zeros(shape[1])
     q[n_vars - 1::n_vars] = -1.0
-    p = sparse.csc_matrix(shape[1:] * 2)
 
     solution = clarabel.DefaultSolver(p, q, a, b, cones, _settings(tight)).solve()
     x = np.asarray(solution.x).reshape(n_grasps, n_vars)

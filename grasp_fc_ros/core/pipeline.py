@@ -11,7 +11,7 @@ import numpy as np
 
 from .exact_test import solve_exact
 from .grasp_input import GraspBatch, prepare_grasps
-from .torque_filter import passes_torque_filter
+from .torque_space_filter import passes_torque_filter
 
 
 class Status(IntEnum):

@@ -28,6 +28,10 @@ import numpy as np
 from .tolerances import PARALLEL_TOL, SPAN_TOL
 from .torque_sets import TorqueSetKind, TorqueSets, cross, dot
 
+# Plain integers for the hot path: comparing with an IntEnum member looks it up each time.
+_FAN = int(TorqueSetKind.FAN)
+_PLANE = int(TorqueSetKind.PLANE)
+
 #: Problems handled per vectorised pass of the pair test: long enough to amortise
 #: numpy's per-call overhead over the loop on triples, short enough that the
 #: (pairs, problems) intermediates stay in a core's cache.
@@ -53,7 +57,7 @@ def positively_spans(sets: TorqueSets) -> np.ndarray:
         False only where a separating direction was found: the sets certainly do not
         positively span R^3 (up to ``SPAN_TOL``).
     """
-    has_plane = (sets.kind == TorqueSetKind.PLANE).any(axis=0)
+    has_plane = (sets.kind == _PLANE).any(axis=0)
     spans = np.empty(sets.kind.shape[1], dtype=bool)
     if has_plane.any():
         spans[has_plane] = _spans_with_plane(sets.subset((slice(None), has_plane)))
@@ -65,11 +69,11 @@ def positively_spans(sets: TorqueSets) -> np.ndarray:
 
 def _spans_with_plane(sets: TorqueSets) -> np.ndarray:
     """Positive span for problems that contain at least one plane. Shapes (m, B)."""
-    is_plane = sets.kind == TorqueSetKind.PLANE
+    is_plane = sets.kind == _PLANE
     pivot = is_plane.argmax(axis=0)
     normal = sets.axis[:, pivot, np.arange(pivot.size)][:, None, :]    # (3, 1, B)
 
-    is_fan = sets.kind == TorqueSetKind.FAN
+    is_fan = sets.kind == _FAN
     side_first = dot(sets.first, normal)
     side_second = dot(sets.second, normal)
     reaches_pos = is_fan & ((side_first > SPAN_TOL) | (side_second > SPAN_TOL))
@@ -125,9 +129,7 @@ def _separates_at_mean(vectors: np.ndarray) -> np.ndarray:
     ndarray of bool, shape (B,)
     """
     mean = vectors.sum(axis=1)                                         # (3, B)
-    lowest = dot(mean, vectors[:, 0])
-    for k in range(1, vectors.shape[1]):
-        np.minimum(lowest, dot(mean, vectors[:, k]), out=lowest)
+    lowest = dot(mean[:, None], vectors).min(axis=0)
     length = np.sqrt(dot(mean, mean))
     return (length > PARALLEL_TOL) & (lowest >= -SPAN_TOL * length)
 

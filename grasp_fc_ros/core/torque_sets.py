@@ -75,10 +75,12 @@ class TorqueSets:
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cross product of component-first vectors, shapes (3, ...)."""
-    return np.stack((a[1] * b[2] - a[2] * b[1],
-                     a[2] * b[0] - a[0] * b[2],
-                     a[0] * b[1] - a[1] * b[0]))
+    """Cross product of component-first vectors, shapes (3, ...) (broadcast)."""
+    out = np.empty((3,) + np.broadcast_shapes(a.shape[1:], b.shape[1:]))
+    for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+        np.multiply(a[j], b[k], out=out[i])
+        out[i] -= a[k] * b[j]
+    return out
 
 
 def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
