@@ -11,14 +11,14 @@ setup(
         ("share/" + package_name, ["package.xml"]),
     ],
     # rclpy and the grasp_fc_msgs interfaces come from the ROS prefix, not PyPI.
-    install_requires=["setuptools", "numpy", "clarabel"],
+    # scipy: the core hands Clarabel scipy.sparse matrices.
+    install_requires=["setuptools", "numpy", "scipy", "clarabel"],
     extras_require={"experiment": ["matplotlib", "trimesh", "scipy"]},
     zip_safe=True,
     maintainer="grasp_fc_ros maintainers",
     maintainer_email="maintainers@grasp-fc-ros.dev",
     description="Fast, exact force-closure test for multi-finger frictional grasps.",
     license="Apache-2.0",
-    tests_require=["pytest"],
     entry_points={
         "console_scripts": [
             "grasp-fc-node = grasp_fc_ros.node:main",

@@ -29,7 +29,9 @@ __all__ = [
 
 DEFAULT_N_POINTS = 5000
 
-# A normal shorter than this cannot be turned into a direction.
+# A normal this short or shorter cannot be turned into a direction. Same value and test
+# as grasp_fc_ros.core.tolerances.ZERO_NORMAL_NORM, not imported from there because
+# importing the core loads clarabel and scipy, and this module needs only numpy.
 _MIN_NORMAL_LENGTH = 1e-12
 # First oversampling factor for shapes whose samplers reject candidates.
 _OVERSAMPLE = 1.5
@@ -72,7 +74,7 @@ class ContactSurface:
         if not (np.all(np.isfinite(points)) and np.all(np.isfinite(normals))):
             raise ValueError(f"{self.name}: points and normals must be finite")
         lengths = np.linalg.norm(normals, axis=1)
-        short = np.flatnonzero(lengths < _MIN_NORMAL_LENGTH)
+        short = np.flatnonzero(lengths <= _MIN_NORMAL_LENGTH)
         if short.size:
             raise ValueError(f"{self.name}: normal of point {short[0]} has zero length "
                              f"({short.size} such points)")

@@ -125,6 +125,9 @@ def test_a_batch_solve_that_stops_early_is_retried_grasp_by_grasp(monkeypatch):
     retried = check_force_closure(positions, normals, MU_PAPER, use_filter=False)
     assert np.array_equal(retried.force_closure, normal.force_closure)
     assert not np.any(retried.status == Status.SOLVER_FAILURE)
+    # The margin is an optimum, not a stopped iterate's value.
+    assert np.allclose(retried.margin, normal.margin, atol=1e-6)
+    assert normal.force_closure.any()
 
 
 def test_an_undecidable_grasp_is_reported_as_a_solver_failure(monkeypatch):

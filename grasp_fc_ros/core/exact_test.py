@@ -46,15 +46,23 @@ SOLVE_BATCH = 64
 
 _ACCEPTED = (clarabel.SolverStatus.Solved, clarabel.SolverStatus.AlmostSolved)
 
+#: Interior-point iterations allowed per solve. Batches here converge in 10-30; the
+#: limit only ends a stuck solve, whose grasps are then retried alone.
+MAX_ITERATIONS = 200
+
+#: Gap and feasibility tolerances of a lone retry: five orders of magnitude below
+#: MARGIN_TOL, so that the retry decides every grasp not within 1e-11 of the threshold.
+RETRY_TOL = 1e-11
+
 
 def _settings(tight: bool) -> clarabel.DefaultSettings:
+    """Clarabel settings for a batch solve, or (``tight``) for a lone retry."""
     settings = clarabel.DefaultSettings()
     settings.verbose = False
-    settings.max_iter = 200
+    settings.max_iter = MAX_ITERATIONS
     if tight:
-        # A lone retry can afford to go well below MARGIN_TOL.
-        settings.tol_gap_abs = settings.tol_gap_rel = 1e-11
-        settings.tol_feas = 1e-11
+        settings.tol_gap_abs = settings.tol_gap_rel = RETRY_TOL
+        settings.tol_feas = RETRY_TOL
     else:
         # Iterative refinement of each KKT solve cost ~45% of the batch solve time here,
         # and its accuracy is not needed: force closure needs a witness verified in
@@ -72,8 +80,8 @@ class ExactResult:
     force_closure : ndarray of bool, shape (N,)
         True only with a verified witness.
     margin : ndarray of float, shape (N,)
-        The SOCP optimum t* (dimensionless, normal forces summing to one); 0 for a
-        rank-deficient grasp map.
+        The SOCP optimum t* (dimensionless, normal forces summing to one), never more
+        than the depth of the verified witness; 0 for a rank-deficient grasp map.
     solver_failure : ndarray of bool, shape (N,)
         The solver could not decide the grasp, even alone with tight tolerances.
     """
@@ -218,15 +226,21 @@ def _solve_batch(grasps: GraspBatch, grasp_map: np.ndarray, row_space: np.ndarra
 
     solution = clarabel.DefaultSolver(p, q, a, b, cones, _settings(tight)).solve()
     x = np.asarray(solution.x).reshape(n_grasps, n_vars)
+    witness = _witness_depth(x[:, :-1], row_space[chunk], normals, mu)
+    force_closure = witness >= MARGIN_TOL
+    # Never more than a depth actually verified: the optimum (within the solver's
+    # tolerance) after a converged solve, a lower bound on it otherwise.
     margin = np.maximum(x[:, -1], 0.0)
-    forces = x[:, :-1]
-    force_closure = _witness_depth(forces, row_space[chunk], normals, mu) >= MARGIN_TOL
+    margin[force_closure] = np.minimum(margin, witness)[force_closure]
     if solution.status in _ACCEPTED:
         gap = abs(solution.obj_val - solution.obj_val_dual)
         surely_not = margin + gap < MARGIN_TOL
         undecided = ~force_closure & ~surely_not
-    else:
+    elif tight:
         undecided = ~force_closure
+    else:
+        # A batch that did not converge gives no optimum: retry every grasp alone.
+        undecided = np.ones(n_grasps, dtype=bool)
     return force_closure, margin, undecided
 
 

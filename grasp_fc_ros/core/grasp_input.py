@@ -116,7 +116,11 @@ def validate_grasps(positions, normals, mu) -> GraspValidation:
     ValueError
         Only if the shapes themselves are wrong; bad values are reported per grasp.
     """
-    p, nrm, m, _ = _as_batch_arrays(positions, normals, mu)
+    return _validate(*_as_batch_arrays(positions, normals, mu)[:3])
+
+
+def _validate(p: np.ndarray, nrm: np.ndarray, m: np.ndarray) -> GraspValidation:
+    """:func:`validate_grasps` on arrays already shaped (N, n, 3), (N, n, 3), (N, n)."""
     n_grasps, n_contacts = p.shape[:2]
     reasons = [""] * n_grasps
     if n_contacts < MIN_CONTACTS:
@@ -151,11 +155,11 @@ def prepare_grasps(positions, normals, mu) -> GraspBatch:
     ValueError
         On wrong shapes or any bad value, naming the first bad grasps and contacts.
     """
-    validation = validate_grasps(positions, normals, mu)
+    p, nrm, m, single = _as_batch_arrays(positions, normals, mu)
+    validation = _validate(p, nrm, m)
     if not validation.valid.all():
         bad = [r for r in validation.reasons if r]
         more = f" (and {len(bad) - 3} more)" if len(bad) > 3 else ""
         raise ValueError("invalid grasp input: " + "; ".join(bad[:3]) + more)
-    p, nrm, m, single = _as_batch_arrays(positions, normals, mu)
     unit_normals = nrm / np.linalg.norm(nrm, axis=2, keepdims=True)
     return GraspBatch(p, unit_normals, np.ascontiguousarray(m), single)

@@ -13,6 +13,11 @@ Origins:
   contacts nearest to and furthest from q.
 * ``"all"`` -- every contact in turn. Still sound, and rejects more grasps that are not
   force closure, at n/2 times the cost.
+
+The seed origins depend on the coordinate frame and on the length unit (the offset
+(1, 0, 0) is in the caller's unit), as in the paper: which non-force-closure grasps
+the filter catches can change with them. Its soundness, and so every final verdict,
+does not.
 """
 
 from __future__ import annotations
