@@ -47,6 +47,8 @@ from grasp_fc_ros.core import check_force_closure
 from grasp_fc_ros.objects import make_object, sample_grasps
 
 N_FINGERS = 6
+# History depth of the node's topics: far above the queries in flight (--window), so
+# that reliable delivery is never the limit being measured.
 NODE_QOS_DEPTH = 10_000
 CONNECT_TIMEOUT_S = 30.0
 REPLY_TIMEOUT_S = 120.0

@@ -282,7 +282,7 @@ def markdown_report(results, finger_rows, sides_rows, settings, total_s, plots):
         "",
         f"Each cone replaced by an inscribed {r0.peer.sides}-sided pyramid; force closure iff "
         "the origin is strictly inside the convex hull of the primitive wrenches (scipy "
-        "ConvexHull / Qhull). It is slow (tens of ms per grasp), so it runs on a subsample: "
+        "ConvexHull / Qhull). It is slow (about 10 ms per grasp with 8 sides, more with more sides), so it runs on a subsample: "
         f"the first {r0.peer.grasps:,} grasps of each object ({peer_grasps:,} in all), "
         "compared with the exact verdicts on the same grasps.",
         "",
