@@ -45,12 +45,17 @@ class PackedGrasps:
     normals : (K, 3) float64
         Inward contact normals, any length (validated later).
     mu : (K,) float64
-        Friction coefficient per contact; values <= 0 mean "node default".
+        Friction coefficient per contact; finite values <= 0 mean "node default"
+        (NaN and +-inf are invalid).
     unreadable : dict[int, str]
         Grasp index -> reason, for grasps whose data could not be read from the
         message (their ``counts`` entry is 0).
     notes : list[str]
         Batch-level remarks worth a warning (e.g. unused trailing values).
+    name_by_id : bool
+        True when the grasps are separate single-grasp topic queries: messages then
+        name a grasp by its query id only, since its position among the queued
+        queries means nothing to the client.
     """
 
     ids: np.ndarray
@@ -60,6 +65,7 @@ class PackedGrasps:
     mu: np.ndarray
     unreadable: dict[int, str] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    name_by_id: bool = False
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -170,8 +176,12 @@ def batch_to_packed(msg: ContactArrayBatch) -> PackedGrasps:
     )
 
 
-def contact_arrays_to_packed(grasps: list[ContactArray]) -> PackedGrasps:
-    """Stack single-grasp queries (topic messages or a service request) into a PackedGrasps."""
+def contact_arrays_to_packed(grasps: list[ContactArray], name_by_id: bool = False
+                             ) -> PackedGrasps:
+    """Stack single-grasp queries (topic messages or a service request) into a PackedGrasps.
+
+    ``name_by_id`` is passed on to :class:`PackedGrasps` (True for topic queries).
+    """
     ids = np.fromiter((g.id for g in grasps), dtype=np.uint64, count=len(grasps))
     counts = np.fromiter((len(g.contacts) for g in grasps), dtype=np.int64, count=len(grasps))
     total = int(counts.sum())
@@ -181,7 +191,7 @@ def contact_arrays_to_packed(grasps: list[ContactArray]) -> PackedGrasps:
                    c.normal.x, c.normal.y, c.normal.z, c.friction_coefficient)),
         dtype=np.float64, count=7 * total).reshape(total, 7)
     return PackedGrasps(ids=ids, counts=counts, positions=values[:, 0:3],
-                        normals=values[:, 3:6], mu=values[:, 6])
+                        normals=values[:, 3:6], mu=values[:, 6], name_by_id=name_by_id)
 
 
 def verdicts_to_array_msg(verdicts: Verdicts, header=None) -> ForceClosureVerdictArray:
@@ -229,12 +239,21 @@ def grasps_to_batch_msg(ids, positions, normals, mu=None, counts=None) -> Contac
     mu : None, scalar, or one value per contact; None or empty means node default
     counts : (N,) int, optional
         Contacts per grasp for stacked (K, 3) input of mixed sizes.
+
+    Raises
+    ------
+    ValueError
+        If ``positions`` is not (N, n, 3) and no ``counts`` are given: the grasps'
+        sizes would be unknown.
     """
     positions = np.asarray(positions, dtype=np.float64)
     normals = np.asarray(normals, dtype=np.float64)
     ids = np.asarray(ids, dtype=np.uint64).reshape(-1)
     if counts is None:
-        counts = np.full(len(ids), positions.shape[-2] if positions.ndim == 3 else 0)
+        if positions.ndim != 3:
+            raise ValueError(f"positions of shape {positions.shape} need counts (contacts per "
+                             "grasp); without counts pass (N, n, 3)")
+        counts = np.full(len(ids), positions.shape[1])
     n_contacts = positions.size // 3
     msg = ContactArrayBatch()
     msg.ids = _to_field(_TYPECODE_UINT64, ids)
@@ -256,7 +275,7 @@ def grasp_to_contact_array(grasp_id, positions, normals, mu=0.0) -> ContactArray
     ----------
     grasp_id : int
     positions, normals : (n, 3) float
-    mu : scalar or (n,) float; <= 0 means node default
+    mu : scalar or (n,) float; a finite value <= 0 means node default
     """
     positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
     normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)

@@ -46,6 +46,7 @@ class SpinThread:
         self.node = node
         self.executor = SingleThreadedExecutor()
         self.executor.add_node(node)
+        self.stopped = False
         self.thread = threading.Thread(target=self._spin, daemon=True)
         self.thread.start()
 
@@ -56,6 +57,10 @@ class SpinThread:
             pass
 
     def stop(self):
+        """Stop spinning and destroy the node (a second call does nothing)."""
+        if self.stopped:
+            return
+        self.stopped = True
         self.executor.shutdown()
         self.thread.join(timeout=5.0)
         self.node.destroy_node()
@@ -67,8 +72,8 @@ class Client:
     All waiting uses timeouts; messages are collected by the client's own spin thread.
     """
 
-    def __init__(self, name: str = "grasp_fc_test_client"):
-        self.node = Node(name)
+    def __init__(self, name: str = "grasp_fc_test_client", namespace: str | None = None):
+        self.node = Node(name, namespace=namespace)
         self._lock = threading.Condition()
         self.verdicts: list[ForceClosureVerdict] = []
         self.batches: list[ForceClosureVerdictArray] = []
@@ -140,6 +145,28 @@ class Client:
         assert ok, f"no reply to batch {msg.header.frame_id} within {timeout} s"
         assert len(replies) == 1, f"{len(replies)} replies to one batch"
         return replies[0]
+
+    def diagnostics_after(self, t: float, node_name: str = "/force_closure",
+                          timeout=REPLY_TIMEOUT_S) -> dict[str, str]:
+        """Key values of the first diagnostics of ``node_name`` stamped after ``t``.
+
+        ``t`` is system time (time.time()), the node's clock. A status stamped after
+        ``t`` was built after everything the node had counted by then, so comparing
+        two such readings gives exact changes.
+        """
+        def find():
+            for msg in self.diagnostics:
+                stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+                for status in msg.status:
+                    if stamp > t and status.name.startswith(node_name + ":"):
+                        return {kv.key: kv.value for kv in status.values}
+            return None
+
+        with self._lock:
+            ok = self._lock.wait_for(lambda: find() is not None, timeout)
+            values = find()
+        assert ok, f"no diagnostics of {node_name} stamped after {t} within {timeout} s"
+        return values
 
     def clear(self):
         with self._lock:

@@ -7,12 +7,14 @@ verdicts are compared with grasp_fc_ros.core on the same grasps.
 from __future__ import annotations
 
 import math
+import threading
+import time
 
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
 
-from ros_fixtures import Client, SpinThread, ros  # noqa: F401 - ros is a fixture
+from ros_fixtures import REPLY_TIMEOUT_S, Client, SpinThread, ros  # noqa: F401 - ros: fixture
 
 from grasp_fc_ros import node as node_module
 from grasp_fc_ros.conversions import (
@@ -22,7 +24,7 @@ from grasp_fc_ros.conversions import (
     verdict_array_to_numpy,
 )
 from grasp_fc_ros.core import Status, check_force_closure
-from grasp_fc_ros.node import ForceClosureNode
+from grasp_fc_ros.node import SHUTDOWN_MESSAGE, ForceClosureNode
 from grasp_fc_ros.objects import make_object, sample_grasps
 
 pytestmark = pytest.mark.timeout(120)
@@ -31,6 +33,8 @@ DEFAULT_MU = 0.5
 # The exact test's margin depends on which grasps share a solver call, to solver accuracy.
 MARGIN_ABS_TOL = 1e-6
 MARGIN_REL_TOL = 1e-4
+# Time to make sure no second, unexpected verdict follows the expected ones.
+QUIET_S = 0.5
 
 
 @pytest.fixture(scope="module")
@@ -54,6 +58,64 @@ def client(system):
 @pytest.fixture
 def fc_node(system):
     return system[0]
+
+
+@pytest.fixture
+def own_node(ros):  # noqa: F811
+    """Factory: make_node(namespace, **parameters) -> (node, spinner, client).
+
+    A node of its own in ``namespace`` (so the module's node does not answer too),
+    spun on its own thread, with a connected client; both torn down after the test.
+    """
+    made = []
+
+    def make_node(namespace, **parameters):
+        node = ForceClosureNode(namespace=namespace, parameter_overrides=[
+            Parameter(name, value=value) for name, value in parameters.items()])
+        spinner = SpinThread(node)
+        client = Client(f"{namespace}_client", namespace=namespace)
+        made.append((spinner, client))
+        client.wait_connected()
+        return node, spinner, client
+
+    yield make_node
+    for spinner, client in made:
+        client.close()
+        spinner.stop()
+
+
+class StalledWorker:
+    """Holds a node's single-query worker at the start of its passes until release()."""
+
+    def __init__(self, node, monkeypatch):
+        self.entered = threading.Event()
+        self._released = threading.Event()
+        answer = node._answer_single_queries
+
+        def stalled(msgs):
+            self.entered.set()
+            self._released.wait(REPLY_TIMEOUT_S)
+            answer(msgs)
+
+        monkeypatch.setattr(node, "_answer_single_queries", stalled)
+
+    def release(self):
+        self._released.set()
+
+
+def raise_once(monkeypatch, target, name, message):
+    """Make ``target.name`` raise RuntimeError(message) on its first call only."""
+    real = getattr(target, name)
+    calls = []
+
+    def flaky(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 1:
+            raise RuntimeError(message)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(target, name, flaky)
+    return calls
 
 
 @pytest.fixture(scope="module")
@@ -121,13 +183,14 @@ def test_bad_grasps_get_invalid_input_and_spare_the_others(client, grasps):
     normals[3, 4] = 0.0
     positions[5, 0, 1] = np.inf
     mu[6, 1] = np.nan
-    got = send_batch(client, grasps_to_batch_msg(np.arange(8), positions, normals, mu=mu))
+    got = send_batch(client, grasps_to_batch_msg(np.arange(8) + 1000, positions, normals,
+                                                 mu=mu))
     bad = [1, 3, 5, 6]
     assert (got.status[bad] == Status.INVALID_INPUT).all()
     assert not got.force_closure[bad].any()
-    assert "contact 2" in got.messages[1] and "grasp 1" in got.messages[1]
-    assert "contact 4" in got.messages[3]
-    assert "contact 1" in got.messages[6]
+    assert got.messages[1] == "grasp 1 (id 1001), contact 2: position is not finite"
+    assert got.messages[3] == "grasp 3 (id 1003), contact 4: normal has zero length"
+    assert got.messages[6].startswith("grasp 6 (id 1006), contact 1: ")
     good = [0, 2, 4, 7]
     assert all(got.messages[i] == "" for i in good)
     assert_matches_core(
@@ -145,8 +208,8 @@ def test_too_few_and_too_many_contacts(client, fc_node):
     got = send_batch(client, grasps_to_batch_msg([7, 8, 9, 10], positions, normals,
                                                  counts=sizes))
     np.testing.assert_array_equal(got.status[:3], Status.INVALID_INPUT)
-    assert "1 contacts" in got.messages[0]
-    assert f"max_contacts={max_contacts}" in got.messages[2]
+    assert got.messages[0].startswith("grasp 0 (id 7): 1 contacts")
+    assert f"max_contacts={max_contacts}" in got.messages[2] and "(id 9)" in got.messages[2]
     assert got.status[3] != Status.INVALID_INPUT
 
 
@@ -213,7 +276,8 @@ def test_service_answers_every_grasp_in_order(client, grasps):
     requests[4] = grasp_to_contact_array(104, positions[4], normals[4] * 0.0)
     verdicts = client.call(requests)
     assert [v.id for v in verdicts] == list(range(100, 110))
-    assert verdicts[4].status == Status.INVALID_INPUT and "contact 0" in verdicts[4].message
+    assert verdicts[4].status == Status.INVALID_INPUT
+    assert verdicts[4].message == "grasp 4 (id 104), contact 0: normal has zero length"
     expected = check_force_closure(positions, normals, DEFAULT_MU)
     for i in (0, 1, 2, 3, 5, 6, 7, 8, 9):
         assert verdicts[i].status == expected.status[i]
@@ -253,22 +317,32 @@ def test_without_filter_nothing_is_filtered_and_verdicts_agree(client, fc_node, 
     ("friction_coefficient", -0.1, "> 0"),
     ("friction_coefficient", math.inf, "finite"),
     ("filter_origins", "everywhere", "one of"),
-    ("max_contacts", 1, ""),
-    ("max_batch", 0, ""),
+    ("max_contacts", 1, "out of range"),
+    ("max_batch", 0, "out of range"),
     ("qos_depth", 5, "read-only"),
 ])
 def test_bad_parameter_values_are_rejected_with_a_reason(fc_node, name, value, why):
     before = fc_node.get_parameter(name).value
     result = fc_node.set_parameters([Parameter(name, value=value)])[0]
     assert not result.successful
-    assert why in result.reason and result.reason
+    assert why in result.reason
     assert fc_node.get_parameter(name).value == before
 
 
-def test_good_parameter_values_are_accepted(fc_node):
+def test_good_parameter_values_are_accepted_and_used(client, fc_node, grasps):
+    positions, normals = grasps
     result = fc_node.set_parameters([Parameter("filter_origins", value="all")])[0]
-    fc_node.set_parameters([Parameter("filter_origins", value="seed")])
+    try:
+        got = send_batch(client, grasps_to_batch_msg(np.arange(len(positions)), positions,
+                                                     normals))
+    finally:
+        fc_node.set_parameters([Parameter("filter_origins", value="seed")])
     assert result.successful
+    expected = check_force_closure(positions, normals, DEFAULT_MU, origins="all")
+    np.testing.assert_array_equal(got.status, expected.status)
+    # The origins must matter on this sample, or the test could not fail.
+    seed = check_force_closure(positions, normals, DEFAULT_MU, origins="seed")
+    assert (seed.status != expected.status).any()
 
 
 def test_core_exception_becomes_solver_failure_and_node_survives(client, grasps, monkeypatch):
@@ -289,16 +363,224 @@ def test_core_exception_becomes_solver_failure_and_node_survives(client, grasps,
     assert got.status[0] != Status.SOLVER_FAILURE
 
 
-def test_diagnostics_report_counters(client, grasps):
+def diagnostics_change(before: dict, after: dict) -> dict:
+    """after - before for the integer counters of two diagnostics readings."""
+    return {k: int(after[k]) - int(before[k]) for k in before if before[k].isdigit()}
+
+
+def test_diagnostics_report_exact_counter_changes(client, grasps):
+    positions, normals = (a[:20].copy() for a in grasps)
+    normals[3] *= np.nan
+    expected = check_force_closure(positions[4:], normals[4:], DEFAULT_MU).status
+    before = client.diagnostics_after(time.time())
+    send_batch(client, grasps_to_batch_msg(np.arange(4, 20), positions[4:], normals[4:]))
+    client.call([grasp_to_contact_array(i, positions[i], normals[i]) for i in range(3)])
+    client.contacts_pub.publish(grasp_to_contact_array(3, positions[3], normals[3]))
+    client.wait_for("verdicts", 1)
+    after = client.diagnostics_after(time.time())
+
+    keys = {"queries", "force_closure", "rejected_by_filter", "decided_by_exact_test",
+            "invalid_input", "solver_failures", "callback_errors", "overloaded",
+            "pending_single_queries", "conversion_time_total_s", "filter_time_total_s",
+            "exact_time_total_s", "processing_time_mean_ms", "processing_time_p99_ms"}
+    assert set(after) == keys
+    served = check_force_closure(positions[:3], normals[:3], DEFAULT_MU).status
+    statuses = np.concatenate([expected, served])
+    assert diagnostics_change(before, after) == {
+        "queries": 20,
+        "force_closure": int((statuses == Status.FORCE_CLOSURE).sum()),
+        "rejected_by_filter": int((statuses == Status.FILTERED_OUT).sum()),
+        "decided_by_exact_test": int((statuses <= Status.NOT_FORCE_CLOSURE).sum()),
+        "invalid_input": 1,
+        "solver_failures": 0,
+        "callback_errors": 0,
+        "overloaded": 0,
+        "pending_single_queries": 0,
+    }
+    for key in ("conversion_time_total_s", "filter_time_total_s", "exact_time_total_s"):
+        assert float(after[key]) >= float(before[key])
+    assert float(after["exact_time_total_s"]) > float(before["exact_time_total_s"])
+    assert float(after["processing_time_mean_ms"]) > 0
+    assert float(after["processing_time_p99_ms"]) > 0
+
+
+def test_single_query_message_names_its_id_and_contact(client, grasps):
+    positions, normals = (a[0].copy() for a in grasps)
+    normals[2] = 0.0
+    client.contacts_pub.publish(grasp_to_contact_array(4242, positions, normals))
+    [verdict] = client.wait_for("verdicts", 1)
+    assert verdict.id == 4242 and verdict.status == Status.INVALID_INPUT
+    assert verdict.message == "query id 4242, contact 2: normal has zero length"
+
+
+@pytest.mark.parametrize("bad_mu", [-math.inf, math.inf, math.nan])
+def test_non_finite_contact_friction_is_invalid_not_default(client, grasps, bad_mu):
     positions, normals = (a[:2] for a in grasps)
-    send_batch(client, grasps_to_batch_msg([1, 2], positions, normals * np.nan))
-    client.clear()
-    diagnostics = client.wait_for("diagnostics", 2, timeout=5.0)
-    status = diagnostics[-1].status[0]
-    values = {kv.key: kv.value for kv in status.values}
-    assert "force_closure" in status.name
-    for key in ("queries", "rejected_by_filter", "decided_by_exact_test", "invalid_input",
-                "solver_failures", "processing_time_mean_ms", "processing_time_p99_ms"):
-        assert key in values
-    assert int(values["queries"]) > 0
-    assert int(values["invalid_input"]) > 0
+    mu = np.full(6, 0.0)  # 0: the node's friction_coefficient
+    mu[3] = bad_mu
+    verdicts = client.call([grasp_to_contact_array(1, positions[0], normals[0], mu=mu),
+                            grasp_to_contact_array(2, positions[1], normals[1], mu=0.0)])
+    assert verdicts[0].status == Status.INVALID_INPUT
+    assert verdicts[0].message == "grasp 0 (id 1), contact 3: friction coefficient is not finite"
+    assert verdicts[1].status == check_force_closure(positions[1], normals[1], DEFAULT_MU).status
+
+
+def test_single_queries_beyond_max_batch_are_refused_at_once(own_node, grasps, monkeypatch):
+    node, _, client = own_node("overload_test", max_batch=5)
+    stall = StalledWorker(node, monkeypatch)
+    positions, normals = (a[:12] for a in grasps)
+    client.contacts_pub.publish(grasp_to_contact_array(0, positions[0], normals[0]))
+    assert stall.entered.wait(REPLY_TIMEOUT_S), "worker never took query 0"
+    before = client.diagnostics_after(time.time(), "/overload_test/force_closure")
+    for i in range(1, 12):  # 1..5 fill the queue, 6..11 overflow it
+        client.contacts_pub.publish(grasp_to_contact_array(i, positions[i], normals[i]))
+    refused = client.wait_for("verdicts", 6)  # while the worker is still held
+    assert [v.id for v in refused] == list(range(6, 12))
+    for v in refused:
+        assert v.status == Status.SOLVER_FAILURE and not v.force_closure
+        assert v.message == "node overloaded: 5 single-grasp queries pending"
+    stall.release()
+    client.wait_for("verdicts", 12)
+    time.sleep(QUIET_S)
+    received = client.wait_for("verdicts", 12)
+    assert len(received) == 12, "a query got more than one verdict"
+    answered = received[6:]
+    assert [v.id for v in answered] == list(range(6))
+    expected = check_force_closure(positions[:6], normals[:6], DEFAULT_MU)
+    assert [v.status for v in answered] == expected.status.tolist()
+    after = client.diagnostics_after(time.time(), "/overload_test/force_closure")
+    change = diagnostics_change(before, after)
+    assert change["overloaded"] == 6 and change["solver_failures"] == 6
+    assert change["queries"] == 12  # query 0 is counted once answered
+
+
+def test_core_failure_in_one_drain_fails_those_queries_only(client, grasps, monkeypatch):
+    positions, normals = (a[:2] for a in grasps)
+    raise_once(monkeypatch, node_module, "check_force_closure", "solver exploded once")
+    client.contacts_pub.publish(grasp_to_contact_array(31, positions[0], normals[0]))
+    [failed] = client.wait_for("verdicts", 1)
+    assert failed.id == 31 and failed.status == Status.SOLVER_FAILURE
+    assert "solver exploded once" in failed.message
+    client.contacts_pub.publish(grasp_to_contact_array(32, positions[1], normals[1]))
+    later = client.wait_for("verdicts", 2)[1]
+    assert later.id == 32
+    assert later.status == check_force_closure(positions[1], normals[1], DEFAULT_MU).status
+
+
+def test_worker_survives_failed_publishing(client, fc_node, grasps, monkeypatch):
+    positions, normals = (a[:3] for a in grasps)
+    publish = fc_node._verdict_pub.publish
+    failures_left = [0]
+
+    def flaky(msg):
+        if failures_left[0]:
+            failures_left[0] -= 1
+            raise RuntimeError("publisher hiccup")
+        publish(msg)
+
+    monkeypatch.setattr(fc_node._verdict_pub, "publish", flaky)
+    before = client.diagnostics_after(time.time())
+    # One failure: the query is answered with SOLVER_FAILURE instead of its verdict.
+    failures_left[0] = 1
+    client.contacts_pub.publish(grasp_to_contact_array(41, positions[0], normals[0]))
+    [first] = client.wait_for("verdicts", 1)
+    assert first.id == 41 and first.status == Status.SOLVER_FAILURE
+    assert "publisher hiccup" in first.message
+    # Two failures: even the failure verdict cannot be sent; the worker must go on.
+    failures_left[0] = 2
+    client.contacts_pub.publish(grasp_to_contact_array(42, positions[1], normals[1]))
+    deadline = time.monotonic() + REPLY_TIMEOUT_S
+    while failures_left[0] and time.monotonic() < deadline:
+        time.sleep(0.01)
+    client.contacts_pub.publish(grasp_to_contact_array(43, positions[2], normals[2]))
+    received = client.wait_for("verdicts", 2)
+    time.sleep(QUIET_S)
+    assert [v.id for v in client.wait_for("verdicts", 2)] == [41, 43]
+    assert received[1].status == check_force_closure(positions[2], normals[2], DEFAULT_MU).status
+    change = diagnostics_change(before, client.diagnostics_after(time.time()))
+    assert change["callback_errors"] == 3
+
+
+def test_service_failure_while_building_the_response_is_answered(client, grasps, monkeypatch):
+    positions, normals = (a[:2] for a in grasps)
+    raise_once(monkeypatch, node_module, "verdicts_to_msgs", "cannot build verdicts")
+    verdicts = client.call([grasp_to_contact_array(51 + i, positions[i], normals[i])
+                            for i in range(2)])
+    assert [v.id for v in verdicts] == [51, 52]
+    assert all(v.status == Status.SOLVER_FAILURE for v in verdicts)
+    assert "cannot build verdicts" in verdicts[0].message
+    [again] = client.call([grasp_to_contact_array(53, positions[0], normals[0])])
+    assert again.status == check_force_closure(positions[0], normals[0], DEFAULT_MU).status
+
+
+def test_failed_batch_reply_is_counted_once_and_not_timed(client, grasps, monkeypatch):
+    positions, normals = (a[:3] for a in grasps)
+    before = client.diagnostics_after(time.time())
+    raise_once(monkeypatch, node_module, "verdicts_to_array_msg", "cannot pack verdicts")
+    got = send_batch(client, grasps_to_batch_msg([61, 62, 63], positions, normals))
+    np.testing.assert_array_equal(got.ids, [61, 62, 63])
+    assert (got.status == Status.SOLVER_FAILURE).all()
+    assert "cannot pack verdicts" in got.messages[0]
+    after = client.diagnostics_after(time.time())
+    change = diagnostics_change(before, after)
+    assert change["queries"] == 3 and change["solver_failures"] == 3
+    assert change["callback_errors"] == 1
+    assert change["force_closure"] == change["rejected_by_filter"] == 0
+    # A failure adds no processing time sample: mean and p99 stay as they were.
+    assert after["processing_time_mean_ms"] == before["processing_time_mean_ms"]
+    assert after["processing_time_p99_ms"] == before["processing_time_p99_ms"]
+
+
+def test_parameters_are_read_once_per_message(client, fc_node, grasps, monkeypatch):
+    rng = np.random.default_rng(7)
+    box = make_object("box")
+    sizes = np.array([4, 6, 4, 6])
+    positions = np.concatenate([sample_grasps(box, 1, int(n), rng)[0][0] for n in sizes])
+    calls = []
+    real = node_module.check_force_closure
+
+    def changing_parameters(*args, **kwargs):
+        calls.append(kwargs["use_filter"])
+        # A parameter change (from another thread in real life) while one batch is decided.
+        fc_node.set_parameters([Parameter("use_filter", value=False)])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(node_module, "check_force_closure", changing_parameters)
+    try:
+        send_batch(client, grasps_to_batch_msg(np.arange(4), positions, -positions,
+                                               counts=sizes))
+    finally:
+        fc_node.set_parameters([Parameter("use_filter", value=True)])
+    assert calls == [True, True]  # one core call per contact count, same settings
+
+
+def test_queued_single_queries_are_answered_at_shutdown(own_node, grasps, monkeypatch):
+    node, spinner, client = own_node("shutdown_test")
+    stall = StalledWorker(node, monkeypatch)
+    positions, normals = (a[:4] for a in grasps)
+    client.contacts_pub.publish(grasp_to_contact_array(0, positions[0], normals[0]))
+    assert stall.entered.wait(REPLY_TIMEOUT_S), "worker never took query 0"
+    for i in range(1, 4):
+        client.contacts_pub.publish(grasp_to_contact_array(i, positions[i], normals[i]))
+    deadline = time.monotonic() + REPLY_TIMEOUT_S
+    while len(node._pending) < 3 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    stopper = threading.Thread(target=spinner.stop)
+    stopper.start()
+    while not node._stopping and time.monotonic() < deadline:
+        time.sleep(0.01)
+    stall.release()
+    stopper.join(REPLY_TIMEOUT_S)
+    received = client.wait_for("verdicts", 4)
+    assert [v.id for v in received] == [0, 1, 2, 3]
+    assert received[0].status == check_force_closure(positions[0], normals[0], DEFAULT_MU).status
+    for v in received[1:]:
+        assert v.status == Status.SOLVER_FAILURE and v.message == SHUTDOWN_MESSAGE
+
+
+def test_stacked_contacts_without_counts_are_refused():
+    positions = np.ones((12, 3))
+    with pytest.raises(ValueError, match="counts"):
+        grasps_to_batch_msg([1, 2], positions, positions)
+    msg = grasps_to_batch_msg([1, 2], positions, positions, counts=[5, 7])
+    assert list(msg.contact_counts) == [5, 7]
