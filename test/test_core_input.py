@@ -89,3 +89,93 @@ def test_validation_reports_every_bad_grasp_and_keeps_the_good_ones():
     assert report.reasons[0] == report.reasons[2] == report.reasons[4] == ""
     good = check_force_closure(positions[report.valid], normals[report.valid], 0.5)
     assert good.force_closure.all()
+
+
+# Inputs at the edges of floating point: each gets a correct verdict or a clear refusal.
+
+def ellipsoid_batch(n_grasps=200, n_contacts=5, seed=0):
+    rng = np.random.default_rng(seed)
+    direction = rng.normal(size=(n_grasps, n_contacts, 3))
+    direction /= np.linalg.norm(direction, axis=2, keepdims=True)
+    positions = direction * [1.0, 2.0, 3.0]
+    normals = -positions / np.array([1.0, 2.0, 3.0]) ** 2
+    return positions, normals
+
+
+@pytest.mark.parametrize("length", [1e-300, 1e-13, 1e155, 1e300])
+def test_normals_of_any_representable_length_give_the_same_verdicts(length):
+    positions, normals = ellipsoid_batch()
+    unit = normals / np.linalg.norm(normals, axis=2, keepdims=True)
+    reference = check_force_closure(positions, unit, 0.5)
+    scaled = check_force_closure(positions, unit * length, 0.5)
+    assert reference.force_closure.any() and not reference.force_closure.all()
+    assert np.array_equal(reference.status, scaled.status)
+    assert np.allclose(reference.margin, scaled.margin, equal_nan=True, atol=1e-9)
+
+
+def test_only_zero_and_subnormal_normals_are_too_short():
+    normals = -TETRAHEDRON.copy()
+    normals[1] = [5e-324, 0.0, 1e-310]
+    with pytest.raises(ValueError, match="grasp 0, contact 1: normal is too short"):
+        check_force_closure(TETRAHEDRON, normals, 0.5)
+    normals[1] = [2.3e-308, 0.0, 1e-310]  # one normal float component: a direction
+    assert check_force_closure(TETRAHEDRON, normals, 0.5).status in (0, 1, 2)
+
+
+@pytest.mark.parametrize("scale", [1e-300, 1e-150, 1e150, 1e300])
+def test_verdicts_do_not_change_at_extreme_length_scales(scale):
+    positions, normals = ellipsoid_batch(seed=1)
+    reference = check_force_closure(positions, normals, 0.5, origins="all")
+    scaled = check_force_closure(positions * scale, normals, 0.5, origins="all")
+    assert np.array_equal(reference.force_closure, scaled.force_closure)
+    # The filter may catch other grasps at another scale (seed origins are unit-bound),
+    # but never a force-closure one.
+    for origins in ("seed", "all"):
+        assert not np.any(reference.force_closure
+                          & ~torque_filter(positions * scale, normals, 0.5, origins=origins))
+
+
+def test_coordinates_near_the_float_limit_are_refused_naming_the_contact():
+    positions, normals = batch(3)
+    positions[2, 1] = [9e307, -9e307, 0.0]
+    with pytest.raises(ValueError, match="grasp 2, contact 1: position has a coordinate "
+                                         "beyond .* larger length unit"):
+        check_force_closure(positions, normals, 0.5)
+    report = validate_grasps(positions, normals, 0.5)
+    assert list(report.valid) == [True, True, False]
+
+
+def test_the_largest_accepted_coordinates_give_correct_verdicts():
+    limit = 2.0 ** 1000
+    positions = TETRAHEDRON * limit
+    # A grasp spanning the whole accepted range, and one far from the origin.
+    shifted = TETRAHEDRON * 1e290 + limit * 0.5
+    for p in (positions, shifted):
+        result = check_force_closure(p, -TETRAHEDRON, 0.5)
+        assert result.status == 0, result
+        assert torque_filter(p, -TETRAHEDRON, 0.5, origins="all")
+
+
+def test_friction_beyond_its_bound_is_refused_and_at_the_bound_is_decided():
+    from grasp_fc_ros.core.tolerances import MAX_FRICTION_COEFFICIENT
+    positions, normals = ellipsoid_batch(n_grasps=60, n_contacts=3, seed=2)
+    at_bound = check_force_closure(positions, normals, MAX_FRICTION_COEFFICIENT)
+    assert not np.any(at_bound.status == 4), "solver failures at the friction bound"
+    mu = np.full((60, 3), 0.5)
+    mu[7, 2] = MAX_FRICTION_COEFFICIENT * 1.5
+    with pytest.raises(ValueError, match="grasp 7, contact 2: friction coefficient exceeds"):
+        check_force_closure(positions, normals, mu)
+    assert validate_grasps(positions, normals, mu).valid.sum() == 59
+
+
+@pytest.mark.parametrize("argument", ["positions", "normals", "mu"])
+def test_complex_and_non_numeric_input_is_refused_naming_the_argument(argument):
+    values = {"positions": TETRAHEDRON, "normals": -TETRAHEDRON, "mu": 0.5}
+    values[argument] = np.asarray(values[argument]) + 1e-3j
+    with pytest.raises(ValueError, match=f"{argument} must be real numbers, got complex"):
+        check_force_closure(values["positions"], values["normals"], values["mu"])
+    with pytest.raises(ValueError, match=f"{argument} must be real numbers, got complex"):
+        validate_grasps(values["positions"], values["normals"], values["mu"])
+    values[argument] = np.full(np.shape(values[argument]), "x")
+    with pytest.raises(ValueError, match=f"{argument} must be real numbers"):
+        check_force_closure(values["positions"], values["normals"], values["mu"])

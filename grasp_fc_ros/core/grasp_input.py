@@ -1,8 +1,14 @@
 """Input handling: shapes, broadcasting and per-grasp validation.
 
-A grasp is n contacts, each a position (3,), an inward normal (3,) of any non-zero
-length, and a friction coefficient mu > 0. Public functions accept one grasp
-(arrays (n, 3)) or a batch (arrays (N, n, 3)); internally everything is a batch.
+A grasp is n contacts, each a position (3,), an inward normal (3,) and a friction
+coefficient mu. Public functions accept one grasp (arrays (n, 3)) or a batch (arrays
+(N, n, 3)); internally everything is a batch. Accepted values, all real and finite:
+
+* positions with every |coordinate| <= ``MAX_ABS_COORDINATE`` (about 1e301);
+* normals of any length whose largest |component| is at least ``MIN_NORMAL_COMPONENT``
+  (the smallest normal float, about 2.2e-308): 1e-300 and 1e300 are both fine; only
+  the zero vector and subnormal-only vectors are refused;
+* 0 < mu <= ``MAX_FRICTION_COEFFICIENT`` (1e3).
 """
 
 from __future__ import annotations
@@ -11,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .tolerances import ZERO_NORMAL_NORM
+from .tolerances import MAX_ABS_COORDINATE, MAX_FRICTION_COEFFICIENT, MIN_NORMAL_COMPONENT
 
 MIN_CONTACTS = 2
 
@@ -64,10 +70,11 @@ def _as_batch_arrays(positions, normals, mu):
     Raises
     ------
     ValueError
-        If the shapes do not describe one grasp or a batch of grasps.
+        If the shapes do not describe one grasp or a batch of grasps, or an argument
+        is not real numbers (complex, strings), naming the argument.
     """
-    p = np.asarray(positions, dtype=np.float64)
-    nrm = np.asarray(normals, dtype=np.float64)
+    p = _real_array(positions, "positions")
+    nrm = _real_array(normals, "normals")
     if p.ndim not in (2, 3) or p.shape[-1] != 3:
         raise ValueError(
             f"positions must have shape (n, 3) or (N, n, 3), got {p.shape}")
@@ -78,7 +85,7 @@ def _as_batch_arrays(positions, normals, mu):
     if single:
         p, nrm = p[None], nrm[None]
     n_grasps, n_contacts = p.shape[:2]
-    m = np.asarray(mu, dtype=np.float64)
+    m = _real_array(mu, "mu")
     if single and m.ndim >= 1:
         m = m[None]
     try:
@@ -89,6 +96,36 @@ def _as_batch_arrays(positions, normals, mu):
             f"mu of shape {np.shape(mu)} does not broadcast to (grasps, contacts) = "
             f"{(n_grasps, n_contacts)}{hint}") from None
     return p, nrm, m, single
+
+
+def _real_array(values, name: str) -> np.ndarray:
+    """``values`` as a float64 array; refuses complex and non-numeric input by ``name``.
+
+    A plain float conversion would drop imaginary parts silently.
+    """
+    array = np.asarray(values)
+    if np.iscomplexobj(array):
+        raise ValueError(f"{name} must be real numbers, got complex values ({array.dtype})")
+    try:
+        return array.astype(np.float64)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{name} must be real numbers: {error}") from None
+
+
+def _largest_component(vectors: np.ndarray) -> np.ndarray:
+    """max |component| of vectors (..., 3): shape (...); NaN where a component is NaN."""
+    return np.abs(vectors).max(axis=-1)
+
+
+def unit_vectors(vectors: np.ndarray) -> np.ndarray:
+    """Directions of vectors (..., 3) whose largest |component| is a normal float.
+
+    Dividing by the largest |component| first brings every vector to a length in
+    [1, sqrt(3)], so the norm neither overflows (lengths >= ~1e154) nor underflows
+    (lengths <= ~1e-154); the result is a unit vector to a few ulps.
+    """
+    scaled = vectors / _largest_component(vectors)[..., None]
+    return scaled / np.sqrt((scaled * scaled).sum(axis=-1))[..., None]
 
 
 def _first_per_grasp(bad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -114,7 +151,8 @@ def validate_grasps(positions, normals, mu) -> GraspValidation:
     Raises
     ------
     ValueError
-        Only if the shapes themselves are wrong; bad values are reported per grasp.
+        Only if the shapes themselves are wrong or an argument is not real numbers;
+        bad values are reported per grasp.
     """
     return _validate(*_as_batch_arrays(positions, normals, mu)[:3])
 
@@ -128,15 +166,23 @@ def _validate(p: np.ndarray, nrm: np.ndarray, m: np.ndarray) -> GraspValidation:
                    for g in range(n_grasps)]
         return GraspValidation(np.zeros(n_grasps, dtype=bool), reasons)
 
-    with np.errstate(invalid="ignore", over="ignore"):
-        normal_length = np.linalg.norm(nrm, axis=2)
-    checks = (
-        (~np.isfinite(p).all(axis=2), "position is not finite"),
-        (~np.isfinite(nrm).all(axis=2), "normal is not finite"),
-        (normal_length <= ZERO_NORMAL_NORM, "normal has zero length"),
-        (~np.isfinite(m), "friction coefficient is not finite"),
-        (~(m > 0), "friction coefficient must be > 0"),
-    )
+    with np.errstate(invalid="ignore"):
+        normal_size = _largest_component(nrm)
+        checks = (
+            (~np.isfinite(p).all(axis=2), "position is not finite"),
+            (~(_largest_component(p) <= MAX_ABS_COORDINATE),
+             f"position has a coordinate beyond +-{MAX_ABS_COORDINATE:.3g} (use a larger "
+             "length unit)"),
+            (~np.isfinite(nrm).all(axis=2), "normal is not finite"),
+            (normal_size == 0, "normal has zero length"),
+            (normal_size < MIN_NORMAL_COMPONENT,
+             f"normal is too short to give a direction (every component below "
+             f"{MIN_NORMAL_COMPONENT:.3g})"),
+            (~np.isfinite(m), "friction coefficient is not finite"),
+            (~(m > 0), "friction coefficient must be > 0"),
+            (m > MAX_FRICTION_COEFFICIENT,
+             f"friction coefficient exceeds {MAX_FRICTION_COEFFICIENT:g}"),
+        )
     valid = np.ones(n_grasps, dtype=bool)
     # Report the first problem of each grasp: a grasp already found bad is skipped.
     for bad, what in checks:
@@ -161,5 +207,4 @@ def prepare_grasps(positions, normals, mu) -> GraspBatch:
         bad = [r for r in validation.reasons if r]
         more = f" (and {len(bad) - 3} more)" if len(bad) > 3 else ""
         raise ValueError("invalid grasp input: " + "; ".join(bad[:3]) + more)
-    unit_normals = nrm / np.linalg.norm(nrm, axis=2, keepdims=True)
-    return GraspBatch(p, unit_normals, np.ascontiguousarray(m), single)
+    return GraspBatch(p, unit_vectors(nrm), np.ascontiguousarray(m), single)

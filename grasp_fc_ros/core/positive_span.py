@@ -13,9 +13,16 @@ has c . v >= 0 for every v in every set (all sets lie in one closed half-space).
   for some pair (v_i, v_j) of non-parallel boundary torques, c = v_i x v_j has all
   boundary torques on one closed side. If no pair is non-parallel the torques span a
   line at most and cannot span R^3.
+  That pair test costs O(K^3) for K boundary torques (and its broadcast form O(K^3)
+  memory), so from ``HULL_MIN_VECTORS`` torques on the fans-only case uses the convex
+  hull of the torques instead (Qhull, O(K log K) per problem): they fail to span iff the
+  origin is not strictly inside the hull, and then the outward normal of a facet that
+  the origin is not strictly behind, negated, is a separating direction.
 
-Everything is vectorised over a batch of independent problems; there is no per-problem
-Python loop and no solver.
+Every separating direction is checked against every torque before a problem is called
+non-spanning, so rounding (or a hull computed imprecisely) can only make a problem
+pass. Small problems are vectorised over the batch with no solver and no per-problem
+Python loop; large ones loop over problems, each costing far more than the loop.
 """
 
 from __future__ import annotations
@@ -24,6 +31,7 @@ from functools import lru_cache
 from itertools import combinations
 
 import numpy as np
+from scipy.spatial import ConvexHull, QhullError
 
 from .tolerances import PARALLEL_TOL, SPAN_TOL
 from .torque_sets import TorqueSetKind, TorqueSets, cross, dot
@@ -37,12 +45,18 @@ _PLANE = int(TorqueSetKind.PLANE)
 #: (pairs, problems) intermediates stay in a core's cache.
 _PAIR_TEST_CHUNK = 4096
 
+#: From this many boundary torques per problem (fans-only case) the convex-hull test
+#: replaces the pair test. Measured (benchmarks/bench_filter.py): the pair test's cost
+#: grows as K^3 and passes the hull's (about 0.1 ms per problem plus O(K log K)) near
+#: K = 24, i.e. 13 contacts.
+HULL_MIN_VECTORS = 24
+
 #: Below this many problems the loop over triples costs more in numpy call overhead
 #: (about 1,400 calls for six fingers) than it saves in arithmetic; measured crossover.
 _TRIPLE_LOOP_MIN_PROBLEMS = 256
 
 
-def positively_spans(sets: TorqueSets) -> np.ndarray:
+def positively_spans(sets: TorqueSets, directions: bool = False):
     """Whether the torque sets of each problem positively span R^3.
 
     Parameters
@@ -50,25 +64,39 @@ def positively_spans(sets: TorqueSets) -> np.ndarray:
     sets : TorqueSets
         ``kind`` of shape (m, B) and vectors of shape (3, m, B): m torque sets for each
         of B problems.
+    directions : bool
+        Also return the separating direction found for each non-spanning problem.
 
     Returns
     -------
-    ndarray of bool, shape (B,)
+    spans : ndarray of bool, shape (B,)
         False only where a separating direction was found: the sets certainly do not
         positively span R^3 (up to ``SPAN_TOL``).
+    direction : ndarray, shape (3, B), only if ``directions``
+        Where ``spans`` is False, a unit c with c . v >= -SPAN_TOL |v| for every torque v
+        of every set (all sets lie on c's side of the plane perpendicular to it); NaN
+        where ``spans`` is True.
     """
     has_plane = (sets.kind == _PLANE).any(axis=0)
     spans = np.empty(sets.kind.shape[1], dtype=bool)
-    if has_plane.any():
-        spans[has_plane] = _spans_with_plane(sets.subset((slice(None), has_plane)))
-    fans_only = ~has_plane
-    if fans_only.any():
-        spans[fans_only] = _fans_span(sets.subset((slice(None), fans_only)))
-    return spans
+    direction = np.full((3, spans.size), np.nan) if directions else None
+    for part, test in ((has_plane, _spans_with_plane), (~has_plane, _fans_span)):
+        if part.any():
+            found = test(sets.subset((slice(None), part)), directions)
+            if directions:
+                spans[part], direction[:, part] = found
+            else:
+                spans[part] = found
+    return (spans, direction) if directions else spans
 
 
-def _spans_with_plane(sets: TorqueSets) -> np.ndarray:
-    """Positive span for problems that contain at least one plane. Shapes (m, B)."""
+def _spans_with_plane(sets: TorqueSets, directions: bool = False):
+    """Positive span for problems that contain at least one plane. Shapes (m, B).
+
+    Returns spans (B,), and with ``directions`` also the separating direction (3, B):
+    minus (plus) the pivot plane's normal where nothing reaches its positive (negative)
+    side.
+    """
     is_plane = sets.kind == _PLANE
     pivot = is_plane.argmax(axis=0)
     normal = sets.axis[:, pivot, np.arange(pivot.size)][:, None, :]    # (3, 1, B)
@@ -81,8 +109,13 @@ def _spans_with_plane(sets: TorqueSets) -> np.ndarray:
 
     tilt = cross(sets.axis, normal)
     crossing_plane = is_plane & (dot(tilt, tilt) > PARALLEL_TOL ** 2)
-    return ((reaches_pos | crossing_plane).any(axis=0)
-            & (reaches_neg | crossing_plane).any(axis=0))
+    has_pos = (reaches_pos | crossing_plane).any(axis=0)
+    has_neg = (reaches_neg | crossing_plane).any(axis=0)
+    spans = has_pos & has_neg
+    if not directions:
+        return spans
+    sign = np.where(has_pos, 1.0, -1.0)
+    return spans, np.where(spans, np.nan, sign * normal[:, 0])
 
 
 @lru_cache(maxsize=64)
@@ -96,25 +129,34 @@ def _pairs_and_triples(n_vectors: int):
     return first, second, triples
 
 
-def _fans_span(sets: TorqueSets) -> np.ndarray:
+def _fans_span(sets: TorqueSets, directions: bool = False):
     """Positive span for problems whose sets are fans or null sets. Shapes (m, B).
 
     Null sets contribute zero vectors, which lie on every side of every plane and
     make no pair non-parallel, so they need no special case.
+
+    Returns spans (B,), and with ``directions`` also the separating directions (3, B).
     """
     vectors = np.concatenate((sets.first, sets.second), axis=1)        # (3, K, B)
-    spans = ~_separates_at_mean(vectors)
+    found = _direction_at_mean(vectors)
+    spans = np.isnan(found[0])
     undecided = np.flatnonzero(spans)
-    pairs_and_triples = _pairs_and_triples(vectors.shape[1])
-    for start in range(0, undecided.size, _PAIR_TEST_CHUNK):
-        chunk = undecided[start:start + _PAIR_TEST_CHUNK]
-        test = (_has_separating_pair if chunk.size >= _TRIPLE_LOOP_MIN_PROBLEMS
-                else _has_separating_pair_few)
-        spans[chunk] = ~test(vectors[:, :, chunk], *pairs_and_triples)
-    return spans
+    if vectors.shape[1] >= HULL_MIN_VECTORS:
+        for problem in undecided:
+            found[:, problem] = _hull_direction(vectors[:, :, problem].T)
+    else:
+        pairs_and_triples = _pairs_and_triples(vectors.shape[1])
+        for start in range(0, undecided.size, _PAIR_TEST_CHUNK):
+            chunk = undecided[start:start + _PAIR_TEST_CHUNK]
+            test = (_pair_sides if chunk.size >= _TRIPLE_LOOP_MIN_PROBLEMS
+                    else _pair_sides_few)
+            part = vectors[:, :, chunk]
+            found[:, chunk] = _separating_pair(part, *test(part, *pairs_and_triples))
+    spans = np.isnan(found[0])
+    return (spans, found) if directions else spans
 
 
-def _separates_at_mean(vectors: np.ndarray) -> np.ndarray:
+def _direction_at_mean(vectors: np.ndarray) -> np.ndarray:
     """Cheap first try: does the mean of the vectors itself separate them?
 
     When all vectors lie in a half-space their mean often does (about one problem in
@@ -128,34 +170,32 @@ def _separates_at_mean(vectors: np.ndarray) -> np.ndarray:
 
     Returns
     -------
-    ndarray of bool, shape (B,)
+    ndarray, shape (3, B)
+        The unit mean where it separates, NaN elsewhere.
     """
     mean = vectors.sum(axis=1)                                         # (3, B)
     lowest = dot(mean[:, None], vectors).min(axis=0)
     length = np.sqrt(dot(mean, mean))
-    return (length > PARALLEL_TOL) & (lowest >= -SPAN_TOL * length)
+    separates = (length > PARALLEL_TOL) & (lowest >= -SPAN_TOL * length)
+    return np.where(separates, mean / np.where(separates, length, 1.0), np.nan)
 
 
-def _has_separating_pair_few(vectors: np.ndarray, first: np.ndarray, second: np.ndarray,
-                             triples: list) -> np.ndarray:
-    """:func:`_has_separating_pair` in a handful of numpy calls, for few problems.
+def _pair_sides_few(vectors: np.ndarray, first: np.ndarray, second: np.ndarray,
+                    triples: list):
+    """:func:`_pair_sides` in a handful of numpy calls, for few problems.
 
     It computes every pair's side of every vector (K (K - 1) / 2 * K dot products), which
     is more arithmetic but far less per-call overhead than the loop over triples.
     """
-    del triples  # same signature as _has_separating_pair; only pairs are needed here
+    del triples  # same signature as _pair_sides; only pairs are needed here
     normals = cross(vectors[:, first], vectors[:, second])             # (3, P, B)
     sides = np.einsum("xpb,xkb->pkb", normals, vectors)                # (P, K, B)
-    length = np.sqrt(dot(normals, normals))
-    slack = SPAN_TOL * length
-    one_side = (sides.min(axis=1) >= -slack) | (sides.max(axis=1) <= slack)
-    is_pair = length > PARALLEL_TOL
-    return (one_side & is_pair).any(axis=0) | ~is_pair.any(axis=0)
+    return normals, sides.min(axis=1), sides.max(axis=1)
 
 
-def _has_separating_pair(vectors: np.ndarray, first: np.ndarray, second: np.ndarray,
-                         triples: list) -> np.ndarray:
-    """Whether some pair's cross product has all vectors on one closed side.
+def _pair_sides(vectors: np.ndarray, first: np.ndarray, second: np.ndarray,
+                triples: list):
+    """Every pair's cross product and the lowest and highest side of any vector on it.
 
     The side of v_c for the pair (v_a, v_b) is the triple product det(v_a, v_b, v_c),
     and each triple product serves three pairs: (a, b) sees +det, (a, c) sees -det and
@@ -173,7 +213,10 @@ def _has_separating_pair(vectors: np.ndarray, first: np.ndarray, second: np.ndar
 
     Returns
     -------
-    ndarray of bool, shape (B,)
+    normals : ndarray, shape (3, P, B)
+        v_a x v_b per pair.
+    lowest, highest : ndarray, shape (P, B)
+        min and max over the vectors of their side det(v_a, v_b, v).
     """
     normals = cross(vectors[:, first], vectors[:, second])             # (3, P, B)
     lowest = np.zeros(normals.shape[1:])
@@ -183,8 +226,84 @@ def _has_separating_pair(vectors: np.ndarray, first: np.ndarray, second: np.ndar
         for pair, side in ((ab, det), (bc, det), (ac, -det)):
             np.minimum(lowest[pair], side, out=lowest[pair])
             np.maximum(highest[pair], side, out=highest[pair])
+    return normals, lowest, highest
+
+
+def _separating_pair(vectors: np.ndarray, normals: np.ndarray, lowest: np.ndarray,
+                     highest: np.ndarray) -> np.ndarray:
+    """The pair test's verdict as a separating direction per problem.
+
+    A non-parallel pair whose vectors all lie on one closed side of its cross product
+    gives that side's unit normal. If no pair is non-parallel, the vectors lie on a line
+    (or are zero) and any direction perpendicular to that line separates them.
+
+    Parameters
+    ----------
+    vectors : ndarray, shape (3, K, B)
+    normals : ndarray, shape (3, P, B)
+    lowest, highest : ndarray, shape (P, B)
+        From :func:`_pair_sides` or :func:`_pair_sides_few`.
+
+    Returns
+    -------
+    ndarray, shape (3, B)
+        Unit separating directions; NaN where the vectors positively span R^3.
+    """
     length = np.sqrt(dot(normals, normals))
     slack = SPAN_TOL * length
-    one_side = (lowest >= -slack) | (highest <= slack)
     is_pair = length > PARALLEL_TOL
-    return (one_side & is_pair).any(axis=0) | ~is_pair.any(axis=0)
+    above = (lowest >= -slack) & is_pair
+    below = (highest <= slack) & is_pair
+    one_side = above | below
+    pair = one_side.argmax(axis=0)                                     # (B,)
+    problem = np.arange(pair.size)
+    sign = np.where(above[pair, problem], 1.0, -1.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        found = sign * normals[:, pair, problem] / length[pair, problem]
+    on_a_line = ~is_pair.any(axis=0)
+    found[:, on_a_line] = _perpendicular(vectors[:, :, on_a_line])
+    return np.where(one_side.any(axis=0) | on_a_line, found, np.nan)
+
+
+def _perpendicular(vectors: np.ndarray) -> np.ndarray:
+    """A unit vector (3, B) perpendicular to each problem's longest vector (3, K, B)."""
+    longest = vectors[:, dot(vectors, vectors).argmax(axis=0), np.arange(vectors.shape[2])]
+    axis = np.eye(3)[np.abs(longest).argmin(axis=0)].T                 # least aligned
+    normal = cross(longest, axis)
+    length = np.sqrt(dot(normal, normal))
+    # All vectors zero: every direction separates.
+    return np.where(length > 0, normal / np.where(length > 0, length, 1.0),
+                    np.array([[1.0], [0.0], [0.0]]))
+
+
+def _hull_direction(vectors: np.ndarray) -> np.ndarray:
+    """Separating direction of one problem's vectors (K, 3) from their convex hull.
+
+    Qhull's facets satisfy e . x + offset <= 0 for every vector x (e the unit outward
+    normal). The origin is strictly inside the hull iff every offset is negative; a
+    facet with offset >= 0 has every vector on the side of -e. Flat inputs, which
+    Qhull cannot hull, have rank <= 2 or lie in a plane off the origin: their separating
+    direction is the plane's normal, taken from the singular value decomposition.
+    Every candidate is checked against every vector.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        A unit separating direction, or NaN if the vectors positively span R^3 (or no
+        separating direction could be confirmed).
+    """
+    vectors = vectors[np.abs(vectors).max(axis=1) > 0]
+    if not len(vectors):
+        return np.array([1.0, 0.0, 0.0])                               # all zero
+    try:
+        facets = ConvexHull(vectors).equations
+        highest = facets[:, 3].argmax()
+        candidates = [-facets[highest, :3]] if facets[highest, 3] >= -SPAN_TOL else []
+    except (QhullError, ValueError):                                   # flat, or < 4
+        normal = np.linalg.svd(vectors)[2][-1]
+        candidates = [normal, -normal]
+    for candidate in candidates:
+        candidate = candidate / np.linalg.norm(candidate)
+        if (vectors @ candidate).min(initial=0.0) >= -SPAN_TOL:
+            return candidate
+    return np.full(3, np.nan)

@@ -6,9 +6,27 @@ directions or through a grasp normalised to unit size, and forces are normalised
 that the normal components sum to at most one.
 """
 
-#: Normals shorter than this carry no usable direction: after normalisation their
-#: rounding noise would be as large as the direction itself.
-ZERO_NORMAL_NORM = 1e-12
+#: A normal is turned into a direction by dividing it by its largest absolute component
+#: first (so that squaring can neither overflow nor underflow), which is exact to a few
+#: ulps whenever that component is a normal float. Below the smallest normal float,
+#: subnormal components carry fewer significant bits than a direction needs, so such a
+#: normal (and the zero normal) is refused as too short.
+MIN_NORMAL_COMPONENT = 2.2250738585072014e-308  # np.finfo(np.float64).tiny
+
+#: Largest accepted |coordinate| of a contact position (2**1000, about 1.07e301). Lever
+#: arms (differences of two positions), centroids (sums of up to 2**14 positions) and
+#: the filter's reference point stay finite below it, with 2**10 to spare. Beyond it a
+#: grasp is refused: choose a larger length unit (verdicts do not depend on it).
+MAX_ABS_COORDINATE = 2.0 ** 1000
+
+#: Largest accepted friction coefficient. Force closure only grows with mu, but no finite
+#: mu is "as good as infinite" for every grasp, so larger values cannot be clamped and
+#: are refused. At mu = 1e3 the cone's half-angle is within 0.06 degrees of 90, far past
+#: any physical contact (rubber on rough surfaces: about 1 to 2). The exact test's conic
+#: program scales its rows by mu; measured on random ellipsoid grasps (2,000 each, n = 2
+#: to 4): no solver failure up to mu = 1e4, the first ones at 3e4, a quarter of them at
+#: 1e5 (n = 3), all of them from 1e10 (n = 6). The bound keeps 30x from the first failure.
+MAX_FRICTION_COEFFICIENT = 1e3
 
 #: Fans of the torque filter are widened by this angle (radians) on each side.
 #: Their boundary directions come out of arcsin and cross products with errors of a
@@ -43,3 +61,17 @@ RANK_TOL = 1e-9
 #: forces summing to one). Grasps closer to the boundary are numerically marginal: the
 #: solver's own accuracy (about 1e-8) could not tell them from non-force-closure ones.
 MARGIN_TOL = 1e-6
+
+#: A separating wrench w is returned only if no contact force does positive work on it:
+#: for every contact, with a_i = w_force + w_torque x p_i, the largest work of a unit-
+#: normal cone force, n_i . a_i + mu_i |a_i - (n_i . a_i) n_i|, is at most this fraction
+#: of max_j |a_j|. The filter's directions are exact up to SPAN_TOL (1e-12) on unit
+#: torques, so its wrenches meet this with six orders of magnitude to spare, except on
+#: nearly collinear grasps, whose a_j are all nearly zero.
+SEPARATING_WRENCH_TOL = 1e-6
+
+#: Rounding allowance of that check, in units of eps * (1 + mu_i), for a_i computed from
+#: a unit direction and lever arms scaled to at most one: the worst case of the few
+#: products and sums involved, doubled. It matters only when every a_j is rounding noise
+#: (a wrench no contact can do any work on, e.g. the torque about a line of contacts).
+WORK_ROUNDING_ULPS = 16

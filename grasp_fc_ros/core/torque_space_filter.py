@@ -28,6 +28,7 @@ import numpy as np
 
 from .grasp_input import GraspBatch, prepare_grasps
 from .positive_span import positively_spans
+from .tolerances import SEPARATING_WRENCH_TOL, WORK_ROUNDING_ULPS
 from .torque_sets import cone_torque_sets, dot, friction_half_angle_sine
 
 ORIGIN_CHOICES = ("seed", "all")
@@ -37,8 +38,14 @@ ORIGIN_CHOICES = ("seed", "all")
 #: numpy's per-call overhead once instead of once per origin (measured crossover).
 _ONE_ORIGIN_AT_A_TIME_MIN_GRASPS = 256
 
+#: Lever arms handled per vectorised pass (problems x contacts): bounds the memory of
+#: the torque sets and their intermediates (a few tens of MB) whatever the batch size
+#: and contact count; large enough that numpy's per-call overhead stays negligible.
+_MAX_LEVER_ARMS_PER_PASS = 2 ** 17
 
-def torque_filter(positions, normals, mu, origins: str = "seed") -> np.ndarray:
+
+def torque_filter(positions, normals, mu, origins: str = "seed",
+                  certificates: bool = False):
     """Necessary condition for force closure: do the torque sets positively span R^3?
 
     Parameters
@@ -51,12 +58,16 @@ def torque_filter(positions, normals, mu, origins: str = "seed") -> np.ndarray:
         Friction coefficients, > 0.
     origins : {"seed", "all"}
         Which contacts serve as torque origins (see module docstring).
+    certificates : bool
+        Also return a separating wrench for every rejected grasp.
 
     Returns
     -------
-    ndarray of bool, shape () for one grasp or (N,)
+    passed : ndarray of bool, shape () for one grasp or (N,)
         True: the grasp passes (it may be force closure). False: it is certainly not
         force closure.
+    separating_wrench : ndarray, shape (6,) or (N, 6), only if ``certificates``
+        See :func:`passes_torque_filter`.
 
     Raises
     ------
@@ -64,35 +75,152 @@ def torque_filter(positions, normals, mu, origins: str = "seed") -> np.ndarray:
         On bad input (naming grasp and contact) or an unknown ``origins``.
     """
     grasps = prepare_grasps(positions, normals, mu)
-    return grasps.unbatch(passes_torque_filter(grasps, origins))
+    if not certificates:
+        return grasps.unbatch(passes_torque_filter(grasps, origins))
+    passed, wrench = passes_torque_filter(grasps, origins, certificates=True)
+    return grasps.unbatch(passed), grasps.unbatch(wrench)
 
 
-def passes_torque_filter(grasps: GraspBatch, origins: str = "seed") -> np.ndarray:
-    """:func:`torque_filter` on validated input. Returns shape (N,)."""
+def passes_torque_filter(grasps: GraspBatch, origins: str = "seed",
+                         certificates: bool = False):
+    """:func:`torque_filter` on validated input.
+
+    Returns
+    -------
+    passed : ndarray of bool, shape (N,)
+    separating_wrench : ndarray, shape (N, 6), only if ``certificates``
+        For each rejected grasp a unit wrench (force part, torque part) in the caller's
+        frame, about the caller's origin, that no contact force does positive work on
+        (see :func:`separating_wrench`); NaN rows where the grasp passed. Every wrench is
+        checked before it is returned; a rejection whose wrench fails the check (only
+        nearly collinear grasps come close) is passed on instead, so with certificates
+        every rejection has one.
+    """
     # Component-first copies, (3, n, N): the grasp axis becomes the contiguous one.
     points = np.ascontiguousarray(grasps.positions.transpose(2, 1, 0))
     normals = np.ascontiguousarray(grasps.normals.transpose(2, 1, 0))
     sin_half_angle = friction_half_angle_sine(np.ascontiguousarray(grasps.mu.T))
-    others_of = _other_contacts(points.shape[1])
+    n_contacts = points.shape[1]
+    others_of = _other_contacts(n_contacts)
+    per_pass = max(1, _MAX_LEVER_ARMS_PER_PASS // (n_contacts - 1))
 
-    def spans_about(origin: np.ndarray, grasp: np.ndarray) -> np.ndarray:
-        """Do the other contacts' torque sets about contact origin[k] of grasp[k] span?"""
-        others = others_of[origin].T                                   # (n-1, K)
-        lever_arms = points[:, others, grasp] - points[:, origin, grasp][:, None]
-        return positively_spans(cone_torque_sets(
-            lever_arms, normals[:, others, grasp], sin_half_angle[others, grasp]))
+    def spans_about(origin: np.ndarray, grasp: np.ndarray):
+        """Do the other contacts' torque sets about contact origin[k] of grasp[k] span?
+        With certificates also the separating directions (3, K). Bounded memory."""
+        spans = np.empty(origin.size, dtype=bool)
+        found = np.full((3, origin.size), np.nan)
+        for start in range(0, origin.size, per_pass):
+            part = slice(start, start + per_pass)
+            others = others_of[origin[part]].T                         # (n-1, k)
+            lever_arms = (points[:, others, grasp[part]]
+                          - points[:, origin[part], grasp[part]][:, None])
+            result = positively_spans(cone_torque_sets(
+                lever_arms, normals[:, others, grasp[part]],
+                sin_half_angle[others, grasp[part]]), directions=certificates)
+            if certificates:
+                spans[part], found[:, part] = result
+            else:
+                spans[part] = result
+        return spans, found
 
     origin = _origin_indices(points, origins)                          # (O, N)
     n_grasps = origin.shape[1]
+    rejected_about = np.zeros(n_grasps, dtype=np.intp)
+    direction = np.full((3, n_grasps), np.nan)
     if n_grasps < _ONE_ORIGIN_AT_A_TIME_MIN_GRASPS:
         grasp = np.broadcast_to(np.arange(n_grasps), origin.shape)
-        return spans_about(origin.ravel(), grasp.ravel()).reshape(origin.shape).all(axis=0)
-    passing = np.ones(n_grasps, dtype=bool)
-    # One origin after another: a grasp rejected about one origin is not tried again.
-    for row in origin:
-        grasp = np.flatnonzero(passing)
-        passing[grasp] = spans_about(row[grasp], grasp)
-    return passing
+        spans, found = spans_about(origin.ravel(), grasp.ravel())
+        spans = spans.reshape(origin.shape)
+        passing = spans.all(axis=0)
+        first = (~spans).argmax(axis=0)
+        rejected_about = origin[first, np.arange(n_grasps)]
+        direction = found.reshape((3,) + origin.shape)[:, first, np.arange(n_grasps)]
+    else:
+        passing = np.ones(n_grasps, dtype=bool)
+        # One origin after another: a grasp rejected about one origin is not tried again.
+        for row in origin:
+            grasp = np.flatnonzero(passing)
+            spans, found = spans_about(row[grasp], grasp)
+            rejected = grasp[~spans]
+            rejected_about[rejected] = row[rejected]
+            direction[:, rejected] = found[:, ~spans]
+            passing[grasp] = spans
+    if not certificates:
+        return passing
+    wrench = np.full((n_grasps, 6), np.nan)
+    rejected = np.flatnonzero(~passing)
+    torque = -direction[:, rejected].T
+    checked = does_no_positive_work(grasps, rejected, rejected_about[rejected], torque)
+    wrench[rejected[checked]] = separating_wrench(
+        grasps.positions[rejected[checked], rejected_about[rejected[checked]]],
+        torque[checked])
+    passing[rejected[~checked]] = True
+    return passing, wrench
+
+
+def separating_wrench(origin: np.ndarray, torque: np.ndarray) -> np.ndarray:
+    """The pure torque ``torque`` about the point ``origin`` as a unit wrench.
+
+    Parameters
+    ----------
+    origin : ndarray, shape (R, 3)
+        The point o the torque is about, in the caller's frame and length unit.
+    torque : ndarray, shape (R, 3)
+        Unit direction c, with c . (r_i x f) <= 0 for every force f of every contact's
+        cone (r_i = p_i - o).
+
+    Returns
+    -------
+    ndarray, shape (R, 6)
+        w = (o x c, c) / |(o x c, c)|, (force part, torque part) about the caller's
+        origin.
+
+    Notes
+    -----
+    A force f at p does work w_force . f + w_torque . (p x f) on w = (w_force, w_torque)
+    about the caller's origin, which is a . f with a = w_force + w_torque x p (cyclic
+    triple product). For w = (o x c, c): a = c x p - c x o = c x (p - o), so the work is
+    (c x r) . f = c . (r x f) <= 0, the filter's separation about o. The contact at o
+    itself has r = 0, hence a = 0: it does no work at all. Scaling w by 1 / |w| keeps
+    every sign. The largest work of a cone force with unit normal part,
+    n . a + mu |a - (n . a) n|, is therefore <= 0 for every contact.
+    """
+    wrench = np.concatenate((np.cross(origin, torque), torque), axis=1)
+    wrench /= np.abs(wrench).max(axis=1, keepdims=True)                # no overflow
+    return wrench / np.linalg.norm(wrench, axis=1, keepdims=True)
+
+
+def does_no_positive_work(grasps: GraspBatch, grasp: np.ndarray, origin: np.ndarray,
+                          torque: np.ndarray) -> np.ndarray:
+    """Check the pure torques ``torque`` about contacts ``origin`` of grasps ``grasp``.
+
+    Parameters
+    ----------
+    grasps : GraspBatch
+    grasp, origin : ndarray of int, shape (R,)
+        Which grasp, and which of its contacts the torque is about.
+    torque : ndarray, shape (R, 3)
+        Unit torque directions c.
+
+    Returns
+    -------
+    ndarray of bool, shape (R,)
+        For every contact, with a_i = c x (p_i - o) computed with the lever arms scaled
+        to at most one (a power of two, exact): n_i . a_i + mu_i |a_i - (n_i . a_i) n_i|
+        <= SEPARATING_WRENCH_TOL max_j |a_j| + WORK_ROUNDING_ULPS eps (1 + mu_i).
+    """
+    positions = grasps.positions[grasp]                                # (R, n, 3)
+    lever_arms = positions - positions[np.arange(grasp.size), origin][:, None]
+    _, exponent = np.frexp(np.abs(lever_arms).max(axis=(1, 2), initial=0.0))
+    lever_arms = np.ldexp(lever_arms, -exponent[:, None, None])
+    a = np.cross(torque[:, None], lever_arms)
+    normals, mu = grasps.normals[grasp], grasps.mu[grasp]
+    normal_part = (a * normals).sum(axis=2)
+    tangential = np.linalg.norm(a - normal_part[..., None] * normals, axis=2)
+    most_work = normal_part + mu * tangential
+    allowed = (SEPARATING_WRENCH_TOL * np.linalg.norm(a, axis=2).max(axis=1)[:, None]
+               + WORK_ROUNDING_ULPS * np.finfo(float).eps * (1.0 + mu))
+    return (most_work <= allowed).all(axis=1)
 
 
 def _origin_indices(points: np.ndarray, origins: str) -> np.ndarray:
@@ -106,6 +234,10 @@ def _origin_indices(points: np.ndarray, origins: str) -> np.ndarray:
     q = points[:, points[0].argmin(axis=0), grasp]
     q[0] -= 1.0
     offset = points - q[:, None, :]
+    # Scaling each grasp by a power of two is exact, keeps the order of distances, and
+    # stops their squares from overflowing for coordinates beyond ~1e154.
+    _, exponent = np.frexp(np.abs(offset).max(axis=(0, 1)))
+    offset = np.ldexp(offset, -exponent)
     squared_distance = dot(offset, offset)                             # (n, N)
     return np.stack((squared_distance.argmin(axis=0), squared_distance.argmax(axis=0)))
 
