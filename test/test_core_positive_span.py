@@ -1,5 +1,7 @@
 """Positive span of R^3 by fans and planes, against a linear-programming reference."""
 
+import functools
+
 import numpy as np
 import pytest
 from scipy.optimize import linprog
@@ -55,23 +57,73 @@ def random_sets(rng, n_sets, plane_probability):
             np.array(generators).reshape(-1, 3))
 
 
-@pytest.mark.parametrize("triple_loop_from", [0, 10**9], ids=["triple-loop", "broadcast"])
-@pytest.mark.parametrize("plane_probability", [0.0, 0.15, 0.5])
-@pytest.mark.parametrize("n_sets", [1, 2, 3, 5, 8])
-def test_agrees_with_linear_programming(n_sets, plane_probability, triple_loop_from,
-                                        monkeypatch):
-    """Both forms of the pair test (chosen by batch size) against the LP."""
-    monkeypatch.setattr(positive_span, "_TRIPLE_LOOP_MIN_PROBLEMS", triple_loop_from)
+@functools.lru_cache(maxsize=None)
+def lp_cases(n_sets, plane_probability):
+    """60 random problems, as TorqueSets, and their LP verdicts (shared by all paths)."""
     rng = np.random.default_rng(n_sets * 100 + int(plane_probability * 10))
     problems = [random_sets(rng, n_sets, plane_probability) for _ in range(60)]
     sets = TorqueSets(np.stack([p[0] for p in problems], axis=1),
                       np.stack([p[1] for p in problems], axis=2),
                       np.stack([p[2] for p in problems], axis=2),
                       np.stack([p[3] for p in problems], axis=2))
-    expected = np.array([spans_by_lp(p[4]) for p in problems])
+    return problems, sets, np.array([spans_by_lp(p[4]) for p in problems])
+
+
+PATHS = {"triple-loop": (0, 10**9), "broadcast": (10**9, 10**9), "hull": (0, 0)}
+
+
+@pytest.mark.parametrize("path", PATHS)
+@pytest.mark.parametrize("plane_probability", [0.0, 0.15, 0.5])
+@pytest.mark.parametrize("n_sets", [1, 2, 3, 5, 8])
+def test_agrees_with_linear_programming(n_sets, plane_probability, path, monkeypatch):
+    """Every form of the test (chosen by batch size and vector count) against the LP,
+    and every separating direction it returns really separates."""
+    triple_loop_from, hull_from = PATHS[path]
+    monkeypatch.setattr(positive_span, "_TRIPLE_LOOP_MIN_PROBLEMS", triple_loop_from)
+    monkeypatch.setattr(positive_span, "HULL_MIN_VECTORS", hull_from)
+    problems, sets, expected = lp_cases(n_sets, plane_probability)
     assert np.array_equal(positively_spans(sets), expected)
+    spans, direction = positively_spans(sets, directions=True)
+    assert np.array_equal(spans, expected)
+    assert np.isnan(direction[:, spans]).all()
+    for problem in np.flatnonzero(~spans):
+        c = direction[:, problem]
+        assert np.linalg.norm(c) == pytest.approx(1.0)
+        generators = problems[problem][4]
+        if len(generators):
+            assert (generators @ c).min() >= -1e-12
     if 3 <= n_sets <= 5 and plane_probability < 0.5:
         assert expected.any() and not expected.all(), "cases must cover both outcomes"
+
+
+@pytest.mark.parametrize("n_vectors", [30, 200, 3000])
+def test_hull_test_on_many_vectors_agrees_with_linear_programming(n_vectors):
+    """Many fans: near a half-space (tilted so that a few cross it) or on a cap."""
+    rng = np.random.default_rng(n_vectors)
+    verdicts = []
+    for tilt in np.linspace(-0.6, 0.05, 14):
+        v = rng.normal(size=(n_vectors, 3))
+        v[:, 2] = np.abs(v[:, 2]) + tilt
+        v /= np.linalg.norm(v, axis=1, keepdims=True)
+        found = positive_span._hull_direction(v)
+        verdicts.append(spans_by_lp(v))
+        assert np.isnan(found).all() == verdicts[-1]
+        if not verdicts[-1]:
+            assert (v @ found).min() >= -1e-12
+    assert any(verdicts) and not all(verdicts)
+
+
+def test_flat_and_tiny_inputs_of_the_hull_test():
+    flat = np.array([[1.0, 0, 0], [0, 1, 0], [-1, -1, 0], [0.3, -0.5, 0], [-0.2, 0.9, 0]])
+    c = positive_span._hull_direction(flat)
+    assert np.allclose(np.abs(c), [0, 0, 1])
+    off_origin = flat + [0, 0, 1.0]                      # a plane the origin is not on
+    c = positive_span._hull_direction(off_origin)
+    assert (off_origin @ c).min() >= 0
+    assert np.allclose(positive_span._hull_direction(np.zeros((4, 3))), [1, 0, 0])
+    corners = np.array([[1.0, 0, 0], [0, 1, 0], [0, 0, 1]])
+    assert (corners @ positive_span._hull_direction(corners)).min() >= 0 or np.isnan(
+        positive_span._hull_direction(corners)).all()
 
 
 def test_two_non_parallel_planes_span_but_parallel_ones_do_not():

@@ -283,7 +283,7 @@ def _hull_direction(vectors: np.ndarray) -> np.ndarray:
     normal). The origin is strictly inside the hull iff every offset is negative; a
     facet with offset >= 0 has every vector on the side of -e. Flat inputs, which
     Qhull cannot hull, have rank <= 2 or lie in a plane off the origin: their separating
-    direction is the plane's normal, taken from the singular value decomposition.
+    direction is the plane's normal, from a singular value decomposition.
     Every candidate is checked against every vector.
 
     Returns
@@ -300,8 +300,10 @@ def _hull_direction(vectors: np.ndarray) -> np.ndarray:
         highest = facets[:, 3].argmax()
         candidates = [-facets[highest, :3]] if facets[highest, 3] >= -SPAN_TOL else []
     except (QhullError, ValueError):                                   # flat, or < 4
-        normal = np.linalg.svd(vectors)[2][-1]
-        candidates = [normal, -normal]
+        # The normal of the plane through the origin, or through the centroid.
+        through_origin = np.linalg.svd(vectors)[2][-1]
+        through_centroid = np.linalg.svd(vectors - vectors.mean(axis=0))[2][-1]
+        candidates = [through_origin, -through_origin, through_centroid, -through_centroid]
     for candidate in candidates:
         candidate = candidate / np.linalg.norm(candidate)
         if (vectors @ candidate).min(initial=0.0) >= -SPAN_TOL:
