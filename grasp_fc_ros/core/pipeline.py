@@ -11,7 +11,7 @@ import numpy as np
 
 from .exact_test import solve_exact
 from .grasp_input import GraspBatch, prepare_grasps
-from .torque_space_filter import passes_torque_filter
+from .torque_space_filter import passes_torque_filter, resolve_use_filter
 
 
 class Status(IntEnum):
@@ -51,7 +51,7 @@ class ForceClosureResult:
     timing: dict = field(default_factory=dict)
 
 
-def check_force_closure(positions, normals, mu, use_filter: bool = True,
+def check_force_closure(positions, normals, mu, use_filter: bool | str = True,
                         origins: str = "seed") -> ForceClosureResult:
     """Decide force closure of one grasp or a batch: the filter, then the exact test.
 
@@ -63,9 +63,11 @@ def check_force_closure(positions, normals, mu, use_filter: bool = True,
         Inward contact normals, any non-zero length.
     mu : float or array_like broadcastable to (N, n)
         Friction coefficients, > 0.
-    use_filter : bool
+    use_filter : bool or "auto"
         Run the torque filter first and the exact test only on the grasps it passes.
-        The verdicts are the same either way; the filter only saves time.
+        The verdicts are the same either way; the filter only saves time. "auto" runs
+        it only where it is measured to pay (:func:`filter_worthwhile`, by contact
+        count); its cost is bounded for every n either way.
     origins : {"seed", "all"}
         Torque origins of the filter (see :func:`torque_filter`).
 
@@ -81,10 +83,11 @@ def check_force_closure(positions, normals, mu, use_filter: bool = True,
     return run_pipeline(prepare_grasps(positions, normals, mu), use_filter, origins)
 
 
-def run_pipeline(grasps: GraspBatch, use_filter: bool = True,
+def run_pipeline(grasps: GraspBatch, use_filter: bool | str = True,
                  origins: str = "seed") -> ForceClosureResult:
     """:func:`check_force_closure` on validated input."""
     n_grasps = grasps.positions.shape[0]
+    use_filter = resolve_use_filter(use_filter, grasps.positions.shape[1], origins)
     start = time.perf_counter()
     if use_filter:
         passed = passes_torque_filter(grasps, origins)

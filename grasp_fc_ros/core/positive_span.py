@@ -49,7 +49,11 @@ _PAIR_TEST_CHUNK = 4096
 #: replaces the pair test. Measured (benchmarks/bench_filter.py): the pair test's cost
 #: grows as K^3 and passes the hull's (about 0.1 ms per problem plus O(K log K)) near
 #: K = 24, i.e. 13 contacts.
-HULL_MIN_VECTORS = 24
+HULL_MIN_VECTORS = 36
+
+#: Probe directions of :func:`_extremes_span`: the 6 axes and the 8 diagonals.
+_PROBES = np.array([[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)
+                    if abs(x) + abs(y) + abs(z) in (1, 3)], dtype=float)
 
 #: Below this many problems the loop over triples costs more in numpy call overhead
 #: (about 1,400 calls for six fingers) than it saves in arithmetic; measured crossover.
@@ -140,6 +144,8 @@ def _fans_span(sets: TorqueSets, directions: bool = False):
     vectors = np.concatenate((sets.first, sets.second), axis=1)        # (3, K, B)
     found = _direction_at_mean(vectors)
     spans = np.isnan(found[0])
+    if vectors.shape[1] > _PROBES.shape[0]:
+        spans[spans] = ~_extremes_span(vectors[:, :, spans])
     undecided = np.flatnonzero(spans)
     if vectors.shape[1] >= HULL_MIN_VECTORS:
         for problem in undecided:
@@ -178,6 +184,31 @@ def _direction_at_mean(vectors: np.ndarray) -> np.ndarray:
     length = np.sqrt(dot(mean, mean))
     separates = (length > PARALLEL_TOL) & (lowest >= -SPAN_TOL * length)
     return np.where(separates, mean / np.where(separates, length, 1.0), np.nan)
+
+
+def _extremes_span(vectors: np.ndarray) -> np.ndarray:
+    """Cheap proof of spanning: do the vectors extreme along 14 fixed probes span?
+
+    If a subset of the vectors positively spans R^3, so do all of them. Most problems
+    with many vectors span, and the vectors furthest along the 6 axes and 8 diagonals
+    usually already do; the pair test on those 14 costs little, whatever K. False
+    proves nothing.
+
+    Parameters
+    ----------
+    vectors : ndarray, shape (3, K, B)
+
+    Returns
+    -------
+    ndarray of bool, shape (B,)
+        True where the extreme subset (hence the whole set) positively spans R^3.
+    """
+    pick = np.einsum("dx,xkb->dkb", _PROBES, vectors).argmax(axis=1)  # (D, B)
+    subset = vectors[:, pick, np.arange(pick.shape[1])]                # (3, D, B)
+    sides = (_pair_sides if subset.shape[2] >= _TRIPLE_LOOP_MIN_PROBLEMS
+             else _pair_sides_few)
+    found = _separating_pair(subset, *sides(subset, *_pairs_and_triples(_PROBES.shape[0])))
+    return np.isnan(found[0])
 
 
 def _pair_sides_few(vectors: np.ndarray, first: np.ndarray, second: np.ndarray,

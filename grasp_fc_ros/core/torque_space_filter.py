@@ -33,6 +33,14 @@ from .torque_sets import cone_torque_sets, dot, friction_half_angle_sine
 
 ORIGIN_CHOICES = ("seed", "all")
 
+#: Largest contact count at which the filter saves more exact-test time than it costs
+#: (hit rate x exact cost per grasp > filter cost per grasp), per origin choice. Measured
+#: by benchmarks/bench_filter.py (box grasps, one core) against the Clarabel exact test
+#: at mu = 0.01, tan 10 deg and 0.5: the filter paid for tan 10 deg up to these n, and
+#: lost at every larger n for every mu (its hit rate falls to ~0 there). A faster exact
+#: stage lowers these numbers: re-run the benchmark and update them.
+FILTER_PAYS_UP_TO_CONTACTS = {"seed": 8, "all": 8}
+
 #: From this many grasps on, origins are tried one after another so that grasps
 #: already rejected skip the rest; below it, all origins go in one pass, which pays
 #: numpy's per-call overhead once instead of once per origin (measured crossover).
@@ -42,6 +50,41 @@ _ONE_ORIGIN_AT_A_TIME_MIN_GRASPS = 256
 #: the torque sets and their intermediates (a few tens of MB) whatever the batch size
 #: and contact count; large enough that numpy's per-call overhead stays negligible.
 _MAX_LEVER_ARMS_PER_PASS = 2 ** 17
+
+
+def filter_worthwhile(n_contacts: int, origins: str = "seed") -> bool:
+    """Whether running the filter before the exact test is expected to save time.
+
+    Parameters
+    ----------
+    n_contacts : int
+        Contacts per grasp.
+    origins : {"seed", "all"}
+
+    Returns
+    -------
+    bool
+        True up to ``FILTER_PAYS_UP_TO_CONTACTS[origins]`` contacts.
+    """
+    if origins not in FILTER_PAYS_UP_TO_CONTACTS:
+        raise ValueError(f"origins must be one of {ORIGIN_CHOICES}, got {origins!r}")
+    return n_contacts <= FILTER_PAYS_UP_TO_CONTACTS[origins]
+
+
+def resolve_use_filter(use_filter, n_contacts: int, origins: str = "seed") -> bool:
+    """``use_filter`` of the pipeline as a bool: True and False as given, "auto" by
+    :func:`filter_worthwhile`.
+
+    Raises
+    ------
+    ValueError
+        For any other value.
+    """
+    if isinstance(use_filter, str):
+        if use_filter != "auto":
+            raise ValueError(f"use_filter must be True, False or 'auto', got {use_filter!r}")
+        return filter_worthwhile(n_contacts, origins)
+    return bool(use_filter)
 
 
 def torque_filter(positions, normals, mu, origins: str = "seed",
