@@ -8,7 +8,8 @@ The filter pays where the saving is positive. The last lines give the largest n 
 which it paid for every mu, the number that ``FILTER_PAYS_UP_TO_CONTACTS`` in
 ``grasp_fc_ros.core.torque_space_filter`` holds. With ``--paths`` it also times the two
 positive-span algorithms (pair test and convex hull) per grasp, for
-``HULL_MIN_VECTORS`` in ``grasp_fc_ros.core.positive_span``.
+``HULL_MIN_VECTORS`` in ``grasp_fc_ros.core.positive_span``; with ``--large`` it times
+one grasp of up to 10,000 contacts (the node's largest) through each stage.
 
 Figures are medians over ``--repeats`` runs in this one process, on one core.
 
@@ -88,6 +89,18 @@ def measure_paths(surface, contacts, mu, scale, repeats, rng):
     return rows
 
 
+def measure_large(surface, contacts, rng):
+    """One grasp per n: filter (seed origins, mu = 0.01) and exact test, seconds."""
+    rows = []
+    for n_contacts in contacts:
+        positions, normals = sample_grasps(surface, 1, n_contacts, rng)
+        grasps = prepare_grasps(positions, normals, 0.01)
+        filter_s = median_seconds(lambda: passes_torque_filter(grasps), 1)
+        exact_s = median_seconds(lambda: run_pipeline(grasps, use_filter=False), 1)
+        rows.append((n_contacts, filter_s, exact_s))
+    return rows
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="fewer sizes and grasps")
@@ -96,6 +109,8 @@ def main(argv=None):
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--paths", action="store_true",
                         help="also time the pair test against the hull test")
+    parser.add_argument("--large", action="store_true",
+                        help="also time one grasp of 128 .. 10,000 contacts")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
     contacts = QUICK_CONTACTS if args.quick else CONTACTS
@@ -136,6 +151,14 @@ def main(argv=None):
                                                     args.repeats, rng):
             print(f"{n_contacts:>3} {2 * (n_contacts - 1):>4} {pair:>9.4f} {hull:>9.4f}")
         positive_span.HULL_MIN_VECTORS = default_hull_from
+
+    if args.large:
+        print("\none grasp of n contacts, mu = 0.01: seconds (filter seed origins, exact)")
+        print(f"{'n':>6} {'filter s':>9} {'exact s':>9} {'ratio':>7}")
+        for n_contacts, filter_s, exact_s in measure_large(
+                surface, (128, 300, 1000, 3000, 10000), rng):
+            print(f"{n_contacts:>6} {filter_s:>9.4f} {exact_s:>9.4f} "
+                  f"{filter_s / exact_s:>7.3f}", flush=True)
 
 
 if __name__ == "__main__":

@@ -51,7 +51,7 @@ class ForceClosureResult:
     timing: dict = field(default_factory=dict)
 
 
-def check_force_closure(positions, normals, mu, use_filter: bool | str = True,
+def check_force_closure(positions, normals, mu, use_filter: bool | str = "auto",
                         origins: str = "seed") -> ForceClosureResult:
     """Decide force closure of one grasp or a batch: the filter, then the exact test.
 
@@ -65,9 +65,9 @@ def check_force_closure(positions, normals, mu, use_filter: bool | str = True,
         Friction coefficients, > 0.
     use_filter : bool or "auto"
         Run the torque filter first and the exact test only on the grasps it passes.
-        The verdicts are the same either way; the filter only saves time. "auto" runs
-        it only where it is measured to pay (:func:`filter_worthwhile`, by contact
-        count); its cost is bounded for every n either way.
+        The verdicts are the same either way; the filter only saves time. "auto" (the
+        default) runs it only where it is measured to pay (:func:`filter_worthwhile`,
+        by contact count: up to 8 contacts); its cost is bounded for every n anyway.
     origins : {"seed", "all"}
         Torque origins of the filter (see :func:`torque_filter`).
 

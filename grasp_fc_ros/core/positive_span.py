@@ -14,10 +14,13 @@ has c . v >= 0 for every v in every set (all sets lie in one closed half-space).
   boundary torques on one closed side. If no pair is non-parallel the torques span a
   line at most and cannot span R^3.
   That pair test costs O(K^3) for K boundary torques (and its broadcast form O(K^3)
-  memory), so from ``HULL_MIN_VECTORS`` torques on the fans-only case uses the convex
-  hull of the torques instead (Qhull, O(K log K) per problem): they fail to span iff the
-  origin is not strictly inside the hull, and then the outward normal of a facet that
-  the origin is not strictly behind, negated, is a separating direction.
+  memory). Two things bound it for many torques. First, a subset that spans proves
+  that the whole set spans, and the torques extreme along 14 fixed directions usually
+  do (a pair test on 14 vectors, whatever K). Second, what that leaves undecided from
+  ``HULL_MIN_VECTORS`` torques on goes to the convex hull of the torques (Qhull,
+  O(K log K) per problem) instead: they fail to span iff the origin is not strictly
+  inside the hull, and then a facet the origin is not strictly behind gives a
+  separating direction (its outward normal, negated).
 
 Every separating direction is checked against every torque before a problem is called
 non-spanning, so rounding (or a hull computed imprecisely) can only make a problem
@@ -45,10 +48,11 @@ _PLANE = int(TorqueSetKind.PLANE)
 #: (pairs, problems) intermediates stay in a core's cache.
 _PAIR_TEST_CHUNK = 4096
 
-#: From this many boundary torques per problem (fans-only case) the convex-hull test
-#: replaces the pair test. Measured (benchmarks/bench_filter.py): the pair test's cost
-#: grows as K^3 and passes the hull's (about 0.1 ms per problem plus O(K log K)) near
-#: K = 24, i.e. 13 contacts.
+#: From this many boundary torques per problem (fans-only case, after the extreme-subset
+#: proof) the convex-hull test replaces the pair test. Measured (benchmarks/
+#: bench_filter.py --paths, box grasps, mu = 0.01, a loaded machine): the pair test's
+#: cost grows as K^3, the hull's (about 0.1 ms per call) as K log K; they cross between
+#: K = 26 and 38 (14 to 20 contacts).
 HULL_MIN_VECTORS = 36
 
 #: Probe directions of :func:`_extremes_span`: the 6 axes and the 8 diagonals.
@@ -143,10 +147,10 @@ def _fans_span(sets: TorqueSets, directions: bool = False):
     """
     vectors = np.concatenate((sets.first, sets.second), axis=1)        # (3, K, B)
     found = _direction_at_mean(vectors)
-    spans = np.isnan(found[0])
+    open_question = np.isnan(found[0])
     if vectors.shape[1] > _PROBES.shape[0]:
-        spans[spans] = ~_extremes_span(vectors[:, :, spans])
-    undecided = np.flatnonzero(spans)
+        open_question[open_question] = ~_extremes_span(vectors[:, :, open_question])
+    undecided = np.flatnonzero(open_question)
     if vectors.shape[1] >= HULL_MIN_VECTORS:
         for problem in undecided:
             found[:, problem] = _hull_direction(vectors[:, :, problem].T)

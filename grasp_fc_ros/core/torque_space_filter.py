@@ -18,6 +18,17 @@ The seed origins depend on the coordinate frame and on the length unit (the offs
 (1, 0, 0) is in the caller's unit), as in the paper: which non-force-closure grasps
 the filter catches can change with them. Its soundness, and so every final verdict,
 does not.
+
+Certificates: a rejection about origin contact o comes with a separating direction c
+of the torque sets; the pure torque c about o, written about the caller's origin, is a
+wrench no contact force does positive work on (:func:`separating_wrench`), and it is
+checked in numpy before it is returned (:func:`does_no_positive_work`).
+
+Cost: bounded for every contact count (memory per pass by ``_MAX_LEVER_ARMS_PER_PASS``,
+time per origin about O(n log n), see :mod:`.positive_span`), but it pays only while
+its hit rate times the exact test's cost exceeds its own cost: the pipeline's
+``use_filter="auto"`` asks :func:`filter_worthwhile`, whose numbers are the one table
+``FILTER_PAYS_UP_TO_CONTACTS``. ``origins="all"`` costs n / 2 times ``"seed"``.
 """
 
 from __future__ import annotations
