@@ -89,3 +89,18 @@ def test_auto_runs_the_filter_only_where_it_pays():
         forced = check_force_closure(positions, normals, 0.01, use_filter=filtered)
         assert np.array_equal(auto.status, forced.status)
         assert auto.filtered_out.any() == filtered
+
+
+def test_thousands_of_contacts_need_no_per_size_tables():
+    """5,000 contacts: an (n, n-1) index table alone would be 200 MB."""
+    rng = np.random.default_rng(4)
+    positions, normals = ellipsoid_grasps(rng, 1, 5000)
+    face = np.concatenate([rng.uniform(-1, 1, (1, 5000, 2)), np.zeros((1, 5000, 1))], axis=2)
+    face_normals = [0.0, 0.0, 1.0] + rng.uniform(-0.3, 0.3, face.shape)
+    results = []
+    peak = peak_bytes(lambda: results.append(torque_filter(
+        np.concatenate([positions, face]), np.concatenate([normals, face_normals]), 0.01,
+        certificates=True)))
+    assert peak < 100e6, f"{peak / 1e6:.0f} MB"
+    passed, wrench = results[0]
+    assert passed[0] and not passed[1] and np.isfinite(wrench[1]).all()
