@@ -45,9 +45,9 @@ ORIGIN_CHOICES = ("seed", "all")
 #: Largest contact count at which the filter saves more exact-test time than it costs
 #: (hit rate x exact cost per grasp > filter cost per grasp), per origin choice. Measured
 #: by benchmarks/bench_filter.py (box grasps, one core) against the Clarabel exact test
-#: at mu = 0.01, tan 10 deg and 0.5: the filter paid for tan 10 deg up to these n, and
-#: lost at every larger n for every mu (its hit rate falls to ~0 there). A faster exact
-#: stage lowers these numbers: re-run the benchmark and update them.
+#: at mu = 0.01, tan 10 deg and 0.5 (n = 3 to 64): it paid at tan 10 deg up to these n
+#: (at 0.01 up to 10, at 0.5 up to 6) and at no mu beyond 10, where its hit rate falls
+#: to ~0. A faster exact stage lowers these numbers: re-run the benchmark and update.
 FILTER_PAYS_UP_TO_CONTACTS = {"seed": 8, "all": 8}
 
 #: From this many grasps on, origins are tried one after another so that grasps
@@ -198,13 +198,25 @@ def passes_torque_filter(grasps: GraspBatch, origins: str = "seed",
             passing[grasp] = spans
     if not certificates:
         return passing
-    wrench = np.full((n_grasps, 6), np.nan)
+    return _certify(grasps, passing, rejected_about, direction)
+
+
+def _certify(grasps: GraspBatch, passing: np.ndarray, rejected_about: np.ndarray,
+             direction: np.ndarray):
+    """Separating wrenches (N, 6) of the rejected grasps, checked; unchecked ones pass.
+
+    ``direction`` (3, N) has every torque set of grasp g about contact
+    ``rejected_about[g]`` on its side, so minus it is the separating torque.
+    Returns the updated ``passing`` (N,) and the wrenches, NaN rows where passing.
+    """
+    wrench = np.full((passing.size, 6), np.nan)
     rejected = np.flatnonzero(~passing)
+    origin = rejected_about[rejected]
     torque = -direction[:, rejected].T
-    checked = does_no_positive_work(grasps, rejected, rejected_about[rejected], torque)
+    checked = does_no_positive_work(grasps, rejected, origin, torque)
     wrench[rejected[checked]] = separating_wrench(
-        grasps.positions[rejected[checked], rejected_about[rejected[checked]]],
-        torque[checked])
+        grasps.positions[rejected[checked], origin[checked]], torque[checked])
+    passing = passing.copy()
     passing[rejected[~checked]] = True
     return passing, wrench
 
