@@ -107,7 +107,7 @@ def _real_array(values, name: str) -> np.ndarray:
     if np.iscomplexobj(array):
         raise ValueError(f"{name} must be real numbers, got complex values ({array.dtype})")
     try:
-        return array.astype(np.float64)
+        return np.asarray(array, dtype=np.float64)
     except (TypeError, ValueError) as error:
         raise ValueError(f"{name} must be real numbers: {error}") from None
 

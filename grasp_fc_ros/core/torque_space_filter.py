@@ -158,47 +158,75 @@ def passes_torque_filter(grasps: GraspBatch, origins: str = "seed",
     def spans_about(origin: np.ndarray, grasp: np.ndarray):
         """Do the other contacts' torque sets about contact origin[k] of grasp[k] span?
         With certificates also the separating directions (3, K). Bounded memory."""
-        spans = np.empty(origin.size, dtype=bool)
-        found = np.full((3, origin.size), np.nan)
-        for start in range(0, origin.size, per_pass):
-            part = slice(start, start + per_pass)
-            others = _other_contacts(origin[part], n_contacts)          # (n-1, k)
-            lever_arms = (points[:, others, grasp[part]]
-                          - points[:, origin[part], grasp[part]][:, None])
-            result = positively_spans(cone_torque_sets(
-                lever_arms, normals[:, others, grasp[part]],
-                sin_half_angle[others, grasp[part]]), directions=certificates)
-            if certificates:
-                spans[part], found[:, part] = result
-            else:
-                spans[part] = result
-        return spans, found
+        if origin.size > per_pass:
+            parts = [spans_about(origin[start:start + per_pass], grasp[start:start + per_pass])
+                     for start in range(0, origin.size, per_pass)]
+            return (np.concatenate([spans for spans, _ in parts]),
+                    np.concatenate([found for _, found in parts], axis=1)
+                    if certificates else None)
+        others = _other_contacts(origin, n_contacts)                   # (n-1, k)
+        lever_arms = points[:, others, grasp] - points[:, origin, grasp][:, None]
+        result = positively_spans(cone_torque_sets(
+            lever_arms, normals[:, others, grasp], sin_half_angle[others, grasp]),
+            directions=certificates)
+        return result if certificates else (result, None)
 
     origin = _origin_indices(points, origins)                          # (O, N)
-    n_grasps = origin.shape[1]
-    rejected_about = np.zeros(n_grasps, dtype=np.intp)
-    direction = np.full((3, n_grasps), np.nan)
-    if n_grasps < _ONE_ORIGIN_AT_A_TIME_MIN_GRASPS:
-        grasp = np.broadcast_to(np.arange(n_grasps), origin.shape)
-        spans, found = spans_about(origin.ravel(), grasp.ravel())
-        spans = spans.reshape(origin.shape)
-        passing = spans.all(axis=0)
-        first = (~spans).argmax(axis=0)
-        rejected_about = origin[first, np.arange(n_grasps)]
-        direction = found.reshape((3,) + origin.shape)[:, first, np.arange(n_grasps)]
-    else:
-        passing = np.ones(n_grasps, dtype=bool)
-        # One origin after another: a grasp rejected about one origin is not tried again.
-        for row in origin:
-            grasp = np.flatnonzero(passing)
-            spans, found = spans_about(row[grasp], grasp)
-            rejected = grasp[~spans]
-            rejected_about[rejected] = row[rejected]
-            direction[:, rejected] = found[:, ~spans]
-            passing[grasp] = spans
+    try_origins = (_all_origins_at_once if origin.shape[1] < _ONE_ORIGIN_AT_A_TIME_MIN_GRASPS
+                   else _one_origin_at_a_time)
+    passing, rejected_about, direction = try_origins(spans_about, origin, certificates)
     if not certificates:
         return passing
     return _certify(grasps, passing, rejected_about, direction)
+
+
+def _all_origins_at_once(spans_about, origin: np.ndarray, certificates: bool):
+    """Every origin of every grasp in one pass: numpy's call overhead is paid once.
+
+    Parameters
+    ----------
+    spans_about : callable
+        (origin (K,), grasp (K,)) -> (spans (K,), directions (3, K) or None).
+    origin : ndarray of int, shape (O, N)
+    certificates : bool
+
+    Returns
+    -------
+    passing : ndarray of bool, shape (N,)
+    rejected_about : ndarray of int, shape (N,), or None without certificates
+        The first origin each rejected grasp failed about.
+    direction : ndarray, shape (3, N), or None without certificates
+        The separating direction found there (NaN for passing grasps).
+    """
+    n_grasps = origin.shape[1]
+    grasp = np.broadcast_to(np.arange(n_grasps), origin.shape)
+    spans, found = spans_about(origin.ravel(), grasp.ravel())
+    spans = spans.reshape(origin.shape)
+    if not certificates:
+        return spans.all(axis=0), None, None
+    first = (~spans).argmax(axis=0)
+    return (spans.all(axis=0), origin[first, np.arange(n_grasps)],
+            found.reshape((3,) + origin.shape)[:, first, np.arange(n_grasps)])
+
+
+def _one_origin_at_a_time(spans_about, origin: np.ndarray, certificates: bool):
+    """One origin after another: a grasp rejected about one is not tried again.
+
+    Same parameters and returns as :func:`_all_origins_at_once`.
+    """
+    n_grasps = origin.shape[1]
+    passing = np.ones(n_grasps, dtype=bool)
+    rejected_about = np.zeros(n_grasps, dtype=np.intp)
+    direction = np.full((3, n_grasps), np.nan)
+    for row in origin:
+        grasp = np.flatnonzero(passing)
+        spans, found = spans_about(row[grasp], grasp)
+        if certificates:
+            rejected = grasp[~spans]
+            rejected_about[rejected] = row[rejected]
+            direction[:, rejected] = found[:, ~spans]
+        passing[grasp] = spans
+    return (passing, rejected_about, direction) if certificates else (passing, None, None)
 
 
 def _certify(grasps: GraspBatch, passing: np.ndarray, rejected_about: np.ndarray,
