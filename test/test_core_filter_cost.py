@@ -104,3 +104,20 @@ def test_thousands_of_contacts_need_no_per_size_tables():
     assert peak < 100e6, f"{peak / 1e6:.0f} MB"
     passed, wrench = results[0]
     assert passed[0] and not passed[1] and np.isfinite(wrench[1]).all()
+
+
+def test_all_origins_are_capped_for_many_contacts_and_stay_sound():
+    from grasp_fc_ros.core.torque_space_filter import MAX_ALL_ORIGINS, _origin_indices
+    rng = np.random.default_rng(5)
+    positions, normals = ellipsoid_grasps(rng, 6, 200)
+    positions[:3, :, 1:] *= 1e-3             # nearly a line: most are not force closure
+    points = np.ascontiguousarray(positions.transpose(2, 1, 0))
+    chosen = _origin_indices(points, "all")
+    assert chosen.shape == (MAX_ALL_ORIGINS, 6)
+    assert np.array_equal(chosen[:2], _origin_indices(points, "seed"))
+    assert len(np.unique(chosen[2:, 0])) == MAX_ALL_ORIGINS - 2
+    assert _origin_indices(points[:, :MAX_ALL_ORIGINS], "all").shape[0] == MAX_ALL_ORIGINS
+    exact = exact_force_closure(positions, normals, 0.02)
+    passed = torque_filter(positions, normals, 0.02, origins="all")
+    assert not np.any(exact & ~passed)
+    assert not np.any(passed & ~torque_filter(positions, normals, 0.02, origins="seed"))
