@@ -107,14 +107,18 @@ def main(argv=None):
     parser.add_argument("--object", default="box", choices=OBJECT_NAMES)
     parser.add_argument("--origins", default="seed", choices=("seed", "all"))
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--contacts", type=int, nargs="+",
+                        help=f"contact counts to measure (default {CONTACTS})")
+    parser.add_argument("--scale", type=float,
+                        help="fraction of the default grasp counts (default 1, --quick 0.25)")
     parser.add_argument("--paths", action="store_true",
                         help="also time the pair test against the hull test")
     parser.add_argument("--large", action="store_true",
                         help="also time one grasp of 128 .. 10,000 contacts")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
-    contacts = QUICK_CONTACTS if args.quick else CONTACTS
-    scale = 0.25 if args.quick else 1.0
+    contacts = args.contacts or (QUICK_CONTACTS if args.quick else CONTACTS)
+    scale = args.scale or (0.25 if args.quick else 1.0)
     rng = np.random.default_rng(args.seed)
     surface = make_object(args.object)
     default_hull_from = positive_span.HULL_MIN_VECTORS
