@@ -283,6 +283,12 @@ def separating_wrench(origin: np.ndarray, torque: np.ndarray) -> np.ndarray:
     itself has r = 0, hence a = 0: it does no work at all. Scaling w by 1 / |w| keeps
     every sign. The largest work of a cone force with unit normal part,
     n . a + mu |a - (n . a) n|, is therefore <= 0 for every contact.
+
+    A caller recomputing a_i = w_force + w_torque x p_i in floating point gets an
+    absolute error of a few eps (|w_force| + |w_torque| |p_i|). Against
+    1e-6 max_j |a_j| that matters only for grasps more than ~1e9 of their size away from
+    the caller's origin, and for wrenches no contact can do any work on (every a_j
+    zero, e.g. the torque about the line of a collinear grasp).
     """
     wrench = np.concatenate((np.cross(origin, torque), torque), axis=1)
     wrench /= np.abs(wrench).max(axis=1, keepdims=True)                # no overflow
