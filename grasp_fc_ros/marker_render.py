@@ -13,18 +13,20 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+from geometry_msgs.msg import Quaternion
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from mpl_toolkits.mplot3d import Axes3D
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 from visualization_msgs.msg import Marker, MarkerArray
 
 # Matplotlib sizes scatter points in points^2 of the figure, not in data units: a
 # sphere's diameter relative to the panel's extent is mapped onto this many points.
-_PANEL_POINTS = 300.0
+_PANEL_POINTS = 160.0
 PANEL_SIZE_IN = 4.0
 
 
-def _quaternion_matrix(q) -> np.ndarray:
+def _quaternion_matrix(q: Quaternion) -> np.ndarray:
     """Rotation matrix (3, 3) of a geometry_msgs/Quaternion (normalised here)."""
     x, y, z, w = q.x, q.y, q.z, q.w
     norm = np.sqrt(x * x + y * y + z * z + w * w)
@@ -51,7 +53,7 @@ def _rgba(marker: Marker) -> tuple[float, float, float, float]:
     return (c.r, c.g, c.b, c.a)
 
 
-def _draw_marker(ax, marker: Marker, extent: float) -> None:
+def _draw_marker(ax: Axes3D, marker: Marker, extent: float) -> None:
     color = _rgba(marker)
     if marker.type in (Marker.SPHERE_LIST, Marker.SPHERE):
         points = (marker_points(marker) if marker.type == Marker.SPHERE_LIST
@@ -136,7 +138,7 @@ def render_marker_arrays(arrays: Sequence[MarkerArray], path: str | Path, *,
         centre, half = _panel_bounds(array, cloud)
         if cloud is not None:
             ax.scatter(*np.asarray(cloud, dtype=float).reshape(-1, 3).T, s=1.0,
-                       color=(0.6, 0.6, 0.6, 0.25), depthshade=False)
+                       color=(0.55, 0.55, 0.55, 0.35), depthshade=False)
         for marker in array.markers:
             if marker.action == Marker.ADD:
                 _draw_marker(ax, marker, 2 * half)

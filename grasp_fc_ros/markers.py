@@ -201,6 +201,7 @@ def _drawable_cones(positions: np.ndarray, normals: np.ndarray, mu: np.ndarray) 
 
 
 def _points(vertices: np.ndarray) -> list[Point]:
+    """geometry_msgs/Point per row of (..., 3) vertices."""
     return [Point(x=x, y=y, z=z) for x, y, z in vertices.reshape(-1, 3).tolist()]
 
 
@@ -224,7 +225,10 @@ def _marker(kind: int, marker_id: int, ns: str, frame_id: str, stamp: Time,
     return marker
 
 
-def _check_query(positions, normals, mu, wrench):
+def _check_query(positions: np.ndarray, normals: np.ndarray, mu: np.ndarray | float,
+                 wrench: np.ndarray | Sequence[float] | None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """The query's arrays as float arrays, mu broadcast to (n,); ValueError if malformed."""
     positions = np.asarray(positions, dtype=float)
     normals = np.asarray(normals, dtype=float)
     if positions.ndim != 2 or positions.shape[1] != 3:
@@ -301,7 +305,7 @@ def grasp_markers(positions: np.ndarray, normals: np.ndarray, mu: np.ndarray | f
     ns, stamp = marker_namespace(query_id), stamp if stamp is not None else Time()
     lifetime, rgba = _duration(lifetime_s), STATUS_COLORS[status]
 
-    def new(kind, marker_id, color):
+    def new(kind: int, marker_id: int, color: ColorRGBA) -> Marker:
         return _marker(kind, marker_id, ns, frame_id, stamp, lifetime, color)
 
     finite = np.isfinite(positions).all(-1)
