@@ -201,8 +201,22 @@ def _drawable_cones(positions: np.ndarray, normals: np.ndarray, mu: np.ndarray) 
 
 
 def _points(vertices: np.ndarray) -> list[Point]:
-    """geometry_msgs/Point per row of (..., 3) vertices."""
-    return [Point(x=x, y=y, z=z) for x, y, z in vertices.reshape(-1, 3).tolist()]
+    """geometry_msgs/Point per row of (..., 3) finite vertices.
+
+    Fills the generated class's slots directly: its constructor's per-field checks cost
+    about 9 us a point (0.2 ms per drawn cone at 12 segments), 5x this. The values are
+    Python floats from ``tolist()``, finite by construction, which is all those checks
+    verify; test/test_markers.py checks the points equal constructed ones.
+    """
+    points = []
+    for x, y, z in vertices.reshape(-1, 3).tolist():
+        point = _new_point(Point)
+        point._x, point._y, point._z, point._check_fields = x, y, z, False
+        points.append(point)
+    return points
+
+
+_new_point = Point.__new__
 
 
 def _color(rgba: Sequence[float], alpha: float | None = None) -> ColorRGBA:

@@ -114,6 +114,19 @@ def test_marker_types_frame_stamp_and_namespace():
     assert len(markers[CONES_ID].points) == 4 * 12 * 3  # 12 triangles per cone by default
 
 
+def test_points_equal_constructed_ones_and_serialize_alike():
+    from geometry_msgs.msg import Point
+    from rclpy.serialization import serialize_message
+
+    [cones] = [m for m in _build().markers if m.id == CONES_ID]
+    rebuilt = [Point(x=p.x, y=p.y, z=p.z) for p in cones.points]
+    assert cones.points == rebuilt
+    assert b"".join(map(serialize_message, cones.points)) == b"".join(
+        map(serialize_message, rebuilt))
+    cones.points[0].x = 1.5  # still behaves like a message point
+    assert cones.points[0].x == 1.5 and cones.points[0] != rebuilt[0]
+
+
 def test_triangle_list_holds_the_cone_geometry():
     cones = _by_id(grasp_markers(FOUR, -2 * FOUR, np.array([0.2, 0.4, 0.6, 0.8]), 0,
                                  query_id=1, frame_id="f", cone_length=0.05,
