@@ -20,6 +20,12 @@ from mpl_toolkits.mplot3d import Axes3D
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 from visualization_msgs.msg import Marker, MarkerArray
 
+from .core import Status
+from .markers import STATUS_LABELS, grasp_markers
+
+#: The verdicts :func:`render_verdict_examples` shows, one panel each, in this order.
+EXAMPLE_STATUSES = (Status.FORCE_CLOSURE, Status.FILTERED_OUT, Status.NOT_FORCE_CLOSURE)
+
 # Matplotlib sizes scatter points in points^2 of the figure, not in data units: a
 # sphere's diameter relative to the panel's extent is mapped onto this many points.
 _PANEL_POINTS = 160.0
@@ -152,3 +158,61 @@ def render_marker_arrays(arrays: Sequence[MarkerArray], path: str | Path, *,
     path = Path(path)
     figure.savefig(path, dpi=dpi)
     return path
+
+
+def render_verdict_examples(path: str | Path, positions: np.ndarray, normals: np.ndarray,
+                            mu: np.ndarray | float, status: np.ndarray, margin: np.ndarray,
+                            *, ids: np.ndarray | None = None,
+                            separating_wrench: np.ndarray | None = None,
+                            frame_id: str = "object", cloud: np.ndarray | None = None,
+                            statuses: Sequence[Status] = EXAMPLE_STATUSES) -> list[int]:
+    """Draw the markers of the first grasp of each verdict in ``statuses`` to one PNG.
+
+    Verdicts that no grasp has are left out (no panel).
+
+    Parameters
+    ----------
+    path : str or Path
+        The PNG to write.
+    positions, normals : (N, n, 3) float arrays
+        Decided grasps (one contact count), in ``frame_id``.
+    mu : float or (N, n) float array
+        Friction coefficients the grasps were decided with.
+    status, margin : (N,) arrays
+        Their verdicts (:class:`Status` codes) and margins.
+    ids : (N,) int array, optional
+        Query ids shown in the markers (default: the grasp's index).
+    separating_wrench : (N, 6) float array, optional
+        Drawn where finite.
+    frame_id : str
+        Frame of the markers.
+    cloud : (k, 3) float array, optional
+        Points drawn in grey in every panel (e.g. the object's surface).
+    statuses : sequence of Status
+        Verdicts to look for, one panel each.
+
+    Returns
+    -------
+    list of int: the index of the grasp drawn in each panel (empty: nothing written).
+    """
+    status = np.asarray(status)
+    mu_per_contact = np.broadcast_to(np.asarray(mu, dtype=float), np.shape(positions)[:2])
+    arrays, titles, chosen = [], [], []
+    for wanted in statuses:
+        found = np.flatnonzero(status == wanted)
+        if not found.size:
+            continue
+        k = int(found[0])
+        query_id = int(ids[k]) if ids is not None else k
+        wrench = None
+        if separating_wrench is not None and np.isfinite(separating_wrench[k]).all():
+            wrench = separating_wrench[k]
+        arrays.append(grasp_markers(positions[k], normals[k], mu_per_contact[k], wanted,
+                                    query_id=query_id, frame_id=frame_id,
+                                    margin=float(margin[k]), separating_wrench=wrench))
+        titles.append(f"{STATUS_LABELS[wanted]} (grasp {query_id})")
+        chosen.append(k)
+    if arrays:
+        render_marker_arrays(arrays, path, titles=titles,
+                             clouds=None if cloud is None else [cloud] * len(arrays))
+    return chosen

@@ -15,12 +15,10 @@ import sys
 
 import numpy as np
 
-from grasp_fc_ros.core import Status, check_force_closure
-from grasp_fc_ros.marker_render import render_marker_arrays
-from grasp_fc_ros.markers import STATUS_LABELS, grasp_markers
+from grasp_fc_ros.core import check_force_closure
+from grasp_fc_ros.marker_render import EXAMPLE_STATUSES, render_verdict_examples
 from grasp_fc_ros.objects import OBJECT_NAMES, make_object, sample_grasps
 
-SHOWN = (Status.FORCE_CLOSURE, Status.FILTERED_OUT, Status.NOT_FORCE_CLOSURE)
 MU = math.tan(math.radians(20.0))
 
 
@@ -36,24 +34,15 @@ def main(argv: list[str] | None = None) -> int:
     positions, normals = sample_grasps(surface, 2000, args.fingers,
                                        np.random.default_rng(args.seed))
     result = check_force_closure(positions, normals, MU)
-    wrenches = getattr(result, "separating_wrench", None)
-    arrays, titles = [], []
-    for status in SHOWN:
-        found = np.flatnonzero(result.status == status)
-        if not found.size:
-            print(f"no {status.name} grasp among 2000; try another --seed", file=sys.stderr)
-            return 1
-        k = int(found[0])
-        wrench = None
-        if wrenches is not None and np.isfinite(wrenches[k]).all():
-            wrench = wrenches[k]
-        arrays.append(grasp_markers(positions[k], normals[k], MU, status, query_id=k,
-                                    frame_id=args.object, margin=float(result.margin[k]),
-                                    separating_wrench=wrench))
-        titles.append(f"{STATUS_LABELS[status]} (grasp {k})")
-    path = render_marker_arrays(arrays, args.out, titles=titles,
-                                clouds=[surface.points[::4]] * len(arrays))
-    print(f"wrote {path}")
+    chosen = render_verdict_examples(
+        args.out, positions, normals, MU, result.status, result.margin,
+        separating_wrench=getattr(result, "separating_wrench", None),  # issue 9
+        frame_id=args.object, cloud=surface.points[::4])
+    if len(chosen) < len(EXAMPLE_STATUSES):
+        print("not every verdict occurs among 2000 grasps; try another --seed",
+              file=sys.stderr)
+        return 1
+    print(f"wrote {args.out}")
     return 0
 
 

@@ -268,3 +268,24 @@ def test_renderer_refuses_what_it_cannot_draw(tmp_path):
         render_marker_arrays([array], tmp_path / "x.png")
     with pytest.raises(ValueError, match="titles has 2 entries for 1 panels"):
         render_marker_arrays([_build()], tmp_path / "x.png", titles=["a", "b"])
+
+
+def test_verdict_examples_draw_the_first_grasp_of_each_verdict(tmp_path):
+    from grasp_fc_ros.marker_render import render_verdict_examples
+
+    top = np.array([[0.6, 0, 0.8], [-0.6, 0, 0.8], [0, 0.6, 0.8], [0, -0.6, 0.8]])
+    positions = np.stack([top, FOUR, top, FOUR]) * 0.03
+    status = np.array([Status.FILTERED_OUT, Status.FORCE_CLOSURE, Status.FILTERED_OUT,
+                       Status.FORCE_CLOSURE])
+    wrenches = np.full((4, 6), np.nan)
+    wrenches[0] = [0, 0, 1.0, 0, 0, 0]
+    chosen = render_verdict_examples(tmp_path / "v.png", positions, -positions, 0.5, status,
+                                     np.array([np.nan, 0.1, np.nan, 0.2]),
+                                     ids=np.array([10, 11, 12, 13]),
+                                     separating_wrench=wrenches)
+    assert chosen == [1, 0]  # force closure first, then filtered out; no NOT_FORCE_CLOSURE
+    assert (tmp_path / "v.png").read_bytes()[:4] == b"\x89PNG"
+    assert render_verdict_examples(tmp_path / "none.png", positions, -positions, 0.5,
+                                   status, np.zeros(4),
+                                   statuses=[Status.SOLVER_FAILURE]) == []
+    assert not (tmp_path / "none.png").exists()

@@ -80,6 +80,10 @@ def test_license_file_is_apache_2(package):
     assert "END OF TERMS AND CONDITIONS" in text
 
 
+def test_setup_py_has_the_package_xml_version(package):
+    assert f'version="{package.version}"' in (ROOT / "setup.py").read_text()
+
+
 def test_changelog_parses_and_matches_the_version(package):
     changelog = get_changelog_from_path(str(ROOT / "CHANGELOG.rst"), package.name)
     versions = [version for version, _, _ in changelog.foreach_version()]
