@@ -216,6 +216,9 @@ def test_invalid_query_draws_what_it_can():
     (dict(separating_wrench=np.ones(5)), "separating_wrench must have shape"),
     (dict(separating_wrench=[np.nan] * 6), "separating_wrench must be finite"),
     (dict(status=9), "9 is not a valid Status"),
+    (dict(cone_length=float("inf")), "cone_length must be finite and > 0"),
+    (dict(sphere_diameter=0.0), "sphere_diameter must be finite and > 0"),
+    (dict(lifetime_s=-1.0), "lifetime_s must be finite and >= 0"),
 ])
 def test_bad_input_is_named(kwargs, match):
     args = dict(positions=FOUR, normals=-FOUR, mu=0.5, status=0)
