@@ -24,6 +24,7 @@ PYTHON_KEYS = {
     "scipy": "python3-scipy",
     "matplotlib": "python3-matplotlib",
     "mpl_toolkits": "python3-matplotlib",
+    "tqdm": "python3-tqdm",
     "clarabel": None,
     "trimesh": None,
 }
