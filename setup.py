@@ -6,9 +6,12 @@ setup(
     name=package_name,
     version="0.1.0",
     packages=find_packages(exclude=["test", "test.*"]),
+    # PEP 561: the package ships its type hints.
+    package_data={package_name: ["py.typed"]},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
-        ("share/" + package_name, ["package.xml"]),
+        ("share/" + package_name, ["package.xml", "CHANGELOG.rst", "LICENSE"]),
+        ("share/" + package_name + "/config", ["config/force_closure.yaml"]),
     ],
     # rclpy and the grasp_fc_msgs interfaces come from the ROS prefix, not PyPI.
     # scipy: the core hands Clarabel scipy.sparse matrices.
