@@ -18,8 +18,9 @@ Many grasps are solved as one block-separable problem, so Python and set-up cost
 paid once per batch. Verdicts do not depend on the batch:
 
 * force closure is reported only with a witness checked in numpy: the solver's forces,
-  projected exactly onto the null space of G, must lie ``MARGIN_TOL`` deep inside every
-  cone;
+  projected onto the null space of G, must lie ``MARGIN_TOL`` deep inside every cone
+  after allowing for the rounding of the projection, with a total normal force that is
+  positive beyond that rounding (:func:`.certificates.certified_internal_force`);
 * not force closure is reported only when the grasp's optimum plus the whole batch's
   duality gap stays below ``MARGIN_TOL``;
 * anything in between, and every grasp of a batch whose solve did not reach Solved or
@@ -36,6 +37,7 @@ import clarabel
 import numpy as np
 from scipy import sparse  # clarabel's Python API takes scipy CSC matrices
 
+from .certificates import certified_internal_force, grasp_maps, normalise_positions
 from .grasp_input import GraspBatch
 from .tolerances import MARGIN_TOL, RANK_TOL
 
@@ -108,39 +110,24 @@ def solve_exact(grasps: GraspBatch) -> ExactResult:
     margin = np.zeros(n_grasps)
     failure = np.zeros(n_grasps, dtype=bool)
 
-    grasp_map = _normalised_grasp_map(grasps.positions)                # (N, 6, 3n)
+    # Centred and scaled to unit size: the torque rows of G scale with length and
+    # G f = 0 does not, so this keeps G well-conditioned without changing any verdict.
+    grasp_map = grasp_maps(normalise_positions(grasps.positions)[0])   # (N, 6, 3n)
     _, singular, row_space = np.linalg.svd(grasp_map, full_matrices=False)
-    full_rank = singular[:, -1] > RANK_TOL * singular[:, 0]
+    sigma_min = singular[:, -1]
+    full_rank = sigma_min > RANK_TOL * singular[:, 0]
     candidates = np.flatnonzero(full_rank)
     for start in range(0, candidates.size, SOLVE_BATCH):
         chunk = candidates[start:start + SOLVE_BATCH]
-        fc, t, undecided = _solve_batch(grasps, grasp_map, row_space, chunk, tight=False)
+        fc, t, undecided = _solve_batch(grasps, grasp_map, row_space, sigma_min, chunk,
+                                          tight=False)
         for position in np.flatnonzero(undecided):
             lone = chunk[position:position + 1]
             fc[position], t[position], undecided[position] = (
-                v[0] for v in _solve_batch(grasps, grasp_map, row_space, lone, tight=True))
+                v[0] for v in _solve_batch(grasps, grasp_map, row_space, sigma_min, lone,
+                             tight=True))
         force_closure[chunk], margin[chunk], failure[chunk] = fc, t, undecided
     return ExactResult(force_closure, margin, failure)
-
-
-def _normalised_grasp_map(positions: np.ndarray) -> np.ndarray:
-    """Grasp maps (N, 6, 3n) of grasps moved to their centroid and scaled to unit size.
-
-    The torque rows of G scale with length, and G f = 0 is unchanged by scaling them,
-    so normalising keeps G well-conditioned without changing any verdict or margin.
-    """
-    centred = positions - positions.mean(axis=1, keepdims=True)
-    size = np.abs(centred).max(axis=(1, 2))
-    unit = centred / np.where(size > 0, size, 1.0)[:, None, None]
-    n_grasps, n_contacts = positions.shape[:2]
-    grasp_map = np.zeros((n_grasps, 6, n_contacts, 3))
-    grasp_map[:, 0, :, 0] = grasp_map[:, 1, :, 1] = grasp_map[:, 2, :, 2] = 1.0
-    x, y, z = unit[..., 0], unit[..., 1], unit[..., 2]
-    # Torque rows: p x f = (y f_z - z f_y, z f_x - x f_z, x f_y - y f_x).
-    grasp_map[:, 3, :, 1], grasp_map[:, 3, :, 2] = -z, y
-    grasp_map[:, 4, :, 0], grasp_map[:, 4, :, 2] = z, -x
-    grasp_map[:, 5, :, 0], grasp_map[:, 5, :, 1] = -y, x
-    return grasp_map.reshape(n_grasps, 6, 3 * n_contacts)
 
 
 def _tangent_bases(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -199,7 +186,7 @@ def _socp_pattern(n_grasps: int, n_contacts: int):
 
 
 def _solve_batch(grasps: GraspBatch, grasp_map: np.ndarray, row_space: np.ndarray,
-                 chunk: np.ndarray, tight: bool):
+                 sigma_min: np.ndarray, chunk: np.ndarray, tight: bool):
     """Solve the SOCP of the grasps ``chunk`` together and decide each one.
 
     Returns
@@ -226,7 +213,9 @@ def _solve_batch(grasps: GraspBatch, grasp_map: np.ndarray, row_space: np.ndarra
 
     solution = clarabel.DefaultSolver(p, q, a, b, cones, _settings(tight)).solve()
     x = np.asarray(solution.x).reshape(n_grasps, n_vars)
-    witness = _witness_depth(x[:, :-1], row_space[chunk], normals, mu)
+    witness, _ = certified_internal_force(
+        x[:, :-1].reshape(normals.shape), grasp_map[chunk], row_space[chunk],
+        sigma_min[chunk], normals, mu)
     force_closure = witness >= MARGIN_TOL
     # Never more than a depth actually verified: the optimum (within the solver's
     # tolerance) after a converged solve, a lower bound on it otherwise.
@@ -242,34 +231,3 @@ def _solve_batch(grasps: GraspBatch, grasp_map: np.ndarray, row_space: np.ndarra
         # A batch that did not converge gives no optimum: retry every grasp alone.
         undecided = np.ones(n_grasps, dtype=bool)
     return force_closure, margin, undecided
-
-
-def _witness_depth(forces: np.ndarray, row_space: np.ndarray, normals: np.ndarray,
-                   mu: np.ndarray) -> np.ndarray:
-    """How deep the solver's forces lie inside the cones once in exact equilibrium.
-
-    Parameters
-    ----------
-    forces : ndarray, shape (N, 3n)
-    row_space : ndarray, shape (N, 6, 3n)
-        Orthonormal basis of the row space of each (full-rank) grasp map.
-    normals : ndarray, shape (N, n, 3)
-    mu : ndarray, shape (N, n)
-
-    Returns
-    -------
-    ndarray, shape (N,)
-        min over contacts of mu f_n - |f_t| of the projected forces, with the normal
-        forces scaled to sum to one; -inf where the total normal force is not positive.
-    """
-    # Removing the row-space component puts the forces exactly in G's null space.
-    equilibrium = forces - np.einsum("gkv,gk->gv", row_space,
-                                     np.einsum("gkv,gv->gk", row_space, forces))
-    per_contact = equilibrium.reshape(normals.shape)
-    normal_part = (per_contact * normals).sum(axis=-1)                 # (N, n)
-    tangential = per_contact - normal_part[..., None] * normals
-    depth = mu * normal_part - np.linalg.norm(tangential, axis=-1)
-    total = normal_part.sum(axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        scaled = depth.min(axis=1) / total
-    return np.where(total > 0, scaled, -np.inf)

@@ -43,3 +43,20 @@ RANK_TOL = 1e-9
 #: forces summing to one). Grasps closer to the boundary are numerically marginal: the
 #: solver's own accuracy (about 1e-8) could not tell them from non-force-closure ones.
 MARGIN_TOL = 1e-6
+
+#: Multiplies the unit roundoff in the a-priori rounding bounds of the certificates
+#: (a matrix-vector product of length k errs by at most about k eps |A| |x|). A
+#: generous factor: it costs nothing measurable (the slack stays ~1e-13 against
+#: MARGIN_TOL) and covers the rounding of the bounds' own arithmetic.
+ROUNDING_SLACK = 64.0
+
+#: A separating wrench is accepted by :func:`verify_certificates` if no contact force
+#: does more than this fraction of max_j |a_j| of positive work on it (the issue's
+#: contract: n_i . a_i + mu_i |a_t,i| <= 1e-6 max_j |a_j|).
+CERTIFICATE_TOL = 1e-6
+
+#: Contact forces pass :func:`verify_certificates` if their net force and net torque
+#: about the caller's origin are at most this fraction of sum_i |f_i| (times the
+#: largest lever arm) and their normal parts sum to one within it: rounding of the
+#: caller-frame check itself is ~n eps |p| / size, far below this.
+EQUILIBRIUM_TOL = 1e-9
