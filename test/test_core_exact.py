@@ -6,6 +6,8 @@ import pytest
 from grasp_cases import MU_PAPER, ellipsoid_grasps
 from grasp_fc_ros.core import Status, check_force_closure, exact_force_closure
 from grasp_fc_ros.core import exact_test
+from grasp_fc_ros.core.exact_test import solve_exact
+from grasp_fc_ros.core.grasp_input import prepare_grasps
 from grasp_fc_ros.core.tolerances import MARGIN_TOL
 from reference_pyramids import pyramid_margin
 
@@ -112,7 +114,8 @@ def test_a_batch_solve_that_stops_early_is_retried_grasp_by_grasp(monkeypatch):
     give the same verdicts as normal solves."""
     rng = np.random.default_rng(8)
     positions, normals = ellipsoid_grasps(rng, 40, 6)
-    normal = check_force_closure(positions, normals, MU_PAPER, use_filter=False)
+    grasps = prepare_grasps(positions, normals, MU_PAPER)
+    normal = solve_exact(grasps, fast=False)
     original_settings = exact_test._settings
 
     def starved(tight):
@@ -122,9 +125,9 @@ def test_a_batch_solve_that_stops_early_is_retried_grasp_by_grasp(monkeypatch):
         return settings
 
     monkeypatch.setattr(exact_test, "_settings", starved)
-    retried = check_force_closure(positions, normals, MU_PAPER, use_filter=False)
+    retried = solve_exact(grasps, fast=False)
     assert np.array_equal(retried.force_closure, normal.force_closure)
-    assert not np.any(retried.status == Status.SOLVER_FAILURE)
+    assert not np.any(retried.solver_failure)
     # The margin is an optimum, not a stopped iterate's value.
     assert np.allclose(retried.margin, normal.margin, atol=1e-6)
     assert normal.force_closure.any()
@@ -141,8 +144,8 @@ def test_an_undecidable_grasp_is_reported_as_a_solver_failure(monkeypatch):
         return settings
 
     monkeypatch.setattr(exact_test, "_settings", starved)
-    result = check_force_closure(positions, normals, MU_PAPER, use_filter=False)
-    assert np.all(result.status == Status.SOLVER_FAILURE)
+    result = solve_exact(prepare_grasps(positions, normals, MU_PAPER), fast=False)
+    assert np.all(result.solver_failure)
     assert not result.force_closure.any()
 
 

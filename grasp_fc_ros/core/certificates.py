@@ -141,7 +141,8 @@ def wrench_bound(wrench: np.ndarray, unit: np.ndarray, normals: np.ndarray,
     Returns
     -------
     bound : ndarray, shape (N,)
-        t* <= bound (inf where the wrench proves nothing).
+        t* <= bound (the trivial bound 1 / sum_i (1/mu_i) where the wrench proves
+        nothing better).
     separating : ndarray of bool, shape (N,)
         The wrench certainly separates: L <= 0 with rounding.
     """
@@ -155,6 +156,8 @@ def wrench_bound(wrench: np.ndarray, unit: np.ndarray, normals: np.ndarray,
     spread = ((level[:, None] - normal_work - error) / mu).sum(axis=1) * (1.0 - 1e-12)
     with np.errstate(divide="ignore", invalid="ignore"):
         bound = np.where(spread > 0, np.maximum(level, 0.0) / spread, np.inf)
+    # mu_i c_n,i >= t at every contact and sum_i c_n,i = 1 give t* <= 1 / sum_i (1/mu_i).
+    bound = np.minimum(bound, (1.0 + 1e-12) / (1.0 / mu).sum(axis=1))
     return bound, (level <= 0) & np.all(np.isfinite(wrench), axis=1)
 
 
@@ -233,8 +236,7 @@ def verify_certificates(positions, normals, mu, contact_forces=None,
         largest = np.linalg.norm(work, axis=-1).max(axis=1)
         with np.errstate(invalid="ignore"):
             wrench_ok = (np.all(a_n + friction * a_t <= CERTIFICATE_TOL * largest[:, None], axis=1)
-                         & (np.abs(np.linalg.norm(w, axis=1) - 1.0) <= EQUILIBRIUM_TOL)
-                         & (largest > 0))
+                         & (np.abs(np.linalg.norm(w, axis=1) - 1.0) <= EQUILIBRIUM_TOL))
     if single:
         return forces_ok[0], wrench_ok[0]
     return forces_ok, wrench_ok

@@ -1,5 +1,16 @@
 """The filtered pipeline: the torque filter first, the exact test on the survivors
-(paper section V, Fig. 4b)."""
+(paper section V, Fig. 4b), and on request the certificates behind each verdict.
+
+The margin
+----------
+``margin`` is the force-closure margin t*: how deep inside every friction cone an
+equilibrating internal force can be (mu f_n - |f_t|, normal forces summing to one; 0
+for a grasp map of rank < 6). Both ends reported are certified:
+``margin <= t* <= margin_upper``. ``margin="optimum"`` (default) narrows the interval to
+MARGIN_ACCURACY (1e-8) where the fast stage decides (Clarabel's ~1e-8 accuracy on its
+fallback grasps); ``margin="bound"`` stops at the verdict, which is about twice as
+fast, and reports whatever interval was certified by then (often wide).
+"""
 
 from __future__ import annotations
 
@@ -9,6 +20,7 @@ from enum import IntEnum
 
 import numpy as np
 
+from .certificates import normalise_positions, to_caller_wrench, verify_certificates
 from .exact_test import solve_exact
 from .grasp_input import GraspBatch, prepare_grasps
 from .torque_space_filter import passes_torque_filter
@@ -35,13 +47,27 @@ class ForceClosureResult:
     filtered_out : ndarray of bool
         Rejected by the torque filter; the exact test was not run.
     margin : ndarray of float
-        The exact test's optimum: how deep inside every friction cone an equilibrating
-        internal force can be (mu f_n - |f_t|, normal forces summing to one).
+        A certified lower bound on the margin t* (see the module docstring).
         NaN where the exact test was not run.
     status : ndarray of uint8
         A :class:`Status` code per grasp.
     timing : dict
         Seconds spent in ``"filter_s"`` and ``"exact_s"``.
+    margin_upper : ndarray of float
+        A certified upper bound on t* (inf where none was found, NaN where the exact
+        test was not run).
+    contact_forces : ndarray, shape (n, 3) or (N, n, 3), or None
+        With ``certificates=True``: for FORCE_CLOSURE grasps an internal force in the
+        caller's frame (normal parts summing to one, in equilibrium about the caller's
+        origin, strictly inside every cone), checked by
+        :func:`.certificates.verify_certificates`; NaN for other grasps.
+    separating_wrench : ndarray, shape (6,) or (N, 6), or None
+        With ``certificates=True``: for FILTERED_OUT and NOT_FORCE_CLOSURE grasps a unit
+        wrench (force, torque about the caller's origin) on which no contact force does
+        positive work (within CERTIFICATE_TOL), checked likewise; NaN where none.
+    marginal : ndarray of bool, or None
+        With ``certificates=True``: NOT_FORCE_CLOSURE grasps without a separating
+        wrench (0 < t* < MARGIN_TOL, or too close to rank deficiency to produce one).
     """
 
     force_closure: np.ndarray
@@ -49,10 +75,15 @@ class ForceClosureResult:
     margin: np.ndarray
     status: np.ndarray
     timing: dict = field(default_factory=dict)
+    margin_upper: np.ndarray | None = None
+    contact_forces: np.ndarray | None = None
+    separating_wrench: np.ndarray | None = None
+    marginal: np.ndarray | None = None
 
 
 def check_force_closure(positions, normals, mu, use_filter: bool = True,
-                        origins: str = "seed") -> ForceClosureResult:
+                        origins: str = "seed", margin: str = "optimum",
+                        certificates: bool = False) -> ForceClosureResult:
     """Decide force closure of one grasp or a batch: the filter, then the exact test.
 
     Parameters
@@ -68,6 +99,11 @@ def check_force_closure(positions, normals, mu, use_filter: bool = True,
         The verdicts are the same either way; the filter only saves time.
     origins : {"seed", "all"}
         Torque origins of the filter (see :func:`torque_filter`).
+    margin : {"optimum", "bound"}
+        How narrow the certified margin interval must be (see the module docstring).
+    certificates : bool
+        Also return contact forces, separating wrenches and the ``marginal`` flags,
+        each verified in the caller's frame before it is returned.
 
     Returns
     -------
@@ -78,11 +114,12 @@ def check_force_closure(positions, normals, mu, use_filter: bool = True,
     ValueError
         On bad input, naming the grasp and contact.
     """
-    return run_pipeline(prepare_grasps(positions, normals, mu), use_filter, origins)
+    return run_pipeline(prepare_grasps(positions, normals, mu), use_filter, origins, margin,
+                        certificates)
 
 
-def run_pipeline(grasps: GraspBatch, use_filter: bool = True,
-                 origins: str = "seed") -> ForceClosureResult:
+def run_pipeline(grasps: GraspBatch, use_filter: bool = True, origins: str = "seed",
+                 margin: str = "optimum", certificates: bool = False) -> ForceClosureResult:
     """:func:`check_force_closure` on validated input."""
     n_grasps = grasps.positions.shape[0]
     start = time.perf_counter()
@@ -93,24 +130,65 @@ def run_pipeline(grasps: GraspBatch, use_filter: bool = True,
     filtered = time.perf_counter()
 
     survivors = np.flatnonzero(passed)
-    exact = solve_exact(GraspBatch(grasps.positions[survivors], grasps.normals[survivors],
-                                   grasps.mu[survivors], single=False))
+    exact = solve_exact(_subset(grasps, survivors), margin, certificates)
     finished = time.perf_counter()
 
     force_closure = np.zeros(n_grasps, dtype=bool)
     force_closure[survivors] = exact.force_closure
-    margin = np.full(n_grasps, np.nan)
-    margin[survivors] = exact.margin
+    lower, upper = np.full(n_grasps, np.nan), np.full(n_grasps, np.nan)
+    lower[survivors], upper[survivors] = exact.margin, exact.margin_upper
     status = np.full(n_grasps, Status.FILTERED_OUT, dtype=np.uint8)
     status[survivors] = np.select(
         [exact.solver_failure, exact.force_closure],
         [Status.SOLVER_FAILURE, Status.FORCE_CLOSURE], Status.NOT_FORCE_CLOSURE)
+    extra = {}
+    if certificates:
+        extra = _certificates(grasps, survivors, exact, ~passed, status)
     return ForceClosureResult(
         force_closure=grasps.unbatch(force_closure),
         filtered_out=grasps.unbatch(~passed),
-        margin=grasps.unbatch(margin),
+        margin=grasps.unbatch(lower),
         status=grasps.unbatch(status),
-        timing={"filter_s": filtered - start, "exact_s": finished - filtered})
+        timing={"filter_s": filtered - start, "exact_s": finished - filtered},
+        margin_upper=grasps.unbatch(upper),
+        **{key: grasps.unbatch(value) for key, value in extra.items()})
+
+
+def _subset(grasps: GraspBatch, indices: np.ndarray) -> GraspBatch:
+    return GraspBatch(grasps.positions[indices], grasps.normals[indices], grasps.mu[indices],
+                      single=False)
+
+
+def _filtered_out_wrenches(grasps: GraspBatch, rejected: np.ndarray) -> np.ndarray:
+    """Separating wrenches (k, 6) in the caller's frame of the grasps the filter
+    rejected (indices ``rejected``): found here by the exact stage's certificate search.
+
+    The torque filter can give them directly from its origin and separating torque
+    direction; this is the one place to swap that in.
+    """
+    subset = _subset(grasps, rejected)
+    _, centre, size = normalise_positions(subset.positions)
+    return to_caller_wrench(solve_exact(subset, "bound", certificates=True).wrench,
+                            centre, size)
+
+
+def _certificates(grasps: GraspBatch, survivors: np.ndarray, exact, rejected: np.ndarray,
+                  status: np.ndarray) -> dict:
+    """Contact forces, separating wrenches and marginal flags, each verified in the
+    caller's frame (a certificate that fails its check is replaced by NaN)."""
+    n_grasps, n_contacts = grasps.mu.shape
+    forces = np.full((n_grasps, n_contacts, 3), np.nan)
+    forces[survivors] = exact.forces
+    wrench = np.full((n_grasps, 6), np.nan)
+    _, centre, size = normalise_positions(grasps.positions[survivors])
+    wrench[survivors] = to_caller_wrench(exact.wrench, centre, size)
+    wrench[np.flatnonzero(rejected)] = _filtered_out_wrenches(grasps, np.flatnonzero(rejected))
+    forces_ok, wrench_ok = verify_certificates(grasps.positions, grasps.normals, grasps.mu,
+                                               forces, wrench)
+    forces[~forces_ok] = np.nan
+    wrench[~wrench_ok] = np.nan
+    return {"contact_forces": forces, "separating_wrench": wrench,
+            "marginal": (status == Status.NOT_FORCE_CLOSURE) & ~wrench_ok}
 
 
 def exact_force_closure(positions, normals, mu) -> np.ndarray:

@@ -60,3 +60,26 @@ CERTIFICATE_TOL = 1e-6
 #: largest lever arm) and their normal parts sum to one within it: rounding of the
 #: caller-frame check itself is ~n eps |p| / size, far below this.
 EQUILIBRIUM_TOL = 1e-9
+
+#: The fast exact stage (:mod:`.interior_point`) decides a grasp only if its grasp map
+#: has sigma_min > FAST_RANK_TOL sigma_max, computed from the eigenvalues of G G^T
+#: (whose rounding is ~eps relative: 1e-12 in squared terms is far above it). Grasps
+#: nearer rank deficiency go to the Clarabel path, which decides rank from an SVD with
+#: RANK_TOL.
+FAST_RANK_TOL = 1e-6
+
+#: The fast stage hands a grasp to the Clarabel path when the equilibrium forces with
+#: normal parts summing to one are nearly absent: the Schur complement of the
+#: normalisation row in [G; n^T] [G; n^T]^T is below this fraction of n (it is 0 when
+#: all contacts share one normal).
+SHARED_NORMAL_TOL = 1e-9
+
+#: With ``margin="optimum"`` the margin is reported as a certified interval at most
+#: this wide (the accuracy Clarabel's default tolerances give the optimum).
+MARGIN_ACCURACY = 1e-8
+
+#: The fast stage keeps iterating on a not-force-closure grasp (when a separating
+#: wrench is requested) until its wrench does at most this fraction of max_j |a_j| of
+#: positive work at any contact: a tenth of CERTIFICATE_TOL, leaving room for the
+#: rounding of the map back to the caller's frame.
+SEPARATION_TARGET = 1e-7

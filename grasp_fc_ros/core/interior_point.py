@@ -1,0 +1,514 @@
+"""The fast exact stage: a small interior-point method for this SOCP family (numba).
+
+The margin problem of :mod:`.exact_test`, with the normalisation row eliminated
+(sigma = sum_i 1/mu_i, d = sum_i Bn_i / (mu_i sigma), B_i the 3 x 6 map from the wrench w
+to the local work vector of contact i, Bn_i its normal row, Bt_i its tangential rows):
+
+    primal  min sum_i z0_i   s.t.  sum_i A_i z_i = -d,  z_i in Q^3,
+            A_i = [Bn_i - d, -mu_i Bt_i^T]              (forces: t = (1 - sum z0) / sigma,
+                                                          c_n,i = z0_i + t/mu_i, c_t,i = -mu_i z_t,i)
+    dual    max -d . w       s.t.  s_i = (1 + d.w - Bn_i.w, mu_i Bt_i w) in Q^3.
+
+Six dual variables whatever the number of contacts, so each iteration solves one 6 x 6
+system. Both sides start strictly feasible (w = 0; z from the normal forces 1/(mu_i sigma)
+projected onto equilibrium), and a primal-dual method with Nesterov-Todd scaling and
+Mehrotra's predictor-corrector keeps them so.
+
+The method decides from certificates, never from convergence: after every iteration
+(iteration 0 included) it checks
+
+* force closure: the iterate's forces, projected onto equilibrium, lie ``MARGIN_TOL``
+  deep in every cone after allowing for rounding (the same bound as
+  :func:`.certificates.certified_internal_force`, with the closed-form projection of a
+  centred grasp);
+* not force closure: the iterate's wrench bounds t* below ``MARGIN_TOL``, with rounding
+  (the bound of :func:`.certificates.wrench_bound`).
+
+It returns a grasp as undecided (for the Clarabel path) when the grasp map's rank is not
+clearly 6, when equilibrium forces with a positive total normal force are nearly absent
+(contacts that nearly share one normal), on any numerical breakdown, and at the
+iteration limit. Compiled with ``cache=True``: numba stores the machine code next to this
+file, or in the user's cache directory when the install is read-only; call
+:func:`warm_up` before serving queries to pay the compile (or cache load) up front.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .tolerances import (FAST_RANK_TOL, MARGIN_ACCURACY, MARGIN_TOL, ROUNDING_SLACK,
+                         SEPARATION_TARGET, SHARED_NORMAL_TOL)
+
+try:
+    import numba
+except ImportError:  # pragma: no cover - numba is a pinned runtime dependency
+    numba = None
+
+#: Result codes of the kernel.
+FORCE_CLOSURE, NOT_FORCE_CLOSURE, UNDECIDED = 0, 1, 2
+
+#: Iterations before a grasp is handed to the Clarabel path. Verdicts take 1-8 here;
+#: the optimum to MARGIN_ACCURACY about 10-15; 40 only bounds a stuck grasp.
+MAX_ITERATIONS = 40
+
+#: Fraction of the step to the cone boundary taken (the usual 0.99 of interior-point
+#: methods: close enough to converge fast, far enough to keep the scaling well-defined).
+STEP_FRACTION = 0.99
+
+#: A step shorter than this means the iteration has stalled: hand the grasp over.
+MIN_STEP = 1e-10
+
+_EPS = float(np.finfo(np.float64).eps)
+
+#: Relative rounding allowance of the trivial bound t* <= 1 / sum_i (1/mu_i): the sum
+#: of n <= ~1e3 positive terms errs by far less than n eps.
+TRIVIAL_BOUND_SLACK = 1e-12
+
+
+def _jit(function):
+    """``numba.njit(cache=True)``; without a usable cache directory, uncached."""
+    try:
+        return numba.njit(cache=True, error_model="numpy")(function)
+    except RuntimeError:  # no writable cache location at all: compile per process
+        return numba.njit(cache=False, error_model="numpy")(function)
+
+
+def _frames(normals):
+    """Duff et al.'s branch-free tangents (n, 3) twice, for unit normals (n, 3)."""
+    n = normals.shape[0]
+    first = np.empty((n, 3))
+    second = np.empty((n, 3))
+    for i in range(n):
+        x, y, z = normals[i, 0], normals[i, 1], normals[i, 2]
+        sign = 1.0 if z >= 0.0 else -1.0
+        a = -1.0 / (sign + z)
+        b = x * y * a
+        first[i, 0], first[i, 1], first[i, 2] = 1.0 + sign * x * x * a, sign * b, -sign * x
+        second[i, 0], second[i, 1], second[i, 2] = b, sign + y * y * a, -y
+    return first, second
+
+
+def _wrench_rows(unit, direction):
+    """Wrenches (n, 6) of unit forces along ``direction`` (n, 3) applied at ``unit``."""
+    rows = np.empty((unit.shape[0], 6))
+    for i in range(unit.shape[0]):
+        u, e = unit[i], direction[i]
+        rows[i, :3] = e
+        rows[i, 3] = u[1] * e[2] - u[2] * e[1]
+        rows[i, 4] = u[2] * e[0] - u[0] * e[2]
+        rows[i, 5] = u[0] * e[1] - u[1] * e[0]
+    return rows
+
+
+def _gram(unit):
+    """G G^T (6 x 6) for global force components at positions ``unit`` (n, 3)."""
+    gram = np.zeros((6, 6))
+    for i in range(unit.shape[0]):
+        x, y, z = unit[i, 0], unit[i, 1], unit[i, 2]
+        cross = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+        for r in range(3):
+            gram[r, r] += 1.0
+            for c in range(3):
+                gram[3 + r, c] += cross[r, c]
+                gram[c, 3 + r] += cross[r, c]
+                gram[3 + r, 3 + c] += (x * x + y * y + z * z) * (r == c) - unit[i, r] * unit[i, c]
+    return gram
+
+
+def _apply_grasp_map(unit, forces):
+    """G f (6,) for global forces (n, 3) at ``unit``."""
+    out = np.zeros(6)
+    for i in range(unit.shape[0]):
+        u, f = unit[i], forces[i]
+        out[:3] += f
+        out[3] += u[1] * f[2] - u[2] * f[1]
+        out[4] += u[2] * f[0] - u[0] * f[2]
+        out[5] += u[0] * f[1] - u[1] * f[0]
+    return out
+
+
+def _cholesky_solve(factor, rhs):
+    """Solve (L L^T) x = rhs for a lower-triangular L."""
+    size = rhs.shape[0]
+    y = np.empty(size)
+    for r in range(size):
+        acc = rhs[r]
+        for c in range(r):
+            acc -= factor[r, c] * y[c]
+        y[r] = acc / factor[r, r]
+    x = np.empty(size)
+    for r in range(size - 1, -1, -1):
+        acc = y[r]
+        for c in range(r + 1, size):
+            acc -= factor[c, r] * x[c]
+        x[r] = acc / factor[r, r]
+    return x
+
+
+def _cholesky(matrix):
+    """Lower Cholesky factor, or a factor with a non-positive pivot marked by NaN."""
+    size = matrix.shape[0]
+    factor = np.zeros((size, size))
+    for r in range(size):
+        for c in range(r + 1):
+            acc = matrix[r, c]
+            for k in range(c):
+                acc -= factor[r, k] * factor[c, k]
+            if r == c:
+                if not acc > 0.0:
+                    factor[r, r] = np.nan
+                    return factor
+                factor[r, r] = np.sqrt(acc)
+            else:
+                factor[r, c] = acc / factor[c, c]
+    return factor
+
+
+def _witness(unit, normals, tangent, bitangent, mu, z, sigma, gram_factor, sigma_min,
+             grasp_norm, out):
+    """Certified depth of the forces of primal iterate z (n, 3); the projected forces,
+    scaled to total one, go to ``out`` (n, 3). -inf when the total is not positive."""
+    n = unit.shape[0]
+    total_z0 = 0.0
+    for i in range(n):
+        total_z0 += z[i, 0]
+    t = (1.0 - total_z0) / sigma
+    forces = np.empty((n, 3))
+    for i in range(n):
+        c_n = z[i, 0] + t / mu[i]
+        forces[i] = c_n * normals[i] - mu[i] * (z[i, 1] * tangent[i] + z[i, 2] * bitangent[i])
+    y = _cholesky_solve(gram_factor, _apply_grasp_map(unit, forces))
+    size = 0.0
+    for i in range(n):
+        u = unit[i]
+        # G_i^T y = y_F + y_T x u_i
+        forces[i, 0] -= y[0] + y[4] * u[2] - y[5] * u[1]
+        forces[i, 1] -= y[1] + y[5] * u[0] - y[3] * u[2]
+        forces[i, 2] -= y[2] + y[3] * u[1] - y[4] * u[0]
+        size += forces[i, 0] ** 2 + forces[i, 1] ** 2 + forces[i, 2] ** 2
+    residual = np.sqrt(np.sum(_apply_grasp_map(unit, forces) ** 2))
+    reach = (residual + ROUNDING_SLACK * _EPS * 3 * n * grasp_norm * np.sqrt(size)) / sigma_min
+    total = 0.0
+    worst = np.inf
+    for i in range(n):
+        f_n = forces[i, 0] * normals[i, 0] + forces[i, 1] * normals[i, 1] + forces[i, 2] * normals[i, 2]
+        tangential = np.sqrt(np.sum((forces[i] - f_n * normals[i]) ** 2))
+        worst = min(worst, mu[i] * f_n - tangential - (mu[i] + 1.0) * reach)
+        total += f_n
+    slack = np.sqrt(n) * reach
+    if not total - slack > 0.0:
+        return -np.inf
+    for i in range(n):
+        out[i] = forces[i] / total
+    return worst / (total + slack)
+
+
+def _bound(unit, normals, mu, w):
+    """Certified upper bound on t* from wrench w (6,), and whether w meets the
+    separation target (L <= SEPARATION_TARGET max_j |a_j|)."""
+    n = unit.shape[0]
+    force_norm = np.sqrt(w[0] ** 2 + w[1] ** 2 + w[2] ** 2)
+    torque_norm = np.sqrt(w[3] ** 2 + w[4] ** 2 + w[5] ** 2)
+    error = ROUNDING_SLACK * _EPS * (force_norm + 2.0 * torque_norm)
+    normal_work = np.empty(n)
+    level = -np.inf
+    largest = 0.0
+    mu_max = 0.0
+    for i in range(n):
+        u = unit[i]
+        a0 = w[0] + w[4] * u[2] - w[5] * u[1]
+        a1 = w[1] + w[5] * u[0] - w[3] * u[2]
+        a2 = w[2] + w[3] * u[1] - w[4] * u[0]
+        a_n = a0 * normals[i, 0] + a1 * normals[i, 1] + a2 * normals[i, 2]
+        a_t = np.sqrt((a0 - a_n * normals[i, 0]) ** 2 + (a1 - a_n * normals[i, 1]) ** 2
+                      + (a2 - a_n * normals[i, 2]) ** 2)
+        normal_work[i] = a_n
+        level = max(level, a_n + mu[i] * a_t)
+        largest = max(largest, np.sqrt(a0 * a0 + a1 * a1 + a2 * a2))
+        mu_max = max(mu_max, mu[i])
+    raw_level = level
+    level += (1.0 + mu_max) * error
+    spread = 0.0
+    for i in range(n):
+        spread += (level - normal_work[i] - error) / mu[i]
+    spread *= 1.0 - 1e-12
+    bound = max(level, 0.0) / spread if spread > 0.0 else np.inf
+    return bound, raw_level <= SEPARATION_TARGET * largest
+
+
+def _nt_scaling(z, s):
+    """Nesterov-Todd scaling of one 3-cone pair: (W, W^-1, lambda = W z = W^-1 s), or
+    NaNs if either point has left the cone interior."""
+    z_det = z[0] * z[0] - z[1] * z[1] - z[2] * z[2]
+    s_det = s[0] * s[0] - s[1] * s[1] - s[2] * s[2]
+    scaling = np.full((3, 3), np.nan)
+    inverse = np.full((3, 3), np.nan)
+    if not (z_det > 0.0 and s_det > 0.0 and z[0] > 0.0 and s[0] > 0.0):
+        return scaling, inverse, np.full(3, np.nan)
+    z_bar = z / np.sqrt(z_det)
+    s_bar = s / np.sqrt(s_det)
+    gamma = np.sqrt(0.5 * (1.0 + z_bar[0] * s_bar[0] + z_bar[1] * s_bar[1] + z_bar[2] * s_bar[2]))
+    v = np.empty(3)
+    v[0] = (s_bar[0] + z_bar[0]) / (2.0 * gamma)
+    v[1] = (s_bar[1] - z_bar[1]) / (2.0 * gamma)
+    v[2] = (s_bar[2] - z_bar[2]) / (2.0 * gamma)
+    eta = (s_det / z_det) ** 0.25
+    for r in range(3):
+        for c in range(3):
+            if r == 0 or c == 0:
+                value = v[max(r, c)] if r != c else v[0]
+                scaling[r, c] = eta * value
+                inverse[r, c] = (value if r == c else -value) / eta
+            else:
+                value = (1.0 if r == c else 0.0) + v[r] * v[c] / (1.0 + v[0])
+                scaling[r, c] = eta * value
+                inverse[r, c] = value / eta
+    return scaling, inverse, scaling @ z
+
+
+def _jordan_product(x, y):
+    out = np.empty(3)
+    out[0] = x[0] * y[0] + x[1] * y[1] + x[2] * y[2]
+    out[1] = x[0] * y[1] + y[0] * x[1]
+    out[2] = x[0] * y[2] + y[0] * x[2]
+    return out
+
+
+def _jordan_divide(lam, r):
+    """x with lam o x = r."""
+    det = lam[0] * lam[0] - lam[1] * lam[1] - lam[2] * lam[2]
+    out = np.empty(3)
+    out[0] = (lam[0] * r[0] - lam[1] * r[1] - lam[2] * r[2]) / det
+    out[1] = (r[1] - out[0] * lam[1]) / lam[0]
+    out[2] = (r[2] - out[0] * lam[2]) / lam[0]
+    return out
+
+
+def _max_step(x, dx):
+    """Largest alpha (capped at 1e30) with x + alpha dx in the 3-cone, x interior."""
+    a = dx[0] * dx[0] - dx[1] * dx[1] - dx[2] * dx[2]
+    b = 2.0 * (x[0] * dx[0] - x[1] * dx[1] - x[2] * dx[2])
+    c = x[0] * x[0] - x[1] * x[1] - x[2] * x[2]
+    if a == 0.0:
+        return -c / b if b < 0.0 else 1e30
+    disc = b * b - 4.0 * a * c
+    if disc < 0.0:
+        return 1e30      # a > 0 and no real root: dx points into the cone
+    root = np.sqrt(disc)
+    q = -0.5 * (b + root) if b >= 0.0 else -0.5 * (b - root)
+    best = 1e30
+    for alpha in (q / a, c / q if q != 0.0 else 1e30):
+        if alpha > 0.0:
+            best = min(best, alpha)
+    if a > 0.0 and b >= 0.0:
+        return 1e30      # both roots negative: dx lies in the cone
+    return best
+
+
+def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, forces_out, wrench_out):
+    """Decide one unit-size grasp. Returns (code, t_lo, t_hi, iterations)."""
+    n = unit.shape[0]
+    gram = _gram(unit)
+    eigen = np.linalg.eigvalsh(gram)
+    if not eigen[0] > FAST_RANK_TOL * FAST_RANK_TOL * eigen[5]:
+        return UNDECIDED, -np.inf, np.inf, 0
+    sigma_min = np.sqrt(eigen[0])
+    grasp_norm = np.sqrt(np.trace(gram))
+    gram_factor = _cholesky(gram)
+    if np.isnan(gram_factor[5, 5]):
+        return UNDECIDED, -np.inf, np.inf, 0
+    tangent, bitangent = _frames(normals)
+    b_n = _wrench_rows(unit, normals)
+    b_t1 = _wrench_rows(unit, tangent)
+    b_t2 = _wrench_rows(unit, bitangent)
+    sigma = 0.0
+    d = np.zeros(6)
+    for i in range(n):
+        sigma += 1.0 / mu[i]
+        d += b_n[i] / mu[i]
+    d /= sigma
+
+    # Feasible start: forces n_i / (mu_i sigma) projected onto {G f = 0, sum n.f = 1}.
+    # Schur complement of the normalisation row: ~0 when every equilibrium force has
+    # (nearly) zero total normal force, e.g. contacts sharing one normal.
+    g_sum = np.zeros(6)
+    for i in range(n):
+        g_sum += b_n[i]
+    solved = _cholesky_solve(gram_factor, g_sum)
+    schur = n - np.dot(g_sum, solved)
+    if not schur > SHARED_NORMAL_TOL * n:
+        return UNDECIDED, -np.inf, np.inf, 0
+    # y = (y6, y7) of (M M^T) y = (d, 0): y7 = -g.GG^-1 d / schur, y6 = GG^-1 (d - g y7).
+    gg_d = _cholesky_solve(gram_factor, d)
+    y7 = -np.dot(g_sum, gg_d) / schur
+    y6 = _cholesky_solve(gram_factor, d - g_sum * y7)
+    z = np.empty((n, 3))
+    start_t = np.inf
+    for i in range(n):
+        u = unit[i]
+        f = normals[i] / (mu[i] * sigma) - y7 * normals[i]
+        f[0] -= y6[0] + y6[4] * u[2] - y6[5] * u[1]
+        f[1] -= y6[1] + y6[5] * u[0] - y6[3] * u[2]
+        f[2] -= y6[2] + y6[3] * u[1] - y6[4] * u[0]
+        c_n = np.dot(f, normals[i])
+        c_t1, c_t2 = np.dot(f, tangent[i]), np.dot(f, bitangent[i])
+        z[i, 0], z[i, 1], z[i, 2] = c_n, c_t1, c_t2
+        start_t = min(start_t, mu[i] * c_n - np.sqrt(c_t1 * c_t1 + c_t2 * c_t2))
+    start_t -= 1.0 / sigma
+    for i in range(n):
+        c_n, c_t1, c_t2 = z[i, 0], z[i, 1], z[i, 2]
+        z[i, 0] = (mu[i] * c_n - start_t) / mu[i]
+        z[i, 1], z[i, 2] = -c_t1 / mu[i], -c_t2 / mu[i]
+
+    a_mat = np.empty((n, 6, 3))
+    for i in range(n):
+        a_mat[i, :, 0] = b_n[i] - d
+        a_mat[i, :, 1] = -mu[i] * b_t1[i]
+        a_mat[i, :, 2] = -mu[i] * b_t2[i]
+    w = np.zeros(6)
+    s = np.empty((n, 3))
+    # mu_i c_n,i >= t at every contact and sum_i c_n,i = 1 give t* <= 1 / sigma.
+    t_lo, t_hi = -np.inf, (1.0 + TRIVIAL_BOUND_SLACK) / sigma
+    candidate = np.empty((n, 3))
+    separated = False
+    for iteration in range(MAX_ITERATIONS + 1):
+        for i in range(n):
+            s[i, 0] = 1.0 + np.dot(d, w) - np.dot(b_n[i], w)
+            s[i, 1] = mu[i] * np.dot(b_t1[i], w)
+            s[i, 2] = mu[i] * np.dot(b_t2[i], w)
+        depth = _witness(unit, normals, tangent, bitangent, mu, z, sigma, gram_factor,
+                         sigma_min, grasp_norm, candidate)
+        if depth > t_lo:
+            t_lo = depth
+            forces_out[:] = candidate
+        if iteration > 0:
+            bound, separating = _bound(unit, normals, mu, w)
+            if (separating and not separated) or (bound < t_hi and not separated):
+                wrench_out[:] = w
+                separated = separating
+            t_hi = min(t_hi, bound)
+        close = t_hi - max(t_lo, 0.0) <= MARGIN_ACCURACY
+        if t_lo >= MARGIN_TOL and (close or not want_optimum):
+            return FORCE_CLOSURE, t_lo, t_hi, iteration
+        if t_hi < MARGIN_TOL and (separated or not want_wrench) and (close or not want_optimum):
+            return NOT_FORCE_CLOSURE, t_lo, t_hi, iteration
+        if iteration == MAX_ITERATIONS:
+            break
+
+        # Newton system: H dw = -r_p - sum A_i W_i^-1 q_i, H = sum A_i W_i^-2 A_i^T.
+        scalings = np.empty((n, 3, 3))
+        inverses = np.empty((n, 3, 3))
+        lam = np.empty((n, 3))
+        hessian = np.zeros((6, 6))
+        residual = d.copy()
+        gap = 0.0
+        for i in range(n):
+            scalings[i], inverses[i], lam[i] = _nt_scaling(z[i], s[i])
+            weighted = a_mat[i] @ (inverses[i] @ inverses[i])
+            hessian += weighted @ a_mat[i].T
+            residual += a_mat[i] @ z[i]
+            gap += np.dot(z[i], s[i])
+        factor = _cholesky(hessian)
+        if not np.isfinite(factor[5, 5]) or not np.all(np.isfinite(lam)):
+            break
+        mean_gap = gap / n
+        dz = np.empty((n, 3))
+        ds = np.empty((n, 3))
+        rhs_c = np.empty((n, 3))
+        for corrector in range(2):
+            if corrector == 0:
+                for i in range(n):
+                    rhs_c[i] = -_jordan_product(lam[i], lam[i])
+            q = np.empty((n, 3))
+            rhs = -residual
+            for i in range(n):
+                q[i] = _jordan_divide(lam[i], rhs_c[i])
+                rhs -= a_mat[i] @ (inverses[i] @ q[i])
+            dw = _cholesky_solve(factor, rhs)
+            alpha = 1e30
+            for i in range(n):
+                ds[i] = -(a_mat[i].T @ dw)
+                dz[i] = inverses[i] @ q[i] - inverses[i] @ (inverses[i] @ ds[i])
+                alpha = min(alpha, _max_step(z[i], dz[i]), _max_step(s[i], ds[i]))
+            if corrector == 0:
+                alpha = min(1.0, alpha)
+                predicted = 0.0
+                for i in range(n):
+                    predicted += np.dot(z[i] + alpha * dz[i], s[i] + alpha * ds[i])
+                centring = (predicted / gap) ** 3
+                for i in range(n):
+                    rhs_c[i] = (-_jordan_product(lam[i], lam[i])
+                                - _jordan_product(inverses[i] @ ds[i], scalings[i] @ dz[i]))
+                    rhs_c[i, 0] += centring * mean_gap
+        alpha = min(1.0, STEP_FRACTION * alpha)
+        if not alpha > MIN_STEP:
+            break
+        z += alpha * dz
+        w += alpha * dw
+    if t_lo >= MARGIN_TOL:
+        return FORCE_CLOSURE, t_lo, t_hi, iteration
+    if t_hi < MARGIN_TOL:
+        return NOT_FORCE_CLOSURE, t_lo, t_hi, iteration
+    return UNDECIDED, t_lo, t_hi, iteration
+
+
+def _solve_all(unit, normals, mu, want_optimum, want_wrench):
+    n_grasps, n_contacts = mu.shape
+    codes = np.empty(n_grasps, dtype=np.int8)
+    t_lo = np.empty(n_grasps)
+    t_hi = np.empty(n_grasps)
+    iterations = np.empty(n_grasps, dtype=np.int32)
+    forces = np.full((n_grasps, n_contacts, 3), np.nan)
+    wrench = np.full((n_grasps, 6), np.nan)
+    for g in range(n_grasps):
+        codes[g], t_lo[g], t_hi[g], iterations[g] = _solve_grasp(
+            unit[g], normals[g], mu[g], want_optimum, want_wrench, forces[g], wrench[g])
+    return codes, t_lo, t_hi, iterations, forces, wrench
+
+
+for _name in ("_frames", "_wrench_rows", "_gram", "_apply_grasp_map", "_cholesky_solve",
+              "_cholesky", "_witness", "_bound", "_nt_scaling", "_jordan_product",
+              "_jordan_divide", "_max_step", "_solve_grasp", "_solve_all"):
+    globals()[_name] = _jit(globals()[_name])
+
+
+def solve_fast(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray,
+               want_optimum: bool = False, want_wrench: bool = False):
+    """Run the fast exact stage on unit-size grasps.
+
+    Parameters
+    ----------
+    unit : ndarray, shape (N, n, 3)
+        Positions centred at the centroid and scaled to unit size.
+    normals : ndarray, shape (N, n, 3)
+        Unit inward normals.
+    mu : ndarray, shape (N, n)
+    want_optimum : bool
+        Iterate until the certified interval on t* is at most MARGIN_ACCURACY wide.
+    want_wrench : bool
+        For not-force-closure grasps, iterate until the wrench meets the separation
+        target (or the iteration limit).
+
+    Returns
+    -------
+    codes : ndarray of int8, shape (N,)
+        FORCE_CLOSURE, NOT_FORCE_CLOSURE or UNDECIDED.
+    t_lo, t_hi : ndarray, shape (N,)
+        Certified bounds on t* (-inf / inf where none was found).
+    iterations : ndarray of int32, shape (N,)
+    forces : ndarray, shape (N, n, 3)
+        Best certified internal force (normal parts summing to one), NaN where none.
+    wrench : ndarray, shape (N, 6)
+        Wrench about the centroid of the unit-size grasp giving t_hi, NaN where none.
+    """
+    return _solve_all(np.ascontiguousarray(unit), np.ascontiguousarray(normals),
+                      np.ascontiguousarray(mu), bool(want_optimum), bool(want_wrench))
+
+
+def warm_up() -> None:
+    """Compile (or load from the cache) the kernel for every mode: a ROS node calls
+    this before it reports ready, so no query pays the compile."""
+    unit = np.array([[[1.0, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]]])
+    for optimum in (False, True):
+        for wrench in (False, True):
+            solve_fast(unit, -unit / np.sqrt(3.0), np.full((1, 4), 0.5), optimum, wrench)
