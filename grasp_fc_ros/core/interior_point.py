@@ -101,17 +101,28 @@ def _wrench_rows(unit, direction):
 
 
 def _gram(unit):
-    """G G^T (6 x 6) for global force components at positions ``unit`` (n, 3)."""
+    """G G^T (6 x 6) for global force components at positions ``unit`` (n, 3):
+    [[n I, -sum [u]x], [sum [u]x, sum (|u|^2 I - u u^T)]]."""
     gram = np.zeros((6, 6))
+    sx = sy = sz = 0.0
     for i in range(unit.shape[0]):
         x, y, z = unit[i, 0], unit[i, 1], unit[i, 2]
-        cross = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+        sx += x
+        sy += y
+        sz += z
+        square = x * x + y * y + z * z
         for r in range(3):
-            gram[r, r] += 1.0
             for c in range(3):
-                gram[3 + r, c] += cross[r, c]
-                gram[c, 3 + r] += cross[r, c]
-                gram[3 + r, 3 + c] += (x * x + y * y + z * z) * (r == c) - unit[i, r] * unit[i, c]
+                gram[3 + r, 3 + c] -= unit[i, r] * unit[i, c]
+            gram[3 + r, 3 + r] += square
+    for r in range(3):
+        gram[r, r] = unit.shape[0]
+    # sum [u]x = [[0, -sz, sy], [sz, 0, -sx], [-sy, sx, 0]] in the lower-left block.
+    cross = ((0.0, -sz, sy), (sz, 0.0, -sx), (-sy, sx, 0.0))
+    for r in range(3):
+        for c in range(3):
+            gram[3 + r, c] = cross[r][c]
+            gram[c, 3 + r] = cross[r][c]
     return gram
 
 
@@ -143,6 +154,24 @@ def _cholesky_solve(factor, rhs):
             acc -= factor[c, r] * x[c]
         x[r] = acc / factor[r, r]
     return x
+
+
+def _triangular_inverse_norm2(factor):
+    """|L^-1|_F^2 of a lower-triangular L, by forward substitution column by column."""
+    size = factor.shape[0]
+    column = np.empty(size)
+    total = 0.0
+    for k in range(size):
+        for r in range(size):
+            if r < k:
+                column[r] = 0.0
+                continue
+            acc = 1.0 if r == k else 0.0
+            for c in range(k, r):
+                acc -= factor[r, c] * column[c]
+            column[r] = acc / factor[r, r]
+            total += column[r] * column[r]
+    return total
 
 
 def _cholesky(matrix):
@@ -236,52 +265,57 @@ def _bound(unit, normals, mu, w):
     return bound, raw_level <= SEPARATION_TARGET * largest
 
 
-def _nt_scaling(z, s):
-    """Nesterov-Todd scaling of one 3-cone pair: (W, W^-1, lambda = W z = W^-1 s), or
-    NaNs if either point has left the cone interior."""
+def _nt_scaling(z, s, scaling, inverse_vector):
+    """Nesterov-Todd scaling of one 3-cone pair, for z, s interior.
+
+    Fills ``scaling`` (3, 3) with W (W z = W^-1 s) and ``inverse_vector`` (3,) with
+    J v, where W = eta Wbar, Wbar^2 = 2 v v^T - J; so W^-1 = (1/eta) J Wbar J and
+    W^-2 = (1/eta^2) (2 (Jv)(Jv)^T - J). Returns 1/eta^2, or NaN if z or s has left
+    the cone interior.
+    """
     z_det = z[0] * z[0] - z[1] * z[1] - z[2] * z[2]
     s_det = s[0] * s[0] - s[1] * s[1] - s[2] * s[2]
-    scaling = np.full((3, 3), np.nan)
-    inverse = np.full((3, 3), np.nan)
     if not (z_det > 0.0 and s_det > 0.0 and z[0] > 0.0 and s[0] > 0.0):
-        return scaling, inverse, np.full(3, np.nan)
-    z_bar = z / np.sqrt(z_det)
-    s_bar = s / np.sqrt(s_det)
-    gamma = np.sqrt(0.5 * (1.0 + z_bar[0] * s_bar[0] + z_bar[1] * s_bar[1] + z_bar[2] * s_bar[2]))
-    v = np.empty(3)
-    v[0] = (s_bar[0] + z_bar[0]) / (2.0 * gamma)
-    v[1] = (s_bar[1] - z_bar[1]) / (2.0 * gamma)
-    v[2] = (s_bar[2] - z_bar[2]) / (2.0 * gamma)
-    eta = (s_det / z_det) ** 0.25
+        return np.nan
+    z_root, s_root = np.sqrt(z_det), np.sqrt(s_det)
+    gamma = np.sqrt(0.5 * (1.0 + (z[0] * s[0] + z[1] * s[1] + z[2] * s[2]) / (z_root * s_root)))
+    v0 = (s[0] / s_root + z[0] / z_root) / (2.0 * gamma)
+    v1 = (s[1] / s_root - z[1] / z_root) / (2.0 * gamma)
+    v2 = (s[2] / s_root - z[2] / z_root) / (2.0 * gamma)
+    eta = np.sqrt(s_root / z_root)
+    scaling[0, 0] = eta * v0
+    scaling[0, 1] = scaling[1, 0] = eta * v1
+    scaling[0, 2] = scaling[2, 0] = eta * v2
+    scaling[1, 1] = eta * (1.0 + v1 * v1 / (1.0 + v0))
+    scaling[2, 2] = eta * (1.0 + v2 * v2 / (1.0 + v0))
+    scaling[1, 2] = scaling[2, 1] = eta * v1 * v2 / (1.0 + v0)
+    inverse_vector[0], inverse_vector[1], inverse_vector[2] = v0, -v1, -v2
+    return 1.0 / (eta * eta)
+
+
+def _inverse_apply(scaling, x, out):
+    """out = W^-1 x from W = eta Wbar: W^-1 = J W J / eta^2."""
+    inv_eta2 = 1.0 / (scaling[0, 0] ** 2 - scaling[0, 1] ** 2 - scaling[0, 2] ** 2)
+    jx0, jx1, jx2 = x[0], -x[1], -x[2]
     for r in range(3):
-        for c in range(3):
-            if r == 0 or c == 0:
-                value = v[max(r, c)] if r != c else v[0]
-                scaling[r, c] = eta * value
-                inverse[r, c] = (value if r == c else -value) / eta
-            else:
-                value = (1.0 if r == c else 0.0) + v[r] * v[c] / (1.0 + v[0])
-                scaling[r, c] = eta * value
-                inverse[r, c] = value / eta
-    return scaling, inverse, scaling @ z
+        sign = 1.0 if r == 0 else -1.0
+        out[r] = sign * inv_eta2 * (scaling[r, 0] * jx0 + scaling[r, 1] * jx1 + scaling[r, 2] * jx2)
 
 
-def _jordan_product(x, y):
-    out = np.empty(3)
-    out[0] = x[0] * y[0] + x[1] * y[1] + x[2] * y[2]
-    out[1] = x[0] * y[1] + y[0] * x[1]
-    out[2] = x[0] * y[2] + y[0] * x[2]
-    return out
+def _jordan_product_into(x, y, out):
+    """out = x o y (out may not alias x or y)."""
+    out0 = x[0] * y[0] + x[1] * y[1] + x[2] * y[2]
+    out1 = x[0] * y[1] + y[0] * x[1]
+    out2 = x[0] * y[2] + y[0] * x[2]
+    out[0], out[1], out[2] = out0, out1, out2
 
 
-def _jordan_divide(lam, r):
-    """x with lam o x = r."""
+def _jordan_divide_into(lam, r, out):
+    """out with lam o out = r."""
     det = lam[0] * lam[0] - lam[1] * lam[1] - lam[2] * lam[2]
-    out = np.empty(3)
     out[0] = (lam[0] * r[0] - lam[1] * r[1] - lam[2] * r[2]) / det
     out[1] = (r[1] - out[0] * lam[1]) / lam[0]
     out[2] = (r[2] - out[0] * lam[2]) / lam[0]
-    return out
 
 
 def _max_step(x, dx):
@@ -309,14 +343,18 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, forces_out, wrenc
     """Decide one unit-size grasp. Returns (code, t_lo, t_hi, iterations)."""
     n = unit.shape[0]
     gram = _gram(unit)
-    eigen = np.linalg.eigvalsh(gram)
-    if not eigen[0] > FAST_RANK_TOL * FAST_RANK_TOL * eigen[5]:
-        return UNDECIDED, -np.inf, np.inf, 0
-    sigma_min = np.sqrt(eigen[0])
-    grasp_norm = np.sqrt(np.trace(gram))
+    trace = np.trace(gram)
     gram_factor = _cholesky(gram)
     if np.isnan(gram_factor[5, 5]):
         return UNDECIDED, -np.inf, np.inf, 0
+    # lambda_min(G G^T) = 1 / |L^-T L^-1|_2 >= 1 / |L^-1|_F^2: a lower bound on sigma_min,
+    # so the witness slack errs on the safe side; lambda_max <= trace likewise.
+    inverse_norm2 = _triangular_inverse_norm2(gram_factor)
+    lambda_min = 1.0 / inverse_norm2
+    if not lambda_min > FAST_RANK_TOL * FAST_RANK_TOL * trace:
+        return UNDECIDED, -np.inf, np.inf, 0
+    sigma_min = np.sqrt(lambda_min)
+    grasp_norm = np.sqrt(trace)
     tangent, bitangent = _frames(normals)
     b_n = _wrench_rows(unit, normals)
     b_t1 = _wrench_rows(unit, tangent)
@@ -371,11 +409,34 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, forces_out, wrenc
     t_lo, t_hi = -np.inf, (1.0 + TRIVIAL_BOUND_SLACK) / sigma
     candidate = np.empty((n, 3))
     separated = False
+    scalings = np.empty((n, 3, 3))
+    jv = np.empty((n, 3))
+    inv_eta2 = np.empty(n)
+    lam = np.empty((n, 3))
+    hessian = np.empty((6, 6))
+    residual = np.empty(6)
+    g = np.empty(6)
+    rhs = np.empty(6)
+    dz = np.empty((n, 3))
+    ds = np.empty((n, 3))
+    rhs_c = np.empty((n, 3))
+    winv_q = np.empty((n, 3))
+    q = np.empty(3)
+    w_dz = np.empty(3)
+    second_order = np.empty(3)
     for iteration in range(MAX_ITERATIONS + 1):
+        d_w = 0.0
+        for r in range(6):
+            d_w += d[r] * w[r]
         for i in range(n):
-            s[i, 0] = 1.0 + np.dot(d, w) - np.dot(b_n[i], w)
-            s[i, 1] = mu[i] * np.dot(b_t1[i], w)
-            s[i, 2] = mu[i] * np.dot(b_t2[i], w)
+            n_w = t1_w = t2_w = 0.0
+            for r in range(6):
+                n_w += b_n[i, r] * w[r]
+                t1_w += b_t1[i, r] * w[r]
+                t2_w += b_t2[i, r] * w[r]
+            s[i, 0] = 1.0 + d_w - n_w
+            s[i, 1] = mu[i] * t1_w
+            s[i, 2] = mu[i] * t2_w
         depth = _witness(unit, normals, tangent, bitangent, mu, z, sigma, gram_factor,
                          sigma_min, grasp_norm, candidate)
         if depth > t_lo:
@@ -395,50 +456,79 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, forces_out, wrenc
         if iteration == MAX_ITERATIONS:
             break
 
-        # Newton system: H dw = -r_p - sum A_i W_i^-1 q_i, H = sum A_i W_i^-2 A_i^T.
-        scalings = np.empty((n, 3, 3))
-        inverses = np.empty((n, 3, 3))
-        lam = np.empty((n, 3))
-        hessian = np.zeros((6, 6))
-        residual = d.copy()
+        # Newton system: H dw = -r_p - sum A_i W_i^-1 q_i, H = sum A_i W_i^-2 A_i^T,
+        # with W_i^-2 = (2 (Jv)(Jv)^T - J) / eta^2: four rank-one updates per contact.
+        hessian[:] = 0.0
+        residual[:] = d
         gap = 0.0
+        finite = True
         for i in range(n):
-            scalings[i], inverses[i], lam[i] = _nt_scaling(z[i], s[i])
-            weighted = a_mat[i] @ (inverses[i] @ inverses[i])
-            hessian += weighted @ a_mat[i].T
-            residual += a_mat[i] @ z[i]
-            gap += np.dot(z[i], s[i])
+            inv_eta2[i] = _nt_scaling(z[i], s[i], scalings[i], jv[i])
+            if not np.isfinite(inv_eta2[i]):
+                finite = False
+                break
+            for r in range(3):
+                lam[i, r] = scalings[i, r, 0] * z[i, 0] + scalings[i, r, 1] * z[i, 1] + scalings[i, r, 2] * z[i, 2]
+            for r in range(6):
+                g[r] = a_mat[i, r, 0] * jv[i, 0] + a_mat[i, r, 1] * jv[i, 1] + a_mat[i, r, 2] * jv[i, 2]
+                residual[r] += a_mat[i, r, 0] * z[i, 0] + a_mat[i, r, 1] * z[i, 1] + a_mat[i, r, 2] * z[i, 2]
+            for r in range(6):
+                for c in range(r + 1):
+                    hessian[r, c] += inv_eta2[i] * (
+                        2.0 * g[r] * g[c] - a_mat[i, r, 0] * a_mat[i, c, 0]
+                        + a_mat[i, r, 1] * a_mat[i, c, 1] + a_mat[i, r, 2] * a_mat[i, c, 2])
+            gap += z[i, 0] * s[i, 0] + z[i, 1] * s[i, 1] + z[i, 2] * s[i, 2]
+        if not finite:
+            break
+        for r in range(6):
+            for c in range(r):
+                hessian[c, r] = hessian[r, c]
         factor = _cholesky(hessian)
-        if not np.isfinite(factor[5, 5]) or not np.all(np.isfinite(lam)):
+        if not np.isfinite(factor[5, 5]):
             break
         mean_gap = gap / n
-        dz = np.empty((n, 3))
-        ds = np.empty((n, 3))
-        rhs_c = np.empty((n, 3))
+        for i in range(n):
+            _jordan_product_into(lam[i], lam[i], rhs_c[i])
+            rhs_c[i] *= -1.0
         for corrector in range(2):
-            if corrector == 0:
-                for i in range(n):
-                    rhs_c[i] = -_jordan_product(lam[i], lam[i])
-            q = np.empty((n, 3))
-            rhs = -residual
+            for r in range(6):
+                rhs[r] = -residual[r]
             for i in range(n):
-                q[i] = _jordan_divide(lam[i], rhs_c[i])
-                rhs -= a_mat[i] @ (inverses[i] @ q[i])
+                _jordan_divide_into(lam[i], rhs_c[i], q)
+                _inverse_apply(scalings[i], q, winv_q[i])
+                for r in range(6):
+                    rhs[r] -= (a_mat[i, r, 0] * winv_q[i, 0] + a_mat[i, r, 1] * winv_q[i, 1]
+                               + a_mat[i, r, 2] * winv_q[i, 2])
             dw = _cholesky_solve(factor, rhs)
             alpha = 1e30
             for i in range(n):
-                ds[i] = -(a_mat[i].T @ dw)
-                dz[i] = inverses[i] @ q[i] - inverses[i] @ (inverses[i] @ ds[i])
+                for k in range(3):
+                    acc = 0.0
+                    for r in range(6):
+                        acc -= a_mat[i, r, k] * dw[r]
+                    ds[i, k] = acc
+                # dz = W^-1 q - W^-2 ds, W^-2 ds = (2 Jv (Jv . ds) - J ds) / eta^2
+                proj = jv[i, 0] * ds[i, 0] + jv[i, 1] * ds[i, 1] + jv[i, 2] * ds[i, 2]
+                for k in range(3):
+                    j_ds = ds[i, k] if k == 0 else -ds[i, k]
+                    dz[i, k] = winv_q[i, k] - inv_eta2[i] * (2.0 * jv[i, k] * proj - j_ds)
                 alpha = min(alpha, _max_step(z[i], dz[i]), _max_step(s[i], ds[i]))
             if corrector == 0:
                 alpha = min(1.0, alpha)
                 predicted = 0.0
                 for i in range(n):
-                    predicted += np.dot(z[i] + alpha * dz[i], s[i] + alpha * ds[i])
+                    for k in range(3):
+                        predicted += (z[i, k] + alpha * dz[i, k]) * (s[i, k] + alpha * ds[i, k])
                 centring = (predicted / gap) ** 3
                 for i in range(n):
-                    rhs_c[i] = (-_jordan_product(lam[i], lam[i])
-                                - _jordan_product(inverses[i] @ ds[i], scalings[i] @ dz[i]))
+                    _inverse_apply(scalings[i], ds[i], q)
+                    for k in range(3):
+                        w_dz[k] = (scalings[i, k, 0] * dz[i, 0] + scalings[i, k, 1] * dz[i, 1]
+                                   + scalings[i, k, 2] * dz[i, 2])
+                    _jordan_product_into(q, w_dz, second_order)
+                    _jordan_product_into(lam[i], lam[i], rhs_c[i])
+                    for k in range(3):
+                        rhs_c[i, k] = -rhs_c[i, k] - second_order[k]
                     rhs_c[i, 0] += centring * mean_gap
         alpha = min(1.0, STEP_FRACTION * alpha)
         if not alpha > MIN_STEP:
@@ -467,8 +557,8 @@ def _solve_all(unit, normals, mu, want_optimum, want_wrench):
 
 
 for _name in ("_frames", "_wrench_rows", "_gram", "_apply_grasp_map", "_cholesky_solve",
-              "_cholesky", "_witness", "_bound", "_nt_scaling", "_jordan_product",
-              "_jordan_divide", "_max_step", "_solve_grasp", "_solve_all"):
+              "_cholesky", "_triangular_inverse_norm2", "_witness", "_bound", "_nt_scaling", "_inverse_apply",
+              "_jordan_product_into", "_jordan_divide_into", "_max_step", "_solve_grasp", "_solve_all"):
     globals()[_name] = _jit(globals()[_name])
 
 

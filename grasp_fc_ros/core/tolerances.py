@@ -62,10 +62,10 @@ CERTIFICATE_TOL = 1e-6
 EQUILIBRIUM_TOL = 1e-9
 
 #: The fast exact stage (:mod:`.interior_point`) decides a grasp only if its grasp map
-#: has sigma_min > FAST_RANK_TOL sigma_max, computed from the eigenvalues of G G^T
-#: (whose rounding is ~eps relative: 1e-12 in squared terms is far above it). Grasps
-#: nearer rank deficiency go to the Clarabel path, which decides rank from an SVD with
-#: RANK_TOL.
+#: has sigma_min^2 > FAST_RANK_TOL^2 trace(G G^T), with sigma_min^2 bounded below by
+#: 1 / |(G G^T)^-1|_F from a Cholesky factor (whose relative error, ~cond eps <= 1e-4
+#: here, only shifts that bound a little). Grasps nearer rank deficiency go to the
+#: Clarabel path, which decides rank from an SVD with RANK_TOL.
 FAST_RANK_TOL = 1e-6
 
 #: The fast stage hands a grasp to the Clarabel path when the equilibrium forces with

@@ -1,0 +1,186 @@
+"""The fast exact stage and the certificates: agreement with the Clarabel reference on
+random and adversarial grasps, certified margin intervals, verified certificates."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from grasp_cases import MU_PAPER, ellipsoid_grasps, random_rotation
+from grasp_fc_ros.core import Status, check_force_closure, verify_certificates, warm_up
+from grasp_fc_ros.core.certificates import normalise_positions
+from grasp_fc_ros.core.exact_test import solve_exact
+from grasp_fc_ros.core.grasp_input import prepare_grasps
+from grasp_fc_ros.core.interior_point import UNDECIDED, solve_fast
+from grasp_fc_ros.core.tolerances import MARGIN_ACCURACY, MARGIN_TOL
+from grasp_fc_ros.objects import make_object, sample_grasps
+
+TETRAHEDRON = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], float)
+
+
+def _both(positions, normals, mu, margin="optimum"):
+    grasps = prepare_grasps(positions, normals, mu)
+    return solve_exact(grasps, margin), solve_exact(grasps, fast=False)
+
+
+def _fast_codes(positions, normals, mu):
+    grasps = prepare_grasps(positions, normals, mu)
+    unit = normalise_positions(grasps.positions)[0]
+    return solve_fast(unit, grasps.normals, grasps.mu)
+
+
+@pytest.mark.parametrize("n_contacts", [4, 6, 8])
+@pytest.mark.parametrize("mu", [MU_PAPER, 0.5])
+def test_fast_stage_agrees_with_clarabel_on_box_grasps(n_contacts, mu):
+    positions, normals = sample_grasps(make_object("box"), 400, n_contacts,
+                                       np.random.default_rng(n_contacts))
+    fast, reference = _both(positions, normals, mu)
+    assert not reference.solver_failure.any()
+    assert np.array_equal(fast.force_closure, reference.force_closure)
+    # The fast stage itself decided nearly all of them (the rest went to Clarabel).
+    assert np.mean(_fast_codes(positions, normals, mu)[0] == UNDECIDED) < 0.05
+    # Certified intervals, at most MARGIN_ACCURACY wide, around Clarabel's optimum.
+    closure = fast.force_closure
+    assert np.all(fast.margin_upper[closure] - fast.margin[closure] <= MARGIN_ACCURACY)
+    assert np.allclose(fast.margin, reference.margin, atol=2e-8)
+
+
+def test_margin_bound_mode_gives_the_same_verdicts_with_a_certified_interval():
+    positions, normals = ellipsoid_grasps(np.random.default_rng(21), 300, 6)
+    bound, reference = _both(positions, normals, MU_PAPER, margin="bound")
+    assert np.array_equal(bound.force_closure, reference.force_closure)
+    # Clarabel's optimum lies within the certified interval (up to its own accuracy).
+    optimum = reference.margin
+    assert np.all(bound.margin <= optimum + 1e-8)
+    assert np.all(bound.margin_upper >= optimum - 1e-8)
+
+
+def test_tetrahedron_margin_interval_brackets_mu_over_four():
+    result = check_force_closure(TETRAHEDRON, -TETRAHEDRON, mu=0.3)
+    assert result.margin <= 0.075 <= result.margin_upper
+    assert result.margin_upper - result.margin <= MARGIN_ACCURACY
+
+
+def _bisect_threshold_mu(positions, normals, target=MARGIN_TOL):
+    """mu at which the reference margin of one grasp crosses ``target``."""
+    low, high = 1e-3, 5.0
+    for _ in range(40):
+        middle = np.sqrt(low * high)
+        margin = solve_exact(prepare_grasps(positions, normals, middle), fast=False).margin[0]
+        low, high = (middle, high) if margin < target else (low, middle)
+    return np.sqrt(low * high)
+
+
+def test_adversarial_grasps_never_disagree_with_the_reference():
+    """Near-threshold (mu bisected until t* ~ MARGIN_TOL, then perturbed), shared normals,
+    duplicates, collinear contacts and extreme scales: the fast stage may hand a grasp
+    to Clarabel, but the two never disagree."""
+    rng = np.random.default_rng(31)
+    cases = []
+    positions, normals = ellipsoid_grasps(rng, 6, 5)
+    for g in range(len(positions)):
+        threshold = _bisect_threshold_mu(positions[g], normals[g])
+        for factor in (1 - 1e-3, 1 - 1e-6, 1.0, 1 + 1e-6, 1 + 1e-3):
+            noise = 1e-9 * rng.normal(size=(5, 3))
+            cases.append((positions[g] + noise, normals[g], threshold * factor))
+    for _ in range(10):
+        base = np.column_stack([rng.uniform(-1, 1, (3, 2)), np.zeros(3)])
+        cases.append((np.concatenate([base, base + 1e-9 * rng.normal(size=(3, 3))]),
+                      np.tile([0.0, 0.0, 1.0], (6, 1)), 1.0))
+        p, n = ellipsoid_grasps(rng, 1, 4)
+        cases.append((np.concatenate([p[0], p[0][:2] + 1e-7]),
+                      np.concatenate([n[0], n[0][:2]]), 0.4))
+        line = np.outer(rng.uniform(-1, 1, 5), rng.normal(size=3))
+        cases.append((line + 1e-10 * rng.normal(size=(5, 3)), rng.normal(size=(5, 3)), 3.0))
+        scale = 10.0 ** rng.uniform(-9, 9)
+        cases.append((p[0] * scale + 10.0 ** rng.uniform(-9, 9), n[0], 0.5))
+    for positions, normals, mu in cases:
+        fast, reference = _both(positions, normals, mu)
+        if not (fast.solver_failure[0] or reference.solver_failure[0]):
+            assert fast.force_closure[0] == reference.force_closure[0], (positions, normals, mu)
+
+
+def test_contacts_sharing_one_normal_are_not_decided_by_the_fast_stage():
+    rng = np.random.default_rng(5)
+    base = np.column_stack([rng.uniform(-1, 1, (3, 2)), np.ones(3)])
+    positions = np.concatenate([base, base + 1e-9 * rng.normal(size=(3, 3))])[None]
+    codes = _fast_codes(positions, np.tile([0.0, 0.0, -1.0], (1, 6, 1)), 2.0)[0]
+    assert codes[0] == UNDECIDED
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), n_contacts=st.integers(3, 8),
+       mu=st.floats(0.05, 2.0))
+def test_certificates_verify_and_verdicts_are_invariant_under_similarity(seed, n_contacts,
+                                                                          mu):
+    rng = np.random.default_rng(seed)
+    positions, normals = ellipsoid_grasps(rng, 8, n_contacts)
+    result = check_force_closure(positions, normals, mu, certificates=True)
+    forces_ok, wrench_ok = verify_certificates(positions, normals, mu,
+                                               result.contact_forces,
+                                               result.separating_wrench)
+    closure = result.status == Status.FORCE_CLOSURE
+    assert np.array_equal(forces_ok, closure)
+    rejected = (result.status == Status.FILTERED_OUT) | (result.status == Status.NOT_FORCE_CLOSURE)
+    assert np.array_equal(wrench_ok, rejected & ~result.marginal)
+    assert not result.marginal[result.status == Status.FILTERED_OUT].any()
+    assert np.all(np.isnan(result.contact_forces[~closure]))
+    assert np.all(np.isnan(result.separating_wrench[closure]))
+
+    rotation = random_rotation(rng)
+    scale = 10.0 ** rng.uniform(-3, 3)
+    shift = rng.normal(size=3) * 10.0 ** rng.uniform(-3, 3)
+    moved = check_force_closure(scale * positions @ rotation.T + shift, normals @ rotation.T,
+                                mu, use_filter=False)
+    assert np.array_equal(moved.force_closure, result.force_closure)
+
+
+def test_the_separating_wrench_of_contacts_on_one_face_pushes_them_off():
+    positions = np.column_stack([np.random.default_rng(2).uniform(-1, 1, (5, 2)), np.ones(5)])
+    normals = np.tile([0.0, 0.0, -1.0], (5, 1))
+    result = check_force_closure(positions + 7.0, normals, 0.8, use_filter=False,
+                                 certificates=True)
+    assert result.status == Status.NOT_FORCE_CLOSURE and not result.marginal
+    wrench = result.separating_wrench
+    assert wrench.shape == (6,) and np.linalg.norm(wrench) == pytest.approx(1.0)
+    assert verify_certificates(positions + 7.0, normals, 0.8,
+                               separating_wrench=wrench)[1]
+
+
+def test_contact_forces_of_one_grasp_are_in_the_callers_frame():
+    shift = np.array([100.0, -3.0, 5.0])
+    result = check_force_closure(2.0 * TETRAHEDRON + shift, -TETRAHEDRON, 0.3,
+                                 certificates=True)
+    forces = result.contact_forces
+    assert forces.shape == (4, 3)
+    assert np.sum(forces * -TETRAHEDRON / np.sqrt(3)) == pytest.approx(1.0)
+    assert np.allclose(forces.sum(axis=0), 0.0, atol=1e-12)
+    assert np.allclose(np.cross(2.0 * TETRAHEDRON + shift, forces).sum(axis=0), 0.0,
+                       atol=1e-10)
+
+
+def test_verification_rejects_wrong_certificates():
+    positions, normals = ellipsoid_grasps(np.random.default_rng(3), 30, 6)
+    result = check_force_closure(positions, normals, 0.5, certificates=True)
+    closure = result.force_closure
+    assert closure.any() and (~closure).any()
+    tampered = result.contact_forces.copy()
+    tampered[:, 0] *= 1.5                       # no longer in equilibrium
+    assert not verify_certificates(positions, normals, 0.5, tampered)[0][closure].any()
+    # A force-closure grasp has no separating wrench: borrow another grasp's.
+    donor = result.separating_wrench[np.flatnonzero(~closure & ~result.marginal)[0]]
+    borrowed = np.broadcast_to(donor, (30, 6))
+    assert not verify_certificates(positions, normals, 0.5,
+                                   separating_wrench=borrowed)[1][closure].any()
+
+
+def test_warm_up_compiles_every_mode():
+    warm_up()
+    result = check_force_closure(TETRAHEDRON, -TETRAHEDRON, 0.3, margin="bound",
+                                 certificates=True)
+    assert result.force_closure
+
+
+def test_an_unknown_margin_mode_is_refused():
+    with pytest.raises(ValueError, match="margin"):
+        check_force_closure(TETRAHEDRON, -TETRAHEDRON, 0.3, margin="exact")
