@@ -11,7 +11,7 @@ from grasp_fc_ros.core import Status, check_force_closure, verify_certificates, 
 from grasp_fc_ros.core.certificates import normalise_positions
 from grasp_fc_ros.core.exact_test import solve_exact
 from grasp_fc_ros.core.grasp_input import prepare_grasps
-from grasp_fc_ros.core.interior_point import UNDECIDED, solve_fast
+from grasp_fc_ros.core.interior_point import NOT_FORCE_CLOSURE, UNDECIDED, solve_fast
 from grasp_fc_ros.core.tolerances import MARGIN_ACCURACY, MARGIN_TOL
 from grasp_fc_ros.objects import make_object, sample_grasps
 
@@ -100,12 +100,16 @@ def test_adversarial_grasps_never_disagree_with_the_reference():
             assert fast.force_closure[0] == reference.force_closure[0], (positions, normals, mu)
 
 
-def test_contacts_sharing_one_normal_are_not_decided_by_the_fast_stage():
+def test_contacts_sharing_one_normal_are_rejected_by_the_fast_stage_with_a_bound():
+    """The interior-point start does not exist for them (no equilibrium force has a
+    positive total normal force); the trial wrench against the mean normal decides."""
     rng = np.random.default_rng(5)
     base = np.column_stack([rng.uniform(-1, 1, (3, 2)), np.ones(3)])
     positions = np.concatenate([base, base + 1e-9 * rng.normal(size=(3, 3))])[None]
-    codes = _fast_codes(positions, np.tile([0.0, 0.0, -1.0], (1, 6, 1)), 2.0)[0]
-    assert codes[0] == UNDECIDED
+    codes, _, t_hi, _, forces, _ = _fast_codes(positions, np.tile([0.0, 0.0, -1.0], (1, 6, 1)),
+                                               2.0)
+    assert codes[0] == NOT_FORCE_CLOSURE and t_hi[0] < MARGIN_TOL
+    assert np.all(np.isnan(forces))
 
 
 @settings(max_examples=40, deadline=None)

@@ -93,7 +93,7 @@ def _wrench_rows(unit, direction):
     rows = np.empty((unit.shape[0], 6))
     for i in range(unit.shape[0]):
         u, e = unit[i], direction[i]
-        rows[i, :3] = e
+        rows[i, 0], rows[i, 1], rows[i, 2] = e[0], e[1], e[2]
         rows[i, 3] = u[1] * e[2] - u[2] * e[1]
         rows[i, 4] = u[2] * e[0] - u[0] * e[2]
         rows[i, 5] = u[0] * e[1] - u[1] * e[0]
@@ -131,7 +131,9 @@ def _apply_grasp_map(unit, forces):
     out = np.zeros(6)
     for i in range(unit.shape[0]):
         u, f = unit[i], forces[i]
-        out[:3] += f
+        out[0] += f[0]
+        out[1] += f[1]
+        out[2] += f[2]
         out[3] += u[1] * f[2] - u[2] * f[1]
         out[4] += u[2] * f[0] - u[0] * f[2]
         out[5] += u[0] * f[1] - u[1] * f[0]
@@ -205,7 +207,9 @@ def _witness(unit, normals, tangent, bitangent, mu, z, sigma, gram_factor, sigma
     forces = np.empty((n, 3))
     for i in range(n):
         c_n = z[i, 0] + t / mu[i]
-        forces[i] = c_n * normals[i] - mu[i] * (z[i, 1] * tangent[i] + z[i, 2] * bitangent[i])
+        for k in range(3):
+            forces[i, k] = c_n * normals[i, k] - mu[i] * (z[i, 1] * tangent[i, k]
+                                                          + z[i, 2] * bitangent[i, k])
     y = _cholesky_solve(gram_factor, _apply_grasp_map(unit, forces))
     size = 0.0
     for i in range(n):
@@ -215,20 +219,27 @@ def _witness(unit, normals, tangent, bitangent, mu, z, sigma, gram_factor, sigma
         forces[i, 1] -= y[1] + y[5] * u[0] - y[3] * u[2]
         forces[i, 2] -= y[2] + y[3] * u[1] - y[4] * u[0]
         size += forces[i, 0] ** 2 + forces[i, 1] ** 2 + forces[i, 2] ** 2
-    residual = np.sqrt(np.sum(_apply_grasp_map(unit, forces) ** 2))
+    check = _apply_grasp_map(unit, forces)
+    residual = 0.0
+    for r in range(6):
+        residual += check[r] * check[r]
+    residual = np.sqrt(residual)
     reach = (residual + ROUNDING_SLACK * _EPS * 3 * n * grasp_norm * np.sqrt(size)) / sigma_min
     total = 0.0
     worst = np.inf
     for i in range(n):
         f_n = forces[i, 0] * normals[i, 0] + forces[i, 1] * normals[i, 1] + forces[i, 2] * normals[i, 2]
-        tangential = np.sqrt(np.sum((forces[i] - f_n * normals[i]) ** 2))
+        tangential = np.sqrt((forces[i, 0] - f_n * normals[i, 0]) ** 2
+                             + (forces[i, 1] - f_n * normals[i, 1]) ** 2
+                             + (forces[i, 2] - f_n * normals[i, 2]) ** 2)
         worst = min(worst, mu[i] * f_n - tangential - (mu[i] + 1.0) * reach)
         total += f_n
     slack = np.sqrt(n) * reach
     if not total - slack > 0.0:
         return -np.inf
     for i in range(n):
-        out[i] = forces[i] / total
+        for k in range(3):
+            out[i, k] = forces[i, k] / total
     return worst / (total + slack)
 
 
@@ -355,6 +366,17 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, forces_out, wrenc
         return UNDECIDED, -np.inf, np.inf, 0
     sigma_min = np.sqrt(lambda_min)
     grasp_norm = np.sqrt(trace)
+    # A first trial wrench: pull against the mean inward normal. It separates every
+    # grasp whose normals all lie in one open half-space around it, e.g. contacts
+    # sharing a face, which the interior-point start below cannot handle.
+    trial = np.zeros(6)
+    for i in range(n):
+        for k in range(3):
+            trial[k] -= normals[i, k]
+    bound, separating = _bound(unit, normals, mu, trial)
+    if bound < MARGIN_TOL and (separating or not want_wrench):
+        wrench_out[:] = trial
+        return NOT_FORCE_CLOSURE, -np.inf, bound, 0
     tangent, bitangent = _frames(normals)
     b_n = _wrench_rows(unit, normals)
     b_t1 = _wrench_rows(unit, tangent)
@@ -363,15 +385,18 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, forces_out, wrenc
     d = np.zeros(6)
     for i in range(n):
         sigma += 1.0 / mu[i]
-        d += b_n[i] / mu[i]
-    d /= sigma
+        for r in range(6):
+            d[r] += b_n[i, r] / mu[i]
+    for r in range(6):
+        d[r] /= sigma
 
     # Feasible start: forces n_i / (mu_i sigma) projected onto {G f = 0, sum n.f = 1}.
     # Schur complement of the normalisation row: ~0 when every equilibrium force has
     # (nearly) zero total normal force, e.g. contacts sharing one normal.
     g_sum = np.zeros(6)
     for i in range(n):
-        g_sum += b_n[i]
+        for r in range(6):
+            g_sum[r] += b_n[i, r]
     solved = _cholesky_solve(gram_factor, g_sum)
     schur = n - np.dot(g_sum, solved)
     if not schur > SHARED_NORMAL_TOL * n:
@@ -379,17 +404,20 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, forces_out, wrenc
     # y = (y6, y7) of (M M^T) y = (d, 0): y7 = -g.GG^-1 d / schur, y6 = GG^-1 (d - g y7).
     gg_d = _cholesky_solve(gram_factor, d)
     y7 = -np.dot(g_sum, gg_d) / schur
-    y6 = _cholesky_solve(gram_factor, d - g_sum * y7)
+    for r in range(6):
+        solved[r] = d[r] - g_sum[r] * y7
+    y6 = _cholesky_solve(gram_factor, solved)
     z = np.empty((n, 3))
     start_t = np.inf
     for i in range(n):
         u = unit[i]
-        f = normals[i] / (mu[i] * sigma) - y7 * normals[i]
-        f[0] -= y6[0] + y6[4] * u[2] - y6[5] * u[1]
-        f[1] -= y6[1] + y6[5] * u[0] - y6[3] * u[2]
-        f[2] -= y6[2] + y6[3] * u[1] - y6[4] * u[0]
-        c_n = np.dot(f, normals[i])
-        c_t1, c_t2 = np.dot(f, tangent[i]), np.dot(f, bitangent[i])
+        scale = 1.0 / (mu[i] * sigma) - y7
+        f0 = scale * normals[i, 0] - (y6[0] + y6[4] * u[2] - y6[5] * u[1])
+        f1 = scale * normals[i, 1] - (y6[1] + y6[5] * u[0] - y6[3] * u[2])
+        f2 = scale * normals[i, 2] - (y6[2] + y6[3] * u[1] - y6[4] * u[0])
+        c_n = f0 * normals[i, 0] + f1 * normals[i, 1] + f2 * normals[i, 2]
+        c_t1 = f0 * tangent[i, 0] + f1 * tangent[i, 1] + f2 * tangent[i, 2]
+        c_t2 = f0 * bitangent[i, 0] + f1 * bitangent[i, 1] + f2 * bitangent[i, 2]
         z[i, 0], z[i, 1], z[i, 2] = c_n, c_t1, c_t2
         start_t = min(start_t, mu[i] * c_n - np.sqrt(c_t1 * c_t1 + c_t2 * c_t2))
     start_t -= 1.0 / sigma
@@ -400,9 +428,10 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, forces_out, wrenc
 
     a_mat = np.empty((n, 6, 3))
     for i in range(n):
-        a_mat[i, :, 0] = b_n[i] - d
-        a_mat[i, :, 1] = -mu[i] * b_t1[i]
-        a_mat[i, :, 2] = -mu[i] * b_t2[i]
+        for r in range(6):
+            a_mat[i, r, 0] = b_n[i, r] - d[r]
+            a_mat[i, r, 1] = -mu[i] * b_t1[i, r]
+            a_mat[i, r, 2] = -mu[i] * b_t2[i, r]
     w = np.zeros(6)
     s = np.empty((n, 3))
     # mu_i c_n,i >= t at every contact and sum_i c_n,i = 1 give t* <= 1 / sigma.
@@ -489,7 +518,8 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, forces_out, wrenc
         mean_gap = gap / n
         for i in range(n):
             _jordan_product_into(lam[i], lam[i], rhs_c[i])
-            rhs_c[i] *= -1.0
+            for k in range(3):
+                rhs_c[i, k] = -rhs_c[i, k]
         for corrector in range(2):
             for r in range(6):
                 rhs[r] = -residual[r]
@@ -533,8 +563,11 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, forces_out, wrenc
         alpha = min(1.0, STEP_FRACTION * alpha)
         if not alpha > MIN_STEP:
             break
-        z += alpha * dz
-        w += alpha * dw
+        for i in range(n):
+            for k in range(3):
+                z[i, k] += alpha * dz[i, k]
+        for r in range(6):
+            w[r] += alpha * dw[r]
     if t_lo >= MARGIN_TOL:
         return FORCE_CLOSURE, t_lo, t_hi, iteration
     if t_hi < MARGIN_TOL:
