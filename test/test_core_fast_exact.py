@@ -188,3 +188,22 @@ def test_warm_up_compiles_every_mode():
 def test_an_unknown_margin_mode_is_refused():
     with pytest.raises(ValueError, match="margin"):
         check_force_closure(TETRAHEDRON, -TETRAHEDRON, 0.3, margin="exact")
+
+
+def test_near_duplicate_contacts_keep_their_verdict_under_similarity_transforms():
+    """Red team: two contacts 1e-6 apart changed verdict (FC -> SOLVER_FAILURE) when the
+    grasp was rotated, scaled and moved."""
+    rng = np.random.default_rng(17)
+    positions, normals = ellipsoid_grasps(rng, 40, 4)
+    positions = np.concatenate([positions, positions[:, :1] + 1e-6 * rng.normal(size=(40, 1, 3))],
+                               axis=1)
+    normals = np.concatenate([normals, normals[:, :1]], axis=1)
+    original = check_force_closure(positions, normals, 0.4, use_filter=False)
+    assert original.force_closure.any()
+    for _ in range(4):
+        rotation = random_rotation(rng)
+        scale = 10.0 ** rng.uniform(-4, 4)
+        shift = rng.normal(size=3) * 10.0 ** rng.uniform(-4, 4)
+        moved = check_force_closure(scale * positions @ rotation.T + shift,
+                                    normals @ rotation.T, 0.4, use_filter=False)
+        assert np.array_equal(moved.status, original.status)

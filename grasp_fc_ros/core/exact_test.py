@@ -1,4 +1,4 @@
-"""The exact force-closure test: a second-order cone program solved by Clarabel.
+"""The exact force-closure test: a second-order cone program, fast stage then Clarabel.
 
 A grasp of n hard contacts with Coulomb friction is force closure iff its grasp map
 G (6 x 3n) has rank 6 and some internal force lies strictly inside every friction cone
@@ -14,15 +14,23 @@ f = 0, t = 0 is always feasible and t is bounded, so the optimum t* >= 0 exists,
 t* > 0 iff a strictly internal force exists. t* (the *margin*) is unchanged by
 translation, rotation and uniform scaling of the grasp.
 
-Many grasps are solved as one block-separable problem, so Python and set-up costs are
-paid once per batch. Verdicts do not depend on the batch:
+Each grasp goes first to the fast stage (:mod:`.interior_point`), which decides it only
+from a certificate: a verified internal force (force closure) or a wrench bounding t*
+below ``MARGIN_TOL`` (not force closure). What it cannot certify (near the threshold,
+near rank deficiency, numerical breakdown, its iteration limit) goes to the Clarabel
+path below, which also serves the tests as the reference (``solve_exact(..., fast=False)``).
+Both paths report t* as a certified interval [margin, margin_upper].
+
+On the Clarabel path, many grasps are solved as one block-separable problem, so Python
+and set-up costs are paid once per batch. Verdicts do not depend on the batch:
 
 * force closure is reported only with a witness checked in numpy: the solver's forces,
   projected onto the null space of G, must lie ``MARGIN_TOL`` deep inside every cone
   after allowing for the rounding of the projection, with a total normal force that is
   positive beyond that rounding (:func:`.certificates.certified_internal_force`);
 * not force closure is reported only when the grasp's optimum plus the whole batch's
-  duality gap stays below ``MARGIN_TOL``;
+  duality gap stays below ``MARGIN_TOL``, or when the solver's equilibrium multipliers,
+  read as a wrench, bound t* below it (:func:`.certificates.wrench_bound`);
 * anything in between, and every grasp of a batch whose solve did not reach Solved or
   AlmostSolved, is solved again on its own with tighter tolerances; if that too is
   undecided, the grasp is reported as a solver failure, never guessed.
