@@ -207,3 +207,18 @@ def test_near_duplicate_contacts_keep_their_verdict_under_similarity_transforms(
         moved = check_force_closure(scale * positions @ rotation.T + shift,
                                     normals @ rotation.T, 0.4, use_filter=False)
         assert np.array_equal(moved.status, original.status)
+
+
+def test_a_grasp_just_below_the_threshold_is_marginal_without_a_wrench():
+    """0 < t* < MARGIN_TOL: strictly internal forces exist, so no wrench separates, but
+    the grasp is too close to the boundary to be reported as force closure. (Much
+    nearer t* = 0, e.g. 2e-7 here, a wrench meets the tolerant contract
+    n.a + mu |a_t| <= 1e-6 max |a| and the grasp is not marginal.)"""
+    positions, normals = ellipsoid_grasps(np.random.default_rng(41), 1, 5)
+    mu = _bisect_threshold_mu(positions[0], normals[0], target=0.9 * MARGIN_TOL)
+    result = check_force_closure(positions[0], normals[0], mu, use_filter=False,
+                                 certificates=True)
+    assert result.status == Status.NOT_FORCE_CLOSURE and result.marginal
+    assert 0.0 < result.margin <= result.margin_upper < MARGIN_TOL
+    assert np.all(np.isnan(result.separating_wrench))
+    assert np.all(np.isnan(result.contact_forces))

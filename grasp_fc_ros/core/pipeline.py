@@ -130,7 +130,8 @@ def run_pipeline(grasps: GraspBatch, use_filter: bool = True, origins: str = "se
     filtered = time.perf_counter()
 
     survivors = np.flatnonzero(passed)
-    exact = solve_exact(_subset(grasps, survivors), margin, certificates)
+    exact = solve_exact(grasps if survivors.size == n_grasps else _subset(grasps, survivors),
+                        margin, certificates)
     finished = time.perf_counter()
 
     force_closure = np.zeros(n_grasps, dtype=bool)
@@ -138,9 +139,9 @@ def run_pipeline(grasps: GraspBatch, use_filter: bool = True, origins: str = "se
     lower, upper = np.full(n_grasps, np.nan), np.full(n_grasps, np.nan)
     lower[survivors], upper[survivors] = exact.margin, exact.margin_upper
     status = np.full(n_grasps, Status.FILTERED_OUT, dtype=np.uint8)
-    status[survivors] = np.select(
-        [exact.solver_failure, exact.force_closure],
-        [Status.SOLVER_FAILURE, Status.FORCE_CLOSURE], Status.NOT_FORCE_CLOSURE)
+    status[survivors] = np.where(
+        exact.solver_failure, Status.SOLVER_FAILURE,
+        np.where(exact.force_closure, Status.FORCE_CLOSURE, Status.NOT_FORCE_CLOSURE))
     extra = {}
     if certificates:
         extra = _certificates(grasps, survivors, exact, ~passed, status)
