@@ -81,6 +81,8 @@ def main(argv=None):
     parser.add_argument("--grasps", type=int, default=4000)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--calls", type=int, default=0,
+                        help="one-grasp latency calls (default 2000, --quick 200)")
     args = parser.parse_args(argv)
     n_grasps = 500 if args.quick else args.grasps
     start = time.perf_counter()
@@ -99,7 +101,7 @@ def main(argv=None):
                   f"{cell['bound'] / cell['clarabel']:>5.1f}x {cell['optimum']:>9.0f} "
                   f"{cell['optimum'] / cell['clarabel']:>5.1f}x {cell['fallback']:>8d} "
                   f"{cell['disagree']:>8d}")
-    calls = 200 if args.quick else 2000
+    calls = args.calls or (200 if args.quick else 2000)
     for label, options in (("default", {}), ('margin="bound"', {"margin": "bound"}),
                            ("certificates=True", {"certificates": True})):
         latency = one_grasp_latency(surface, rng, calls, **options)
