@@ -103,6 +103,9 @@ def main(argv=None):
                   f"{cell['disagree']:>8d}")
     calls = args.calls or (200 if args.quick else 2000)
     for label, options in (("default", {}), ('margin="bound"', {"margin": "bound"}),
+                           ("use_filter=False", {"use_filter": False}),
+                           ('use_filter=False, margin="bound"',
+                            {"use_filter": False, "margin": "bound"}),
                            ("certificates=True", {"certificates": True})):
         latency = one_grasp_latency(surface, rng, calls, **options)
         print(f"one 6-finger grasp through check_force_closure ({label}): "

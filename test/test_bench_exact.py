@@ -19,4 +19,4 @@ def test_exact_benchmark_prints_every_cell_without_disagreements():
         (n, mu) for n in ("4", "6", "8") for mu in ("0.176", "0.500")]
     assert all(row[-1] == "0" for row in rows)              # disagreements
     assert all(float(row[3]) > 0 and float(row[4]) > 0 for row in rows)
-    assert sum("check_force_closure" in line for line in done.stdout.splitlines()) == 3
+    assert sum("check_force_closure" in line for line in done.stdout.splitlines()) == 5
