@@ -222,3 +222,17 @@ def test_a_grasp_just_below_the_threshold_is_marginal_without_a_wrench():
     assert 0.0 < result.margin <= result.margin_upper < MARGIN_TOL
     assert np.all(np.isnan(result.separating_wrench))
     assert np.all(np.isnan(result.contact_forces))
+
+
+@pytest.mark.parametrize("mu", [1e6, 1e10, 1e16])
+def test_huge_friction_is_decided_with_verified_forces(mu):
+    """Red team: mu >= 1e10 made the Clarabel path fail (all grasps from 1e16). More
+    friction never loses force closure, so every grasp closed at mu = 1e3 stays closed,
+    with contact forces that pass the caller-frame check."""
+    positions, normals = ellipsoid_grasps(np.random.default_rng(12), 60, 4)
+    moderate = check_force_closure(positions, normals, 1e3, use_filter=False)
+    huge = check_force_closure(positions, normals, mu, use_filter=False, certificates=True)
+    assert not np.any(huge.status == Status.SOLVER_FAILURE)
+    assert np.all(huge.force_closure[moderate.force_closure])
+    forces_ok, _ = verify_certificates(positions, normals, mu, huge.contact_forces)
+    assert np.array_equal(forces_ok, huge.force_closure)

@@ -16,11 +16,14 @@ cones.
 
 Internally both are computed on the grasp centred at its centroid and scaled to unit
 size (``unit`` positions); :func:`verify_certificates` checks them again in the caller's
-frame, about the caller's origin, as a user would:
+frame, about the caller's origin. A user can check a wrench by hand in five lines
+(n unit normals, p positions, w = result.separating_wrench):
 
->>> ok_forces, ok_wrench = verify_certificates(positions, normals, mu,
-...                                            result.contact_forces,
-...                                            result.separating_wrench)
+    a = w[:3] + np.cross(w[3:], p)                     # work vector at each contact
+    a_n = np.sum(a * n, axis=1)
+    a_t = np.linalg.norm(a - a_n[:, None] * n, axis=1)
+    largest = np.linalg.norm(a, axis=1).max()
+    assert np.all(a_n + mu * a_t <= 1e-6 * largest)    # no force does positive work
 
 Rounding is accounted for explicitly: a projected force is only an *approximately*
 equilibrated force, so its depth is lowered by how far the exact equilibrium force can be

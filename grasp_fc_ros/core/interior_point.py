@@ -47,8 +47,9 @@ except ImportError:  # pragma: no cover - numba is a pinned runtime dependency
 #: Result codes of the kernel.
 FORCE_CLOSURE, NOT_FORCE_CLOSURE, UNDECIDED = 0, 1, 2
 
-#: Iterations before a grasp is handed to the Clarabel path. Verdicts take 1-8 here;
-#: the optimum to MARGIN_ACCURACY about 10-15; 40 only bounds a stuck grasp.
+#: Iterations before a grasp is handed to the Clarabel path. On the box benchmark a
+#: verdict takes 0.8-1.7 iterations on average (at most 7), the margin to
+#: MARGIN_ACCURACY 1.5-7 on average; 40 only bounds a stuck or marginal grasp.
 MAX_ITERATIONS = 40
 
 #: Fraction of the step to the cone boundary taken (the usual 0.99 of interior-point
