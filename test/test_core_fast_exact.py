@@ -236,3 +236,14 @@ def test_huge_friction_is_decided_with_verified_forces(mu):
     assert np.all(huge.force_closure[moderate.force_closure])
     forces_ok, _ = verify_certificates(positions, normals, mu, huge.contact_forces)
     assert np.array_equal(forces_ok, huge.force_closure)
+
+
+@pytest.mark.parametrize("scale", [1e-300, 1e300, 5e307])
+def test_extreme_coordinates_keep_verdict_margin_and_certificates(scale):
+    """Red team: coordinates near the float range overflowed the centroid."""
+    positions = scale * (TETRAHEDRON + 1.0)
+    result = check_force_closure(positions, -TETRAHEDRON, 0.3, use_filter=False,
+                                 certificates=True)
+    assert result.status == Status.FORCE_CLOSURE
+    assert result.margin == pytest.approx(0.075, rel=1e-9)
+    assert verify_certificates(positions, -TETRAHEDRON, 0.3, result.contact_forces)[0]

@@ -57,11 +57,17 @@ def normalise_positions(positions: np.ndarray):
     size : ndarray, shape (N,)
         Largest absolute centred coordinate (1 where all contacts coincide).
     """
-    centre = positions.mean(axis=1)
-    centred = positions - centre[:, None, :]
-    size = np.abs(centred).max(axis=(1, 2))
+    # Divide by the largest coordinate first: the centroid of coordinates near the
+    # float range (~1e308) would otherwise overflow in the sum.
+    peak = np.abs(positions).max(axis=(1, 2))
+    peak = np.where(peak > 0, peak, 1.0)[:, None, None]
+    scaled = positions / peak
+    centre = scaled.mean(axis=1, keepdims=True)
+    centred = scaled - centre
+    size = np.abs(centred).max(axis=(1, 2), keepdims=True)
     size = np.where(size > 0, size, 1.0)
-    return centred / size[:, None, None], centre, size
+    with np.errstate(over="ignore"):
+        return centred / size, (centre * peak)[:, 0], (size * peak)[:, 0, 0]
 
 
 def grasp_maps(unit: np.ndarray) -> np.ndarray:
