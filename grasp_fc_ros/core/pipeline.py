@@ -66,8 +66,11 @@ class ForceClosureResult:
         wrench (force, torque about the caller's origin) on which no contact force does
         positive work (within CERTIFICATE_TOL), checked likewise; NaN where none.
     marginal : ndarray of bool, or None
-        With ``certificates=True``: NOT_FORCE_CLOSURE grasps without a separating
-        wrench (0 < t* < MARGIN_TOL, or too close to rank deficiency to produce one).
+        With ``certificates=True``: NOT_FORCE_CLOSURE (or FILTERED_OUT) grasps without
+        a separating wrench: 0 < t* < MARGIN_TOL, so internal forces exist but too close
+        to the cone boundaries; or a grasp map of rank < 6 (e.g. collinear contacts)
+        whose only separating wrenches do zero work at every contact, which rounding
+        blurs beyond the relative CERTIFICATE_TOL check.
     """
 
     force_closure: np.ndarray
@@ -184,12 +187,13 @@ def _certificates(grasps: GraspBatch, survivors: np.ndarray, exact, rejected: np
     _, centre, size = normalise_positions(grasps.positions[survivors])
     wrench[survivors] = to_caller_wrench(exact.wrench, centre, size)
     wrench[np.flatnonzero(rejected)] = _filtered_out_wrenches(grasps, np.flatnonzero(rejected))
+    rejected_any = (status == Status.NOT_FORCE_CLOSURE) | (status == Status.FILTERED_OUT)
     forces_ok, wrench_ok = verify_certificates(grasps.positions, grasps.normals, grasps.mu,
                                                forces, wrench)
     forces[~forces_ok] = np.nan
     wrench[~wrench_ok] = np.nan
     return {"contact_forces": forces, "separating_wrench": wrench,
-            "marginal": (status == Status.NOT_FORCE_CLOSURE) & ~wrench_ok}
+            "marginal": rejected_any & ~wrench_ok}
 
 
 def exact_force_closure(positions, normals, mu) -> np.ndarray:
