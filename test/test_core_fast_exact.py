@@ -258,3 +258,13 @@ def test_collinear_contacts_are_marginal_without_a_wrench():
                                  certificates=True)
     assert result.status == Status.NOT_FORCE_CLOSURE and result.margin == 0.0
     assert result.marginal == np.all(np.isnan(result.separating_wrench))
+
+
+def test_fast_stage_results_are_identical_alone_and_in_a_batch():
+    """Scratch space is shared across a batch: nothing may leak from grasp to grasp."""
+    positions, normals = sample_grasps(make_object("box"), 60, 6, np.random.default_rng(9))
+    together = _fast_codes(positions, normals, 0.5)
+    for g in range(0, 60, 7):
+        alone = _fast_codes(positions[g:g + 1], normals[g:g + 1], 0.5)
+        for batch_value, alone_value in zip(together, alone):
+            np.testing.assert_array_equal(batch_value[g], alone_value[0])
