@@ -186,7 +186,8 @@ def _certificates(grasps: GraspBatch, survivors: np.ndarray, exact, rejected: np
     wrench = np.full((n_grasps, 6), np.nan)
     _, centre, size = normalise_positions(grasps.positions[survivors])
     wrench[survivors] = to_caller_wrench(exact.wrench, centre, size)
-    wrench[np.flatnonzero(rejected)] = _filtered_out_wrenches(grasps, np.flatnonzero(rejected))
+    if rejected.any():
+        wrench[rejected] = _filtered_out_wrenches(grasps, np.flatnonzero(rejected))
     rejected_any = (status == Status.NOT_FORCE_CLOSURE) | (status == Status.FILTERED_OUT)
     forces_ok, wrench_ok = verify_certificates(grasps.positions, grasps.normals, grasps.mu,
                                                forces, wrench)
