@@ -15,7 +15,7 @@ setup(
     ],
     # rclpy and the grasp_fc_msgs interfaces come from the ROS prefix, not PyPI.
     # scipy: the core hands Clarabel scipy.sparse matrices.
-    install_requires=["setuptools", "numpy", "scipy", "clarabel"],
+    install_requires=["setuptools", "numpy", "scipy", "clarabel", "numba"],
     extras_require={"experiment": ["matplotlib", "trimesh", "scipy"]},
     zip_safe=True,
     maintainer="grasp_fc_ros maintainers",

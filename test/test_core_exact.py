@@ -6,6 +6,8 @@ import pytest
 from grasp_cases import MU_PAPER, ellipsoid_grasps
 from grasp_fc_ros.core import Status, check_force_closure, exact_force_closure
 from grasp_fc_ros.core import exact_test
+from grasp_fc_ros.core.exact_test import solve_exact
+from grasp_fc_ros.core.grasp_input import prepare_grasps
 from grasp_fc_ros.core.tolerances import MARGIN_TOL
 from reference_pyramids import pyramid_margin
 
@@ -112,7 +114,8 @@ def test_a_batch_solve_that_stops_early_is_retried_grasp_by_grasp(monkeypatch):
     give the same verdicts as normal solves."""
     rng = np.random.default_rng(8)
     positions, normals = ellipsoid_grasps(rng, 40, 6)
-    normal = check_force_closure(positions, normals, MU_PAPER, use_filter=False)
+    grasps = prepare_grasps(positions, normals, MU_PAPER)
+    normal = solve_exact(grasps, fast=False)
     original_settings = exact_test._settings
 
     def starved(tight):
@@ -122,9 +125,9 @@ def test_a_batch_solve_that_stops_early_is_retried_grasp_by_grasp(monkeypatch):
         return settings
 
     monkeypatch.setattr(exact_test, "_settings", starved)
-    retried = check_force_closure(positions, normals, MU_PAPER, use_filter=False)
+    retried = solve_exact(grasps, fast=False)
     assert np.array_equal(retried.force_closure, normal.force_closure)
-    assert not np.any(retried.status == Status.SOLVER_FAILURE)
+    assert not np.any(retried.solver_failure)
     # The margin is an optimum, not a stopped iterate's value.
     assert np.allclose(retried.margin, normal.margin, atol=1e-6)
     assert normal.force_closure.any()
@@ -141,6 +144,39 @@ def test_an_undecidable_grasp_is_reported_as_a_solver_failure(monkeypatch):
         return settings
 
     monkeypatch.setattr(exact_test, "_settings", starved)
-    result = check_force_closure(positions, normals, MU_PAPER, use_filter=False)
-    assert np.all(result.status == Status.SOLVER_FAILURE)
+    result = solve_exact(prepare_grasps(positions, normals, MU_PAPER), fast=False)
+    assert np.all(result.solver_failure)
     assert not result.force_closure.any()
+
+
+def _shared_normal_batch(rng, mus=(0.1, 0.5, 2.0), per_mu=67):
+    """Three contacts on one face of a box, each doubled 1e-9 apart: never force closure
+    (every equilibrium force has zero total normal force)."""
+    positions, mu = [], []
+    for value in mus:
+        for _ in range(per_mu):
+            base = np.column_stack([rng.uniform(-1, 1, (3, 2)), np.ones(3)])
+            positions.append(np.concatenate([base, base + 1e-9 * rng.normal(size=(3, 3))]))
+            mu.append(np.full(6, value))
+    positions = np.array(positions)
+    return positions, np.broadcast_to([0.0, 0.0, -1.0], positions.shape), np.array(mu)
+
+
+def test_contacts_sharing_one_normal_are_never_force_closure_in_a_batch():
+    """Regression: batched solves passed rounding noise (~1e-27) as a witness."""
+    positions, normals, mu = _shared_normal_batch(np.random.default_rng(0))
+    result = check_force_closure(positions, normals, mu, use_filter=False)
+    assert not result.force_closure.any()
+    assert np.all(result.status == Status.NOT_FORCE_CLOSURE)
+
+
+def test_no_false_force_closure_on_flat_faces_with_the_filter_off():
+    """Regression (red team): three-finger grasps on a box, the filter off. Every force
+    closure verdict must survive the circumscribed-pyramid LP (a relaxation)."""
+    from grasp_fc_ros.objects import make_object, sample_grasps
+    rng = np.random.default_rng(1)
+    positions, normals = sample_grasps(make_object("box"), 2000, 3, rng)
+    result = check_force_closure(positions, normals, 0.5, use_filter=False)
+    assert result.force_closure.sum() > 20
+    for g in np.flatnonzero(result.force_closure):
+        assert pyramid_margin(positions[g], normals[g], 0.5, inscribed=False) > 0.0, g

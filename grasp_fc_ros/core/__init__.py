@@ -1,4 +1,4 @@
-"""ROS-free core of grasp_fc_ros: numpy and clarabel only.
+"""ROS-free core of grasp_fc_ros: numpy, clarabel and numba only.
 
 Force closure of n hard point contacts with Coulomb friction, after Niparnan, Phoka and
 Sudsang, "Heuristic Approach for Multiple Queries of 3D N-Finger Frictional Force
@@ -7,7 +7,11 @@ Closure Grasp":
 * :mod:`.torque_sets` -- the torque set of one friction cone: a fan, a plane or {0};
 * :mod:`.positive_span` -- do fans and planes positively span R^3?
 * :mod:`.torque_space_filter` -- the paper's necessary condition (the filter);
-* :mod:`.exact_test` -- the exact test, a second-order cone program (Clarabel);
+* :mod:`.exact_test` -- the exact test, a second-order cone program: the fast stage,
+  then Clarabel for what it cannot certify;
+* :mod:`.interior_point` -- the fast stage: a compiled interior-point method in the
+  6-vector wrench, deciding each grasp from certificates;
+* :mod:`.certificates` -- internal forces and bounding wrenches, checked in numpy;
 * :mod:`.pipeline` -- the filter, then the exact test on the survivors;
 * :mod:`.grasp_input` -- shapes and per-grasp validation;
 * :mod:`.tolerances` -- every numerical tolerance, with the reason for its value.
@@ -22,7 +26,9 @@ Example
 True
 """
 
+from .certificates import verify_certificates
 from .grasp_input import GraspValidation, validate_grasps
+from .interior_point import warm_up
 from .pipeline import ForceClosureResult, Status, check_force_closure, exact_force_closure
 from .torque_space_filter import ORIGIN_CHOICES, torque_filter
 
@@ -35,4 +41,6 @@ __all__ = [
     "exact_force_closure",
     "torque_filter",
     "validate_grasps",
+    "verify_certificates",
+    "warm_up",
 ]

@@ -1,4 +1,4 @@
-"""The exact force-closure test: a second-order cone program solved by Clarabel.
+"""The exact force-closure test: a second-order cone program, fast stage then Clarabel.
 
 A grasp of n hard contacts with Coulomb friction is force closure iff its grasp map
 G (6 x 3n) has rank 6 and some internal force lies strictly inside every friction cone
@@ -14,14 +14,23 @@ f = 0, t = 0 is always feasible and t is bounded, so the optimum t* >= 0 exists,
 t* > 0 iff a strictly internal force exists. t* (the *margin*) is unchanged by
 translation, rotation and uniform scaling of the grasp.
 
-Many grasps are solved as one block-separable problem, so Python and set-up costs are
-paid once per batch. Verdicts do not depend on the batch:
+Each grasp goes first to the fast stage (:mod:`.interior_point`), which decides it only
+from a certificate: a verified internal force (force closure) or a wrench bounding t*
+below ``MARGIN_TOL`` (not force closure). What it cannot certify (near the threshold,
+near rank deficiency, numerical breakdown, its iteration limit) goes to the Clarabel
+path below, which also serves the tests as the reference (``solve_exact(..., fast=False)``).
+Both paths report t* as a certified interval [margin, margin_upper].
+
+On the Clarabel path, many grasps are solved as one block-separable problem, so Python
+and set-up costs are paid once per batch. Verdicts do not depend on the batch:
 
 * force closure is reported only with a witness checked in numpy: the solver's forces,
-  projected exactly onto the null space of G, must lie ``MARGIN_TOL`` deep inside every
-  cone;
+  projected onto the null space of G, must lie ``MARGIN_TOL`` deep inside every cone
+  after allowing for the rounding of the projection, with a total normal force that is
+  positive beyond that rounding (:func:`.certificates.certified_internal_force`);
 * not force closure is reported only when the grasp's optimum plus the whole batch's
-  duality gap stays below ``MARGIN_TOL``;
+  duality gap stays below ``MARGIN_TOL``, or when the solver's equilibrium multipliers,
+  read as a wrench, bound t* below it (:func:`.certificates.wrench_bound`);
 * anything in between, and every grasp of a batch whose solve did not reach Solved or
   AlmostSolved, is solved again on its own with tighter tolerances; if that too is
   undecided, the grasp is reported as a solver failure, never guessed.
@@ -36,8 +45,14 @@ import clarabel
 import numpy as np
 from scipy import sparse  # clarabel's Python API takes scipy CSC matrices
 
+from .certificates import (certified_internal_force, grasp_maps, normalise_positions,
+                           wrench_bound)
 from .grasp_input import GraspBatch
+from .interior_point import FORCE_CLOSURE, UNDECIDED, solve_fast
 from .tolerances import MARGIN_TOL, RANK_TOL
+
+#: What ``margin`` asks for (see :func:`solve_exact`).
+MARGIN_CHOICES = ("optimum", "bound")
 
 #: Grasps per Clarabel solve. Measured on 6-finger grasps (CPU time per grasp): flat
 #: from 16 to 64, then slower as the slowest grasp of a batch sets its iteration count
@@ -73,74 +88,117 @@ def _settings(tight: bool) -> clarabel.DefaultSettings:
 
 @dataclass(frozen=True)
 class ExactResult:
-    """Exact verdicts of a batch of N grasps.
+    """Exact verdicts of a batch of N grasps of n contacts.
 
     Attributes
     ----------
     force_closure : ndarray of bool, shape (N,)
         True only with a verified witness.
     margin : ndarray of float, shape (N,)
-        The SOCP optimum t* (dimensionless, normal forces summing to one), never more
-        than the depth of the verified witness; 0 for a rank-deficient grasp map.
+        A certified lower bound on the SOCP optimum t* (dimensionless, normal forces
+        summing to one): the depth of a verified internal force, 0 where none was found,
+        and 0 for a rank-deficient grasp map (whose margin is 0 by definition).
+    margin_upper : ndarray of float, shape (N,)
+        A certified upper bound on t* (from a wrench, :func:`.certificates.wrench_bound`);
+        inf where none was found.
     solver_failure : ndarray of bool, shape (N,)
         The solver could not decide the grasp, even alone with tight tolerances.
+    forces : ndarray, shape (N, n, 3)
+        The verified internal force (normal parts summing to one, global components)
+        where ``force_closure``; NaN elsewhere.
+    wrench : ndarray, shape (N, 6)
+        The bounding wrench about the centroid of the unit-size grasp (see
+        :func:`.certificates.normalise_positions`) where not force closure; NaN where
+        none.
     """
 
     force_closure: np.ndarray
     margin: np.ndarray
+    margin_upper: np.ndarray
     solver_failure: np.ndarray
+    forces: np.ndarray
+    wrench: np.ndarray
 
 
-def solve_exact(grasps: GraspBatch) -> ExactResult:
+def solve_exact(grasps: GraspBatch, margin: str = "optimum", certificates: bool = False,
+                fast: bool = True) -> ExactResult:
     """Run the exact test on every grasp of a validated batch.
 
     Parameters
     ----------
     grasps : GraspBatch
         N grasps of n contacts.
+    margin : {"optimum", "bound"}
+        "optimum": [margin, margin_upper] brackets t* within MARGIN_ACCURACY (where the
+        fast stage decides; Clarabel's accuracy elsewhere). "bound": stop at the verdict;
+        the interval is whatever was certified by then.
+    certificates : bool
+        Also look for a separating wrench of each not-force-closure grasp.
+    fast : bool
+        Try the fast interior-point stage first; False runs the Clarabel path alone
+        (the reference the tests compare with).
 
     Returns
     -------
     ExactResult
     """
-    n_grasps = grasps.positions.shape[0]
-    force_closure = np.zeros(n_grasps, dtype=bool)
-    margin = np.zeros(n_grasps)
+    if margin not in MARGIN_CHOICES:
+        raise ValueError(f"margin must be one of {MARGIN_CHOICES}, got {margin!r}")
+    n_grasps, n_contacts = grasps.mu.shape
+    unit = normalise_positions(grasps.positions)[0]
+    if fast:
+        codes, t_lo, t_hi, _, forces, wrench = solve_fast(
+            unit, grasps.normals, grasps.mu, margin == "optimum", certificates)
+    else:
+        codes = np.full(n_grasps, UNDECIDED)
+        t_lo, t_hi = np.full(n_grasps, -np.inf), np.full(n_grasps, np.inf)
+        forces = np.full((n_grasps, n_contacts, 3), np.nan)
+        wrench = np.full((n_grasps, 6), np.nan)
+    force_closure = codes == FORCE_CLOSURE
     failure = np.zeros(n_grasps, dtype=bool)
+    slow = np.flatnonzero(codes == UNDECIDED)
+    if slow.size:
+        (force_closure[slow], t_lo[slow], t_hi[slow], failure[slow], forces[slow],
+         wrench[slow]) = _solve_clarabel(grasps, unit, slow)
+    forces[~force_closure] = np.nan
+    wrench[force_closure] = np.nan
+    return ExactResult(force_closure, np.maximum(t_lo, 0.0), t_hi, failure, forces, wrench)
 
-    grasp_map = _normalised_grasp_map(grasps.positions)                # (N, 6, 3n)
-    _, singular, row_space = np.linalg.svd(grasp_map, full_matrices=False)
-    full_rank = singular[:, -1] > RANK_TOL * singular[:, 0]
+
+def _solve_clarabel(grasps: GraspBatch, unit: np.ndarray, subset: np.ndarray):
+    """The Clarabel path on the grasps ``subset``: batched solves, lone retries.
+
+    Returns
+    -------
+    force_closure, t_lo, t_hi, failure : ndarrays, shape (k,)
+    forces : ndarray, shape (k, n, 3)
+    wrench : ndarray, shape (k, 6)
+    """
+    grasp_map = grasp_maps(unit[subset])                               # (k, 6, 3n)
+    left, singular, row_space = np.linalg.svd(grasp_map, full_matrices=False)
+    sigma_min = singular[:, -1]
+    full_rank = sigma_min > RANK_TOL * singular[:, 0]
+    k, n_contacts = subset.size, grasps.mu.shape[1]
+    force_closure = np.zeros(k, dtype=bool)
+    failure = np.zeros(k, dtype=bool)
+    # A rank-deficient grasp map leaves a wrench no contact force can resist: margin 0.
+    t_lo, t_hi = np.zeros(k), np.where(full_rank, np.inf, 0.0)
+    forces = np.full((k, n_contacts, 3), np.nan)
+    wrench = np.where(full_rank[:, None], np.nan, left[:, :, -1])
     candidates = np.flatnonzero(full_rank)
     for start in range(0, candidates.size, SOLVE_BATCH):
         chunk = candidates[start:start + SOLVE_BATCH]
-        fc, t, undecided = _solve_batch(grasps, grasp_map, row_space, chunk, tight=False)
-        for position in np.flatnonzero(undecided):
+        decided = _solve_batch(grasps, unit, grasp_map, row_space, sigma_min, subset, chunk,
+                               tight=False)
+        for position in np.flatnonzero(decided[3]):
             lone = chunk[position:position + 1]
-            fc[position], t[position], undecided[position] = (
-                v[0] for v in _solve_batch(grasps, grasp_map, row_space, lone, tight=True))
-        force_closure[chunk], margin[chunk], failure[chunk] = fc, t, undecided
-    return ExactResult(force_closure, margin, failure)
-
-
-def _normalised_grasp_map(positions: np.ndarray) -> np.ndarray:
-    """Grasp maps (N, 6, 3n) of grasps moved to their centroid and scaled to unit size.
-
-    The torque rows of G scale with length, and G f = 0 is unchanged by scaling them,
-    so normalising keeps G well-conditioned without changing any verdict or margin.
-    """
-    centred = positions - positions.mean(axis=1, keepdims=True)
-    size = np.abs(centred).max(axis=(1, 2))
-    unit = centred / np.where(size > 0, size, 1.0)[:, None, None]
-    n_grasps, n_contacts = positions.shape[:2]
-    grasp_map = np.zeros((n_grasps, 6, n_contacts, 3))
-    grasp_map[:, 0, :, 0] = grasp_map[:, 1, :, 1] = grasp_map[:, 2, :, 2] = 1.0
-    x, y, z = unit[..., 0], unit[..., 1], unit[..., 2]
-    # Torque rows: p x f = (y f_z - z f_y, z f_x - x f_z, x f_y - y f_x).
-    grasp_map[:, 3, :, 1], grasp_map[:, 3, :, 2] = -z, y
-    grasp_map[:, 4, :, 0], grasp_map[:, 4, :, 2] = z, -x
-    grasp_map[:, 5, :, 0], grasp_map[:, 5, :, 1] = -y, x
-    return grasp_map.reshape(n_grasps, 6, 3 * n_contacts)
+            again = _solve_batch(grasps, unit, grasp_map, row_space, sigma_min, subset, lone,
+                                 tight=True)
+            for values, value in zip(decided, again):
+                values[position] = value[0]
+        (force_closure[chunk], t_lo[chunk], t_hi[chunk], failure[chunk], forces[chunk],
+         wrench[chunk]) = decided
+    return force_closure, t_lo, t_hi, failure, forces, wrench
 
 
 def _tangent_bases(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -198,15 +256,20 @@ def _socp_pattern(n_grasps: int, n_contacts: int):
             no_quadratic_cost)
 
 
-def _solve_batch(grasps: GraspBatch, grasp_map: np.ndarray, row_space: np.ndarray,
+def _solve_batch(grasps: GraspBatch, unit: np.ndarray, grasp_map: np.ndarray,
+                 row_space: np.ndarray, sigma_min: np.ndarray, subset: np.ndarray,
                  chunk: np.ndarray, tight: bool):
-    """Solve the SOCP of the grasps ``chunk`` together and decide each one.
+    """Solve the SOCP of the grasps ``subset[chunk]`` together and decide each one.
+
+    ``grasp_map``, ``row_space`` and ``sigma_min`` are indexed like ``subset``.
 
     Returns
     -------
-    force_closure, margin, undecided : ndarrays, shape (len(chunk),)
+    force_closure, t_lo, t_hi, undecided : ndarrays, shape (len(chunk),)
+    forces : ndarray, shape (len(chunk), n, 3)
+    wrench : ndarray, shape (len(chunk), 6)
     """
-    normals, mu = grasps.normals[chunk], grasps.mu[chunk]
+    normals, mu = grasps.normals[subset[chunk]], grasps.mu[subset[chunk]]
     n_grasps, n_contacts = mu.shape
     tangent, bitangent = _tangent_bases(normals)
     # Clarabel's form: A x + s = b with s in the cones, so each row of A holds -s(x).
@@ -226,50 +289,25 @@ def _solve_batch(grasps: GraspBatch, grasp_map: np.ndarray, row_space: np.ndarra
 
     solution = clarabel.DefaultSolver(p, q, a, b, cones, _settings(tight)).solve()
     x = np.asarray(solution.x).reshape(n_grasps, n_vars)
-    witness = _witness_depth(x[:, :-1], row_space[chunk], normals, mu)
+    witness, forces = certified_internal_force(
+        x[:, :-1].reshape(normals.shape), grasp_map[chunk], row_space[chunk],
+        sigma_min[chunk], normals, mu)
     force_closure = witness >= MARGIN_TOL
-    # Never more than a depth actually verified: the optimum (within the solver's
-    # tolerance) after a converged solve, a lower bound on it otherwise.
-    margin = np.maximum(x[:, -1], 0.0)
-    margin[force_closure] = np.minimum(margin, witness)[force_closure]
+    # The multipliers of the equilibrium rows are a wrench; either sign gives a valid
+    # bound, so keep the better one.
+    duals = np.asarray(solution.z)[:6 * n_grasps].reshape(n_grasps, 6)
+    candidates = np.stack([duals, -duals])
+    bounds = np.stack([wrench_bound(c, unit[subset[chunk]], normals, mu)[0] for c in candidates])
+    better = np.argmin(bounds, axis=0)
+    upper = bounds[better, np.arange(n_grasps)]
+    wrench = np.where(np.isfinite(upper)[:, None], candidates[better, np.arange(n_grasps)], np.nan)
     if solution.status in _ACCEPTED:
         gap = abs(solution.obj_val - solution.obj_val_dual)
-        surely_not = margin + gap < MARGIN_TOL
+        surely_not = (np.maximum(x[:, -1], 0.0) + gap < MARGIN_TOL) | (upper < MARGIN_TOL)
         undecided = ~force_closure & ~surely_not
     elif tight:
         undecided = ~force_closure
     else:
         # A batch that did not converge gives no optimum: retry every grasp alone.
         undecided = np.ones(n_grasps, dtype=bool)
-    return force_closure, margin, undecided
-
-
-def _witness_depth(forces: np.ndarray, row_space: np.ndarray, normals: np.ndarray,
-                   mu: np.ndarray) -> np.ndarray:
-    """How deep the solver's forces lie inside the cones once in exact equilibrium.
-
-    Parameters
-    ----------
-    forces : ndarray, shape (N, 3n)
-    row_space : ndarray, shape (N, 6, 3n)
-        Orthonormal basis of the row space of each (full-rank) grasp map.
-    normals : ndarray, shape (N, n, 3)
-    mu : ndarray, shape (N, n)
-
-    Returns
-    -------
-    ndarray, shape (N,)
-        min over contacts of mu f_n - |f_t| of the projected forces, with the normal
-        forces scaled to sum to one; -inf where the total normal force is not positive.
-    """
-    # Removing the row-space component puts the forces exactly in G's null space.
-    equilibrium = forces - np.einsum("gkv,gk->gv", row_space,
-                                     np.einsum("gkv,gv->gk", row_space, forces))
-    per_contact = equilibrium.reshape(normals.shape)
-    normal_part = (per_contact * normals).sum(axis=-1)                 # (N, n)
-    tangential = per_contact - normal_part[..., None] * normals
-    depth = mu * normal_part - np.linalg.norm(tangential, axis=-1)
-    total = normal_part.sum(axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        scaled = depth.min(axis=1) / total
-    return np.where(total > 0, scaled, -np.inf)
+    return force_closure, witness, upper, undecided, forces, wrench

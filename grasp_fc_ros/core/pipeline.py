@@ -1,5 +1,16 @@
 """The filtered pipeline: the torque filter first, the exact test on the survivors
-(paper section V, Fig. 4b)."""
+(paper section V, Fig. 4b), and on request the certificates behind each verdict.
+
+The margin
+----------
+``margin`` is the force-closure margin t*: how deep inside every friction cone an
+equilibrating internal force can be (mu f_n - |f_t|, normal forces summing to one; 0
+for a grasp map of rank < 6). Both ends reported are certified:
+``margin <= t* <= margin_upper``. ``margin="optimum"`` (default) narrows the interval to
+MARGIN_ACCURACY (1e-8) where the fast stage decides (Clarabel's ~1e-8 accuracy on its
+fallback grasps); ``margin="bound"`` stops at the verdict, which is about twice as
+fast, and reports whatever interval was certified by then (often wide).
+"""
 
 from __future__ import annotations
 
@@ -9,6 +20,7 @@ from enum import IntEnum
 
 import numpy as np
 
+from .certificates import normalise_positions, to_caller_wrench, verify_certificates
 from .exact_test import solve_exact
 from .grasp_input import GraspBatch, prepare_grasps
 from .torque_space_filter import passes_torque_filter, resolve_use_filter
@@ -35,13 +47,30 @@ class ForceClosureResult:
     filtered_out : ndarray of bool
         Rejected by the torque filter; the exact test was not run.
     margin : ndarray of float
-        The exact test's optimum: how deep inside every friction cone an equilibrating
-        internal force can be (mu f_n - |f_t|, normal forces summing to one).
+        A certified lower bound on the margin t* (see the module docstring).
         NaN where the exact test was not run.
     status : ndarray of uint8
         A :class:`Status` code per grasp.
     timing : dict
         Seconds spent in ``"filter_s"`` and ``"exact_s"``.
+    margin_upper : ndarray of float
+        A certified upper bound on t* (inf where none was found, NaN where the exact
+        test was not run).
+    contact_forces : ndarray, shape (n, 3) or (N, n, 3), or None
+        With ``certificates=True``: for FORCE_CLOSURE grasps an internal force in the
+        caller's frame (normal parts summing to one, in equilibrium about the caller's
+        origin, strictly inside every cone), checked by
+        :func:`.certificates.verify_certificates`; NaN for other grasps.
+    separating_wrench : ndarray, shape (6,) or (N, 6), or None
+        With ``certificates=True``: for FILTERED_OUT and NOT_FORCE_CLOSURE grasps a unit
+        wrench (force, torque about the caller's origin) on which no contact force does
+        positive work (within CERTIFICATE_TOL), checked likewise; NaN where none.
+    marginal : ndarray of bool, or None
+        With ``certificates=True``: NOT_FORCE_CLOSURE (or FILTERED_OUT) grasps without
+        a separating wrench: 0 < t* < MARGIN_TOL, so internal forces exist but too close
+        to the cone boundaries; or a grasp map of rank < 6 (e.g. collinear contacts)
+        whose only separating wrenches do zero work at every contact, which rounding
+        blurs beyond the relative CERTIFICATE_TOL check.
     """
 
     force_closure: np.ndarray
@@ -49,10 +78,15 @@ class ForceClosureResult:
     margin: np.ndarray
     status: np.ndarray
     timing: dict = field(default_factory=dict)
+    margin_upper: np.ndarray | None = None
+    contact_forces: np.ndarray | None = None
+    separating_wrench: np.ndarray | None = None
+    marginal: np.ndarray | None = None
 
 
 def check_force_closure(positions, normals, mu, use_filter: bool | str = "auto",
-                        origins: str = "seed") -> ForceClosureResult:
+                        origins: str = "seed", margin: str = "optimum",
+                        certificates: bool = False) -> ForceClosureResult:
     """Decide force closure of one grasp or a batch: the filter, then the exact test.
 
     Parameters
@@ -70,6 +104,11 @@ def check_force_closure(positions, normals, mu, use_filter: bool | str = "auto",
         by contact count: up to 8 contacts); its cost is bounded for every n anyway.
     origins : {"seed", "all"}
         Torque origins of the filter (see :func:`torque_filter`).
+    margin : {"optimum", "bound"}
+        How narrow the certified margin interval must be (see the module docstring).
+    certificates : bool
+        Also return contact forces, separating wrenches and the ``marginal`` flags,
+        each verified in the caller's frame before it is returned.
 
     Returns
     -------
@@ -80,40 +119,79 @@ def check_force_closure(positions, normals, mu, use_filter: bool | str = "auto",
     ValueError
         On bad input, naming the grasp and contact.
     """
-    return run_pipeline(prepare_grasps(positions, normals, mu), use_filter, origins)
+    return run_pipeline(prepare_grasps(positions, normals, mu), use_filter, origins, margin,
+                        certificates)
 
 
-def run_pipeline(grasps: GraspBatch, use_filter: bool | str = True,
-                 origins: str = "seed") -> ForceClosureResult:
+def run_pipeline(grasps: GraspBatch, use_filter: bool | str = True, origins: str = "seed",
+                 margin: str = "optimum", certificates: bool = False) -> ForceClosureResult:
     """:func:`check_force_closure` on validated input."""
     n_grasps = grasps.positions.shape[0]
     use_filter = resolve_use_filter(use_filter, grasps.positions.shape[1], origins)
     start = time.perf_counter()
-    if use_filter:
+    filter_wrench = None
+    if use_filter and certificates:
+        passed, filter_wrench = passes_torque_filter(grasps, origins, certificates=True)
+    elif use_filter:
         passed = passes_torque_filter(grasps, origins)
     else:
         passed = np.ones(n_grasps, dtype=bool)
     filtered = time.perf_counter()
 
     survivors = np.flatnonzero(passed)
-    exact = solve_exact(GraspBatch(grasps.positions[survivors], grasps.normals[survivors],
-                                   grasps.mu[survivors], single=False))
+    exact = solve_exact(grasps if survivors.size == n_grasps else _subset(grasps, survivors),
+                        margin, certificates)
     finished = time.perf_counter()
 
     force_closure = np.zeros(n_grasps, dtype=bool)
     force_closure[survivors] = exact.force_closure
-    margin = np.full(n_grasps, np.nan)
-    margin[survivors] = exact.margin
+    lower, upper = np.full(n_grasps, np.nan), np.full(n_grasps, np.nan)
+    lower[survivors], upper[survivors] = exact.margin, exact.margin_upper
     status = np.full(n_grasps, Status.FILTERED_OUT, dtype=np.uint8)
-    status[survivors] = np.select(
-        [exact.solver_failure, exact.force_closure],
-        [Status.SOLVER_FAILURE, Status.FORCE_CLOSURE], Status.NOT_FORCE_CLOSURE)
+    status[survivors] = np.where(
+        exact.solver_failure, Status.SOLVER_FAILURE,
+        np.where(exact.force_closure, Status.FORCE_CLOSURE, Status.NOT_FORCE_CLOSURE))
+    extra = {}
+    if certificates:
+        extra = _certificates(grasps, survivors, exact, filter_wrench, status)
     return ForceClosureResult(
         force_closure=grasps.unbatch(force_closure),
         filtered_out=grasps.unbatch(~passed),
-        margin=grasps.unbatch(margin),
+        margin=grasps.unbatch(lower),
         status=grasps.unbatch(status),
-        timing={"filter_s": filtered - start, "exact_s": finished - filtered})
+        timing={"filter_s": filtered - start, "exact_s": finished - filtered},
+        margin_upper=grasps.unbatch(upper),
+        **{key: grasps.unbatch(value) for key, value in extra.items()})
+
+
+def _subset(grasps: GraspBatch, indices: np.ndarray) -> GraspBatch:
+    return GraspBatch(grasps.positions[indices], grasps.normals[indices], grasps.mu[indices],
+                      single=False)
+
+
+def _certificates(grasps: GraspBatch, survivors: np.ndarray, exact,
+                  filter_wrench: np.ndarray | None, status: np.ndarray) -> dict:
+    """Contact forces, separating wrenches and marginal flags, each verified in the
+    caller's frame (a certificate that fails its check is replaced by NaN).
+
+    ``filter_wrench`` (N, 6) holds the filter's wrenches of the grasps it rejected
+    (NaN rows elsewhere), or None when the filter did not run."""
+    n_grasps, n_contacts = grasps.mu.shape
+    forces = np.full((n_grasps, n_contacts, 3), np.nan)
+    forces[survivors] = exact.forces
+    wrench = np.full((n_grasps, 6), np.nan)
+    _, centre, size = normalise_positions(grasps.positions[survivors])
+    wrench[survivors] = to_caller_wrench(exact.wrench, centre, size)
+    if filter_wrench is not None:
+        rejected = status == Status.FILTERED_OUT
+        wrench[rejected] = filter_wrench[rejected]
+    rejected_any = (status == Status.NOT_FORCE_CLOSURE) | (status == Status.FILTERED_OUT)
+    forces_ok, wrench_ok = verify_certificates(grasps.positions, grasps.normals, grasps.mu,
+                                               forces, wrench)
+    forces[~forces_ok] = np.nan
+    wrench[~wrench_ok] = np.nan
+    return {"contact_forces": forces, "separating_wrench": wrench,
+            "marginal": rejected_any & ~wrench_ok}
 
 
 def exact_force_closure(positions, normals, mu) -> np.ndarray:

@@ -62,16 +62,52 @@ RANK_TOL = 1e-9
 #: solver's own accuracy (about 1e-8) could not tell them from non-force-closure ones.
 MARGIN_TOL = 1e-6
 
-#: A separating wrench w is returned only if no contact force does positive work on it:
-#: for every contact, with a_i = w_force + w_torque x p_i, the largest work of a unit-
-#: normal cone force, n_i . a_i + mu_i |a_i - (n_i . a_i) n_i|, is at most this fraction
-#: of max_j |a_j|. The filter's directions are exact up to SPAN_TOL (1e-12) on unit
-#: torques, so its wrenches meet this with six orders of magnitude to spare, except on
-#: nearly collinear grasps, whose a_j are all nearly zero.
-SEPARATING_WRENCH_TOL = 1e-6
+#: Multiplies the unit roundoff in the a-priori rounding bounds of the certificates
+#: (a matrix-vector product of length k errs by at most about k eps |A| |x|). A
+#: generous factor: it costs nothing measurable (the slack stays ~1e-13 against
+#: MARGIN_TOL) and covers the rounding of the bounds' own arithmetic.
+ROUNDING_SLACK = 64.0
 
-#: Rounding allowance of that check, in units of eps * (1 + mu_i), for a_i computed from
+#: A separating wrench w is accepted (by the filter before it returns one, and by
+#: :func:`verify_certificates`) only if no contact force does more than this fraction of
+#: max_j |a_j| of positive work on it: for every contact, with a_i = w_force +
+#: w_torque x p_i, n_i . a_i + mu_i |a_i - (n_i . a_i) n_i| <= CERTIFICATE_TOL max_j |a_j|
+#: (the issue's contract). The filter's directions are exact up to SPAN_TOL (1e-12) on
+#: unit torques, so its wrenches meet this with six orders of magnitude to spare, except
+#: on nearly collinear grasps, whose a_j are all nearly zero.
+CERTIFICATE_TOL = 1e-6
+
+#: Rounding allowance of the filter's check of its own wrenches, in units of eps * (1 + mu_i), for a_i computed from
 #: a unit direction and lever arms scaled to at most one: the worst case of the few
 #: products and sums involved, doubled. It matters only when every a_j is rounding noise
 #: (a wrench no contact can do any work on, e.g. the torque about a line of contacts).
 WORK_ROUNDING_ULPS = 16
+
+#: Contact forces pass :func:`verify_certificates` if their net force and net torque
+#: about the caller's origin are at most this fraction of sum_i |f_i| (times the
+#: largest lever arm) and their normal parts sum to one within it: rounding of the
+#: caller-frame check itself is ~n eps |p| / size, far below this.
+EQUILIBRIUM_TOL = 1e-9
+
+#: The fast exact stage (:mod:`.interior_point`) decides a grasp only if its grasp map
+#: has sigma_min^2 > FAST_RANK_TOL^2 trace(G G^T), with sigma_min^2 bounded below by
+#: 1 / |(G G^T)^-1|_F from a Cholesky factor (whose relative error, ~cond eps <= 1e-4
+#: here, only shifts that bound a little). Grasps nearer rank deficiency go to the
+#: Clarabel path, which decides rank from an SVD with RANK_TOL.
+FAST_RANK_TOL = 1e-6
+
+#: The fast stage hands a grasp to the Clarabel path when the equilibrium forces with
+#: normal parts summing to one are nearly absent: the Schur complement of the
+#: normalisation row in [G; n^T] [G; n^T]^T is below this fraction of n (it is 0 when
+#: all contacts share one normal).
+SHARED_NORMAL_TOL = 1e-9
+
+#: With ``margin="optimum"`` the margin is reported as a certified interval at most
+#: this wide (the accuracy Clarabel's default tolerances give the optimum).
+MARGIN_ACCURACY = 1e-8
+
+#: The fast stage keeps iterating on a not-force-closure grasp (when a separating
+#: wrench is requested) until its wrench does at most this fraction of max_j |a_j| of
+#: positive work at any contact: a tenth of CERTIFICATE_TOL, leaving room for the
+#: rounding of the map back to the caller's frame.
+SEPARATION_TARGET = 1e-7

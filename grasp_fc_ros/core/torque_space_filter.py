@@ -40,7 +40,7 @@ import numpy as np
 
 from .grasp_input import GraspBatch, prepare_grasps
 from .positive_span import positively_spans
-from .tolerances import SEPARATING_WRENCH_TOL, WORK_ROUNDING_ULPS
+from .tolerances import CERTIFICATE_TOL, WORK_ROUNDING_ULPS
 from .torque_sets import cone_torque_sets, dot, friction_half_angle_sine
 
 ORIGIN_CHOICES = ("seed", "all")
@@ -312,7 +312,7 @@ def does_no_positive_work(grasps: GraspBatch, grasp: np.ndarray, origin: np.ndar
     ndarray of bool, shape (R,)
         For every contact, with a_i = c x (p_i - o) computed with the lever arms scaled
         to at most one (a power of two, exact): n_i . a_i + mu_i |a_i - (n_i . a_i) n_i|
-        <= SEPARATING_WRENCH_TOL max_j |a_j| + WORK_ROUNDING_ULPS eps (1 + mu_i).
+        <= CERTIFICATE_TOL max_j |a_j| + WORK_ROUNDING_ULPS eps (1 + mu_i).
     """
     positions = grasps.positions[grasp]                                # (R, n, 3)
     lever_arms = positions - positions[np.arange(grasp.size), origin][:, None]
@@ -323,7 +323,7 @@ def does_no_positive_work(grasps: GraspBatch, grasp: np.ndarray, origin: np.ndar
     normal_part = (a * normals).sum(axis=2)
     tangential = np.linalg.norm(a - normal_part[..., None] * normals, axis=2)
     most_work = normal_part + mu * tangential
-    allowed = (SEPARATING_WRENCH_TOL * np.linalg.norm(a, axis=2).max(axis=1)[:, None]
+    allowed = (CERTIFICATE_TOL * np.linalg.norm(a, axis=2).max(axis=1)[:, None]
                + WORK_ROUNDING_ULPS * np.finfo(float).eps * (1.0 + mu))
     return (most_work <= allowed).all(axis=1)
 
