@@ -12,7 +12,12 @@ from grasp_fc_ros.core.certificates import normalise_positions
 from grasp_fc_ros.core.exact_test import solve_exact
 from grasp_fc_ros.core.grasp_input import prepare_grasps
 from grasp_fc_ros.core.interior_point import NOT_FORCE_CLOSURE, UNDECIDED, solve_fast
-from grasp_fc_ros.core.tolerances import MARGIN_ACCURACY, MARGIN_TOL
+from grasp_fc_ros.core.tolerances import (
+    MARGIN_ACCURACY,
+    MARGIN_TOL,
+    MAX_ABS_COORDINATE,
+    MAX_FRICTION_COEFFICIENT,
+)
 from grasp_fc_ros.objects import make_object, sample_grasps
 
 TETRAHEDRON = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], float)
@@ -223,23 +228,27 @@ def test_a_grasp_just_below_the_threshold_is_marginal_without_a_wrench():
     assert np.all(np.isnan(result.contact_forces))
 
 
-@pytest.mark.parametrize("mu", [1e6, 1e10, 1e16])
-def test_huge_friction_is_decided_with_verified_forces(mu):
-    """Red team: mu >= 1e10 made the Clarabel path fail (all grasps from 1e16). More
-    friction never loses force closure, so every grasp closed at mu = 1e3 stays closed,
-    with contact forces that pass the caller-frame check."""
+def test_friction_at_its_bound_is_decided_with_verified_forces():
+    """Red team: mu >= 1e10 made the Clarabel path fail (all grasps from 1e16). mu is
+    now bounded by MAX_FRICTION_COEFFICIENT (larger values are refused by the input
+    check); at the bound every grasp is decided, and more friction never loses force
+    closure, so every grasp closed at mu = 1 stays closed, with forces that pass the
+    caller-frame check."""
     positions, normals = ellipsoid_grasps(np.random.default_rng(12), 60, 4)
-    moderate = check_force_closure(positions, normals, 1e3, use_filter=False)
-    huge = check_force_closure(positions, normals, mu, use_filter=False, certificates=True)
+    moderate = check_force_closure(positions, normals, 1.0, use_filter=False)
+    huge = check_force_closure(positions, normals, MAX_FRICTION_COEFFICIENT, use_filter=False,
+                               certificates=True)
     assert not np.any(huge.status == Status.SOLVER_FAILURE)
     assert np.all(huge.force_closure[moderate.force_closure])
-    forces_ok, _ = verify_certificates(positions, normals, mu, huge.contact_forces)
+    forces_ok, _ = verify_certificates(positions, normals, MAX_FRICTION_COEFFICIENT,
+                                       huge.contact_forces)
     assert np.array_equal(forces_ok, huge.force_closure)
 
 
-@pytest.mark.parametrize("scale", [1e-300, 1e300, 5e307])
+@pytest.mark.parametrize("scale", [1e-300, 1e300, MAX_ABS_COORDINATE / 4])
 def test_extreme_coordinates_keep_verdict_margin_and_certificates(scale):
-    """Red team: coordinates near the float range overflowed the centroid."""
+    """Red team: coordinates near the float range overflowed the centroid (up to
+    MAX_ABS_COORDINATE they are accepted; beyond it refused by the input check)."""
     positions = scale * (TETRAHEDRON + 1.0)
     result = check_force_closure(positions, -TETRAHEDRON, 0.3, use_filter=False,
                                  certificates=True)

@@ -194,6 +194,27 @@ def to_caller_wrench(wrench: np.ndarray, centre: np.ndarray, size: np.ndarray) -
         return caller / np.linalg.norm(caller, axis=1, keepdims=True)
 
 
+def largest_work(a: np.ndarray, normals: np.ndarray, mu: np.ndarray) -> np.ndarray:
+    """The most work a cone force with unit normal part does on a wrench, per contact.
+
+    Parameters
+    ----------
+    a : ndarray, shape (..., n, 3)
+        a_i = w_force + w_torque x p_i: the work of a force f at contact i is a_i . f.
+    normals : ndarray, shape (..., n, 3)
+        Unit inward normals.
+    mu : ndarray, shape (..., n)
+
+    Returns
+    -------
+    ndarray, shape (..., n)
+        n_i . a_i + mu_i |a_i - (n_i . a_i) n_i|: at most 0 at every contact iff no
+        contact force does positive work on the wrench.
+    """
+    a_n = (a * normals).sum(axis=-1)
+    return a_n + mu * np.linalg.norm(a - a_n[..., None] * normals, axis=-1)
+
+
 def verify_certificates(positions, normals, mu, contact_forces=None,
                         separating_wrench=None):
     """Check certificates in the caller's frame, independently of how they were found.
@@ -240,11 +261,10 @@ def verify_certificates(positions, normals, mu, contact_forces=None,
     if separating_wrench is not None:
         w = np.asarray(separating_wrench, dtype=np.float64).reshape(-1, 6)
         work = w[:, None, :3] + np.cross(w[:, None, 3:], p)
-        a_n = (work * n).sum(axis=-1)
-        a_t = np.linalg.norm(work - a_n[..., None] * n, axis=-1)
         largest = np.linalg.norm(work, axis=-1).max(axis=1)
         with np.errstate(invalid="ignore"):
-            wrench_ok = (np.all(a_n + friction * a_t <= CERTIFICATE_TOL * largest[:, None], axis=1)
+            wrench_ok = (np.all(largest_work(work, n, friction)
+                                <= CERTIFICATE_TOL * largest[:, None], axis=1)
                          & (np.abs(np.linalg.norm(w, axis=1) - 1.0) <= EQUILIBRIUM_TOL))
     if single:
         return forces_ok[0], wrench_ok[0]

@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .certificates import largest_work
 from .grasp_input import GraspBatch, prepare_grasps
 from .positive_span import positively_spans
 from .tolerances import CERTIFICATE_TOL, WORK_ROUNDING_ULPS
@@ -105,7 +106,7 @@ def resolve_use_filter(use_filter, n_contacts: int, origins: str = "seed") -> bo
 
 
 def torque_filter(positions, normals, mu, origins: str = "seed",
-                  certificates: bool = False):
+                  certificates: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Necessary condition for force closure: do the torque sets positively span R^3?
 
     Parameters
@@ -319,10 +320,8 @@ def does_no_positive_work(grasps: GraspBatch, grasp: np.ndarray, origin: np.ndar
     _, exponent = np.frexp(np.abs(lever_arms).max(axis=(1, 2), initial=0.0))
     lever_arms = np.ldexp(lever_arms, -exponent[:, None, None])
     a = np.cross(torque[:, None], lever_arms)
-    normals, mu = grasps.normals[grasp], grasps.mu[grasp]
-    normal_part = (a * normals).sum(axis=2)
-    tangential = np.linalg.norm(a - normal_part[..., None] * normals, axis=2)
-    most_work = normal_part + mu * tangential
+    mu = grasps.mu[grasp]
+    most_work = largest_work(a, grasps.normals[grasp], mu)
     allowed = (CERTIFICATE_TOL * np.linalg.norm(a, axis=2).max(axis=1)[:, None]
                + WORK_ROUNDING_ULPS * np.finfo(float).eps * (1.0 + mu))
     return (most_work <= allowed).all(axis=1)
