@@ -200,7 +200,8 @@ def _read_parquet_rows(path, start, stop, columns):
         position += batch.num_rows
         if position >= stop:
             break
-    return pa.Table.from_batches(batches, schema=parquet.schema_arrow.select(columns))
+    schema = pa.schema([parquet.schema_arrow.field(name) for name in columns])
+    return pa.Table.from_batches(batches, schema=schema)
 
 
 def _is_list(arrow_type) -> bool:
