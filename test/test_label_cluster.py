@@ -14,8 +14,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from grasp_fc_ros.core import check_force_closure
-from grasp_fc_ros.labelling import InputError, Plan, cli, dask_client, object_sources, \
-    open_input, run
+from grasp_fc_ros.labelling import InputError, Plan, cli, dask_client, object_sources, run
 from grasp_fc_ros.labelling.output import Output
 from grasp_fc_ros.objects import make_object, sample_grasps
 
@@ -71,11 +70,7 @@ def dataset(tmp_path_factory):
 
 
 def _plan(paths, chunk=CHUNK):
-    sources, offset = [], 0
-    for path in paths:
-        sources.append(open_input(path, id_offset=offset))
-        offset += sources[-1].n_grasps
-    return Plan(sources, chunk_size=chunk)
+    return Plan.from_files(paths, chunk_size=chunk)
 
 
 def _assert_equals_expected(table, expected):
@@ -214,7 +209,7 @@ def processes(tmp_path):
         return start("worker", address, "--nthreads", "1", "--no-nanny", "--host",
                      "127.0.0.1", "--no-dashboard")
 
-    yield address, worker
+    yield address, worker, scheduler_file
     for proc in reversed(started):
         proc.kill()
         proc.wait()
@@ -227,7 +222,7 @@ def _big_input(tmp_path, n_grasps):
 
 
 def test_worker_killed_mid_run_loses_nothing(processes, tmp_path):
-    address, start_worker = processes
+    address, start_worker, _ = processes
     workers = [start_worker(), start_worker()]
     path = _big_input(tmp_path, 9000)
     out = tmp_path / "out"
@@ -258,7 +253,7 @@ def test_worker_killed_mid_run_loses_nothing(processes, tmp_path):
 
 
 def test_killed_client_resumes_on_the_same_cluster(processes, tmp_path, capsys):
-    address, start_worker = processes
+    address, start_worker, _ = processes
     start_worker(), start_worker()
     path = _big_input(tmp_path, 6000)
     out = tmp_path / "labels.parquet"
@@ -283,13 +278,13 @@ def test_killed_client_resumes_on_the_same_cluster(processes, tmp_path, capsys):
 
 
 def test_cli_nan_on_a_cluster_exits_2_naming_file_and_grasp(processes, tmp_path, capsys):
-    address, start_worker = processes
+    _, start_worker, scheduler_file = processes
     start_worker()
     p, n = _box_grasps(900, 4, 5)
     p[801, 1, 0] = np.inf
     np.savez(tmp_path / "g.npz", positions=p, normals=n, mu=0.5)
     code = cli.main([str(tmp_path / "g.npz"), "--out", str(tmp_path / "o"),
-                     "--chunk-size", "200", "--scheduler", address])
+                     "--chunk-size", "200", "--scheduler-file", str(scheduler_file)])
     assert code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"grasp-fc-label: error: {tmp_path / 'g.npz'}: grasp 801 (id 801), "

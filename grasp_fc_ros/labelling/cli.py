@@ -70,6 +70,9 @@ def build_parser() -> argparse.ArgumentParser:
     cluster = parser.add_argument_group("cluster and chunks")
     cluster.add_argument("--scheduler", metavar="tcp://HOST:PORT",
                          help="an existing Dask scheduler (default: a local cluster)")
+    cluster.add_argument("--scheduler-file", metavar="FILE",
+                         help="an existing Dask scheduler, by the file that `dask scheduler "
+                              "--scheduler-file FILE` wrote")
     cluster.add_argument("--workers", type=_positive_int,
                          help="worker processes of the local cluster (default: the cores)")
     cluster.add_argument("--chunk-size", type=_positive_int, default=DEFAULT_CHUNK_SIZE,
@@ -91,19 +94,14 @@ def make_plan(args):
         A bad input file or object (checked on the client: keys, shapes, meshes).
     """
     from .runner import Plan
-    from .sources import object_sources, open_input
+    from .sources import object_sources
 
+    settings = {"chunk_size": args.chunk_size, "use_filter": not args.no_filter,
+                "origins": args.origins}
     if args.inputs:
-        sources, offset = [], 0
-        for path in args.inputs:
-            source = open_input(path, id_offset=offset)
-            offset += source.n_grasps
-            sources.append(source)
-    else:
-        sources = object_sources(args.objects, args.mesh, args.grasps_per_object,
-                                 args.fingers, args.mu, args.seed, args.points,
-                                 args.chunk_size)
-    return Plan(sources, args.chunk_size, not args.no_filter, args.origins)
+        return Plan.from_files(args.inputs, **settings)
+    return Plan(object_sources(args.objects, args.mesh, args.grasps_per_object, args.fingers,
+                               args.mu, args.seed, args.points, args.chunk_size), **settings)
 
 
 def main(argv=None) -> int:
@@ -116,8 +114,10 @@ def main(argv=None) -> int:
         parser.error("nothing to label: give INPUT files, or --objects/--mesh")
     if drawing and args.grasps_per_object is None:
         parser.error("--objects/--mesh need --grasps-per-object")
-    if args.scheduler and args.workers:
-        parser.error("--workers sets up a local cluster; it cannot go with --scheduler")
+    if args.scheduler and args.scheduler_file:
+        parser.error("give --scheduler or --scheduler-file, not both")
+    if (args.scheduler or args.scheduler_file) and args.workers:
+        parser.error("--workers sets up a local cluster; it cannot go with a scheduler")
 
     from .output import OutputConflict
     from .runner import TaskFailed, dask_client, run
@@ -125,7 +125,7 @@ def main(argv=None) -> int:
 
     try:
         plan = make_plan(args)
-        with dask_client(args.scheduler, args.workers) as client:
+        with dask_client(args.scheduler, args.workers, args.scheduler_file) as client:
             summary = run(plan, args.out, client, progress=not args.no_progress)
     except (InputError, OutputConflict) as error:
         print(f"{PROG}: error: {error}", file=sys.stderr)

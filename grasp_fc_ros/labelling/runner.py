@@ -22,7 +22,7 @@ import numpy as np
 
 from .output import Output
 from .schema import STATUS_NAMES, output_schema
-from .sources import InputError
+from .sources import InputError, open_input
 from .tasks import label_chunk, validate_chunk
 
 # Grasps per chunk: large enough that the core's vectorised filter and batched exact test
@@ -72,6 +72,21 @@ class Plan:
     use_filter: bool = True
     origins: str = "seed"
 
+    @classmethod
+    def from_files(cls, paths, **settings) -> "Plan":
+        """The plan of input files, ids defaulting to the running index across them all.
+
+        Raises
+        ------
+        InputError
+            A file with missing keys or wrong shapes (see :func:`open_input`).
+        """
+        sources, offset = [], 0
+        for path in paths:
+            sources.append(open_input(path, id_offset=offset))
+            offset += sources[-1].n_grasps
+        return cls(sources, **settings)
+
     @property
     def chunks(self) -> list[Chunk]:
         return [Chunk(s, index, start, min(start + self.chunk_size, source.n_grasps))
@@ -112,16 +127,18 @@ class TaskFailed(RuntimeError):
 
 
 @contextlib.contextmanager
-def dask_client(scheduler: str | None = None, workers: int | None = None):
-    """A Dask client: on ``scheduler`` (``tcp://HOST:PORT``), or on a new local cluster.
+def dask_client(scheduler: str | None = None, workers: int | None = None,
+                scheduler_file: str | None = None):
+    """A Dask client: on ``scheduler`` (``tcp://HOST:PORT``), on the scheduler that
+    ``scheduler_file`` names (``dask scheduler --scheduler-file``), or on a new local cluster.
 
     The local cluster has ``workers`` processes (default: this machine's cores), one
     thread each (the core is single-threaded numpy and Clarabel), on 127.0.0.1 only.
     """
     from distributed import Client, LocalCluster
 
-    if scheduler:
-        with Client(scheduler, timeout="30s") as client:
+    if scheduler or scheduler_file:
+        with Client(scheduler, scheduler_file=scheduler_file, timeout="30s") as client:
             yield client
         return
     with LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
