@@ -133,6 +133,9 @@ def main(argv=None) -> int:
     except (TaskFailed, OSError, TimeoutError) as error:
         print(f"{PROG}: failed: {error}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted; the same command resumes", file=sys.stderr)
+        return 130
     _report(summary)
     return 0
 

@@ -59,7 +59,10 @@ class Output:
         run or is not a labelling output.
         """
         if self.single_file and self.out.exists():
-            metadata = pq.read_schema(self.out).metadata or {}
+            try:
+                metadata = pq.read_schema(self.out).metadata or {}
+            except (OSError, ValueError):  # pyarrow's ArrowInvalid is a ValueError
+                raise OutputConflict(f"{self.out} exists and is not a Parquet file") from None
             stored = metadata.get(METADATA_KEY)
             if stored is None or json.loads(stored) != self.manifest:
                 raise OutputConflict(

@@ -203,8 +203,13 @@ def run(plan: Plan, out, client, progress: bool = True) -> Summary:
     todo = [chunk for chunk in chunks if chunk.part not in done]
     summary.chunks_skipped = len(chunks) - len(todo)
     run_id = uuid.uuid4().hex[:12]
+    # Each source enters the task graph once, as a task of its own, and the chunks refer
+    # to it: a source holding an object's surface is not copied into every chunk's task,
+    # and unlike scattered data it is recomputed if the worker holding it dies.
+    sources = [client.submit(_identity, source, key=f"grasp-fc-source-{run_id}-{s}")
+               for s, source in enumerate(plan.sources)]
 
-    problems = _map_chunks(client, validate_chunk, plan, todo, (), f"check-{run_id}",
+    problems = _map_chunks(client, validate_chunk, sources, todo, (), f"check-{run_id}",
                            stop_on=lambda problem: problem is not None)
     if problems:
         raise InputError(problems[0][1])
@@ -220,17 +225,24 @@ def run(plan: Plan, out, client, progress: bool = True) -> Summary:
         summary.grasps_written += table.num_rows
         bar.update(table.num_rows)
 
-    _map_chunks(client, label_chunk, plan, todo, (plan.use_filter, plan.origins),
+    _map_chunks(client, label_chunk, sources, todo, (plan.use_filter, plan.origins),
                 f"label-{run_id}", on_result=write)
+    del sources
     output.finish([chunk.part for chunk in chunks], plan.schema)
     summary.status_counts = {name: int(n) for name, n in zip(STATUS_NAMES, counts)}
     summary.seconds = time.perf_counter() - start
     return summary
 
 
-def _map_chunks(client, function, plan, chunks, extra_args, key_prefix, on_result=None,
+def _identity(value):
+    return value
+
+
+def _map_chunks(client, function, sources, chunks, extra_args, key_prefix, on_result=None,
                 stop_on=None):
     """Run ``function(source, start, stop, *extra_args)`` per chunk on the cluster.
+
+    ``sources`` are futures of the plan's sources.
 
     Results are handed to ``on_result(chunk, result)`` as they arrive and released at
     once (the client holds at most the results not yet handled). Returns the
@@ -241,7 +253,7 @@ def _map_chunks(client, function, plan, chunks, extra_args, key_prefix, on_resul
 
     pending = {}
     for chunk in chunks:
-        future = client.submit(function, plan.sources[chunk.source], chunk.start, chunk.stop,
+        future = client.submit(function, sources[chunk.source], chunk.start, chunk.stop,
                                *extra_args, key=f"grasp-fc-{key_prefix}-{chunk.part}")
         pending[future.key] = (chunk, future)
     stopped = []
@@ -255,7 +267,7 @@ def _map_chunks(client, function, plan, chunks, extra_args, key_prefix, on_resul
                 raise
             except Exception as error:
                 raise TaskFailed(f"chunk {chunk.part} (rows {chunk.start}:{chunk.stop} of "
-                                 f"{plan.sources[chunk.source].path}) failed: "
+                                 f"input {chunk.source + 1}) failed: "
                                  f"{type(error).__name__}: {error}") from error
             del future
             if on_result is not None:
