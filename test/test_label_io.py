@@ -82,6 +82,27 @@ def test_parquet_source_layouts(tmp_path, nested):
     assert np.array_equal(chunk.ids, np.arange(7, 19) * 3)
 
 
+@settings(max_examples=40, deadline=None)
+@given(sizes=st.lists(st.integers(0, 50), min_size=1, max_size=4),
+       chunk_size=st.integers(1, 60))
+def test_plan_chunks_partition_every_source(tmp_path_factory, sizes, chunk_size):
+    folder = tmp_path_factory.mktemp("plan")
+    sources = []
+    for i, size in enumerate(sizes):
+        positions, normals = np.zeros((size, 2, 3)), np.ones((size, 2, 3))
+        np.savez(folder / f"{i}.npz", positions=positions, normals=normals, mu=0.5)
+    plan = Plan.from_files([folder / f"{i}.npz" for i in range(len(sizes))],
+                           chunk_size=chunk_size)
+    for s, size in enumerate(sizes):
+        rows = [r for c in plan.chunks if c.source == s for r in range(c.start, c.stop)]
+        assert rows == list(range(size))
+        sources.append(plan.sources[s].id_offset)
+    assert sources == list(np.cumsum([0] + sizes[:-1]))
+    assert all(0 < c.size <= chunk_size for c in plan.chunks)
+    names = [c.part for c in plan.chunks]
+    assert names == sorted(names) and len(set(names)) == len(names)
+
+
 def test_plan_chunks_cover_every_row_once(tmp_path):
     for name, n_grasps in (("a", 23), ("b", 0), ("c", 5)):
         positions, normals = _grasps(n_grasps)
@@ -102,6 +123,15 @@ def test_bad_values_named_by_file_row_and_id(tmp_path):
     assert validate_chunk(source, 0, 10) is None
     problem = validate_chunk(source, 10, 20)
     assert problem == f"{source.path}: grasp 13 (id 513), contact 2: normal has zero length"
+
+
+def test_negative_id_is_named(tmp_path):
+    positions, normals = _grasps(6)
+    ids = np.arange(6) + 40
+    ids[3] = -1
+    np.savez(tmp_path / "i.npz", positions=positions, normals=normals, mu=0.5, ids=ids)
+    problem = validate_chunk(open_input(tmp_path / "i.npz"), 0, 6)
+    assert problem == f"{tmp_path / 'i.npz'}: grasp 3: ids is negative (-1)"
 
 
 def test_parquet_null_grasp_is_named(tmp_path):

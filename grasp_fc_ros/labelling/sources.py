@@ -72,6 +72,14 @@ def _default_ids(id_offset: int, start: int, stop: int) -> np.ndarray:
     return np.arange(id_offset + start, id_offset + stop, dtype=np.uint64)
 
 
+def _checked_ids(ids: np.ndarray, path: str, key: str, start: int) -> np.ndarray:
+    """Integer ids as uint64; a negative one is an error naming its grasp."""
+    if ids.dtype.kind == "i" and ids.size and ids.min() < 0:
+        row = int(np.argmax(ids < 0))
+        raise InputError(f"{path}: grasp {start + row}: {key} is negative ({ids[row]})")
+    return ids.astype(np.uint64)
+
+
 def _per_grasp_slice(array_or_member, shape, start, stop):
     """Rows start:stop of an array that is scalar, (N,) or (N, n), as () or (k, n) or (k, 1)."""
     if not shape:
@@ -96,7 +104,7 @@ class NpzSource:
 
     def read(self, start: int, stop: int) -> GraspChunk:
         m = self.members
-        ids = (m["ids"].read(start, stop).astype(np.uint64) if "ids" in m
+        ids = (_checked_ids(m["ids"].read(start, stop), self.path, "ids", start) if "ids" in m
                else _default_ids(self.id_offset, start, stop))
         torsional = (_per_grasp_slice(m[TORSIONAL_KEY], m[TORSIONAL_KEY].shape, start, stop)
                      if TORSIONAL_KEY in m else None)
@@ -274,11 +282,7 @@ def _integer_column(column, path, key, start) -> np.ndarray:
     if values.null_count:
         row = int(np.flatnonzero(values.is_null().to_numpy(zero_copy_only=False))[0])
         raise InputError(f"{path}: grasp {start + row}: {key} has no value")
-    ints = values.to_numpy()
-    if ints.dtype.kind == "i" and ints.size and ints.min() < 0:
-        row = int(np.argmax(ints < 0))
-        raise InputError(f"{path}: grasp {start + row}: {key} is negative ({ints[row]})")
-    return ints.astype(np.uint64)
+    return _checked_ids(values.to_numpy(), path, key, start)
 
 
 def _open_parquet(path: str, id_offset: int) -> ParquetSource:
