@@ -230,3 +230,13 @@ def test_failed_part_write_leaves_nothing(tmp_path, monkeypatch):
         output.write_part("part-00000-000000.parquet", pa.table({"x": [1]}))
     assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["_grasp_fc_label.json"]
     assert json.loads((tmp_path / "o" / "_grasp_fc_label.json").read_text()) == {"a": 1}
+
+
+def test_object_grasps_need_the_plans_chunk_size():
+    from grasp_fc_ros.labelling import object_sources
+
+    sources = object_sources(["box"], [], grasps_per_object=10, fingers=4, mu=0.5, seed=0,
+                             points=200, chunk_size=5)
+    assert [c.size for c in Plan(sources, chunk_size=5).chunks] == [5, 5]
+    with pytest.raises(ValueError, match="chunk size 6"):
+        Plan(sources, chunk_size=6)

@@ -72,6 +72,12 @@ class Plan:
     use_filter: bool = True
     origins: str = "seed"
 
+    def __post_init__(self):
+        drawn = {getattr(source, "chunk_size", self.chunk_size) for source in self.sources}
+        if drawn - {self.chunk_size}:
+            raise ValueError("grasps drawn on objects must be drawn with the plan's chunk "
+                             f"size {self.chunk_size}, got {sorted(drawn)}")
+
     @classmethod
     def from_files(cls, paths, **settings) -> "Plan":
         """The plan of input files, ids defaulting to the running index across them all.
