@@ -240,3 +240,33 @@ def test_object_grasps_need_the_plans_chunk_size():
     assert [c.size for c in Plan(sources, chunk_size=5).chunks] == [5, 5]
     with pytest.raises(ValueError, match="chunk size 6"):
         Plan(sources, chunk_size=6)
+
+
+def test_labelling_imports_and_runs_without_ros(tmp_path):
+    import subprocess
+    import sys
+    import textwrap
+
+    positions, normals = _grasps(30)
+    np.savez(tmp_path / "g.npz", positions=positions, normals=normals, mu=0.5)
+    script = textwrap.dedent(f"""
+        import sys
+        class NoRos:
+            def find_spec(self, name, path=None, target=None):
+                top = name.split('.')[0]
+                if top in ('rclpy', 'grasp_fc_msgs') or top.startswith('rcl'):
+                    raise ImportError('ROS is not installed here: ' + name)
+                return None
+        sys.meta_path.insert(0, NoRos())
+        from grasp_fc_ros.labelling import cli, open_input
+        from grasp_fc_ros.labelling.tasks import label_chunk, validate_chunk
+        source = open_input({str(tmp_path / "g.npz")!r})
+        assert validate_chunk(source, 0, 30) is None
+        assert label_chunk(source, 0, 30, True, "seed").num_rows == 30
+        assert 'rclpy' not in sys.modules
+        print('ok')
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().endswith("ok")
