@@ -131,8 +131,8 @@ def main(argv=None):
             rate, seconds, per_cpu, peaks = on_cluster(path, args.chunk, workers,
                                                        folder / "out")
             rates[workers] = rate
-            print(f"grasp-fc-label, {workers} worker(s) : {rate:10,.0f} grasps/s ({seconds:.1f} s),"
-                  f" per worker {rate / workers / core:6.1%} of the core (wall), "
+            print(f"grasp-fc-label, {workers} worker(s) : {rate:10,.0f} grasps/s "
+                  f"({seconds:.1f} s), per worker {rate / workers / core:6.1%} of the core (wall), "
                   f"{per_cpu / core_cpu:6.1%} (CPU time), worker peak RSS "
                   f"{', '.join(f'{p:.0f}' for p in peaks)} MiB")
         print(f"2 workers / 1 worker        : {rates[2] / rates[1]:.2f}x (wall)")

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from grasp_fc_ros.labelling import InputError, OutputConflict, Plan, open_input
+from grasp_fc_ros.labelling import OutputConflict, Plan, open_input
 from grasp_fc_ros.labelling import cli
 from grasp_fc_ros.labelling.npz_members import read_members
 from grasp_fc_ros.labelling.output import Output
