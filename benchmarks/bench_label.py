@@ -28,6 +28,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse  # noqa: E402
 import resource  # noqa: E402
 import shutil  # noqa: E402
+import statistics  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 import zipfile  # noqa: E402
@@ -89,6 +90,24 @@ def _cpu_seconds():
     return time.process_time()
 
 
+def back_to_back(client, path, chunk, repeats=3):
+    """CPU seconds of one chunk in this process and on a worker, alternately: the median
+    ratio (worker / in-process) is the worker's overhead, measured under the same load."""
+    from grasp_fc_ros.labelling.tasks import label_chunk
+
+    source = open_input(path)
+    stop = min(chunk, source.n_grasps)
+    ratios = []
+    for _ in range(repeats):
+        cpu = time.process_time()
+        label_chunk(source, 0, stop, True, "seed")
+        here = time.process_time() - cpu
+        before = sum(client.run(_cpu_seconds).values())
+        client.submit(label_chunk, source, 0, stop, True, "seed", pure=False).result()
+        ratios.append((sum(client.run(_cpu_seconds).values()) - before) / here)
+    return statistics.median(ratios)
+
+
 def on_cluster(path, chunk, workers, out):
     """One labelling run on a fresh cluster: grasps per wall second, seconds, grasps per
     worker CPU second (all workers' CPU time added up), peak RSS MiB of each worker."""
@@ -101,8 +120,10 @@ def on_cluster(path, chunk, workers, out):
         seconds = time.perf_counter() - start
         cpu = sum(client.run(_cpu_seconds).values()) - cpu_before
         peaks = sorted(client.run(_peak_rss_mib).values())
+        overhead = back_to_back(client, path, chunk) if workers == 1 else None
     shutil.rmtree(out)
-    return summary.grasps_written / seconds, seconds, summary.grasps_written / cpu, peaks
+    return (summary.grasps_written / seconds, seconds, summary.grasps_written / cpu, peaks,
+            overhead)
 
 
 def main(argv=None):
@@ -128,13 +149,16 @@ def main(argv=None):
         print(f"core in-process, 1 core     : {core:10,.0f} grasps/s, {core_cpu:,.0f} per CPU s")
         rates = {}
         for workers in (1, 2):
-            rate, seconds, per_cpu, peaks = on_cluster(path, args.chunk, workers,
-                                                       folder / "out")
+            rate, seconds, per_cpu, peaks, overhead = on_cluster(path, args.chunk, workers,
+                                                                 folder / "out")
             rates[workers] = rate
             print(f"grasp-fc-label, {workers} worker(s) : {rate:10,.0f} grasps/s "
                   f"({seconds:.1f} s), per worker {rate / workers / core:6.1%} of the core (wall), "
                   f"{per_cpu / core_cpu:6.1%} (CPU time), worker peak RSS "
                   f"{', '.join(f'{p:.0f}' for p in peaks)} MiB")
+            if overhead is not None:
+                print(f"one chunk, back to back     : worker / in-process CPU time "
+                      f"{overhead:.3f} (per worker {1 / overhead:.1%} of the core)")
         print(f"2 workers / 1 worker        : {rates[2] / rates[1]:.2f}x (wall)")
         if args.large:
             large = folder / "large.npz"
@@ -144,7 +168,7 @@ def main(argv=None):
             print(f"large input: {args.large:,} three-finger grasps, {size_gib:.2f} GiB .npz "
                   f"(written in {time.perf_counter() - start:.0f} s), chunks of "
                   f"{args.large_chunk:,}, 2 workers")
-            rate, seconds, _, peaks = on_cluster(large, args.large_chunk, 2, folder / "out")
+            rate, seconds, _, peaks, _ = on_cluster(large, args.large_chunk, 2, folder / "out")
             print(f"large run                   : {rate:10,.0f} grasps/s ({seconds:.1f} s), "
                   f"worker peak RSS {', '.join(f'{p:.0f}' for p in peaks)} MiB, client peak "
                   f"RSS {_peak_rss_mib():.0f} MiB")
