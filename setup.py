@@ -16,7 +16,8 @@ setup(
     # rclpy and the grasp_fc_msgs interfaces come from the ROS prefix, not PyPI.
     # scipy: the core hands Clarabel scipy.sparse matrices.
     install_requires=["setuptools", "numpy", "scipy", "clarabel", "numba"],
-    extras_require={"experiment": ["matplotlib", "trimesh", "scipy"]},
+    extras_require={"experiment": ["matplotlib", "trimesh", "scipy"],
+                    "label": ["dask", "distributed", "pyarrow"]},
     zip_safe=True,
     maintainer="grasp_fc_ros maintainers",
     maintainer_email="maintainers@grasp-fc-ros.dev",
@@ -27,6 +28,7 @@ setup(
             "grasp-fc-node = grasp_fc_ros.node:main",
             "grasp-fc-demo = grasp_fc_ros.demo:main",
             "grasp-fc-experiment = grasp_fc_ros.experiment.cli:main",
+            "grasp-fc-label = grasp_fc_ros.labelling.cli:main",
         ],
     },
 )

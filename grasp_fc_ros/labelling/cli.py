@@ -1,0 +1,153 @@
+"""Console script ``grasp-fc-label``: force-closure labels for many grasps, on Dask.
+
+Examples::
+
+    grasp-fc-label grasps.npz more.parquet --out labels/            # local cluster
+    grasp-fc-label big.npz --out labels.parquet --scheduler tcp://10.0.0.5:8786
+    grasp-fc-label --mesh part.stl --objects mug --grasps-per-object 100000 \\
+        --fingers 4 --mu 0.5 --out dataset/
+
+Exit status: 0 done, 2 bad input or usage (nothing written), 1 a failure while running
+(the parts written so far are kept; the same command resumes).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from grasp_fc_ros.objects import DEFAULT_N_POINTS, OBJECT_NAMES
+
+from .runner import DEFAULT_CHUNK_SIZE
+
+PROG = "grasp-fc-label"
+# The experiment's friction coefficient: tan 10 degrees.
+DEFAULT_MU = 0.17632698070846498
+DEFAULT_FINGERS = 6
+
+
+def _positive_int(text):
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+def _positive_float(text):
+    value = float(text)
+    if not value > 0.0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be finite and > 0, got {text}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Label grasps as force closure or not, in chunks on a Dask cluster, "
+                    "into Parquet. Inputs are .npz or Parquet files of grasps, or random "
+                    "grasps drawn on objects (--objects/--mesh). See docs/labelling.md.")
+    parser.add_argument("inputs", nargs="*", metavar="INPUT",
+                        help=".npz (positions, normals, mu, optional ids) or .parquet "
+                             "files; without ids, a grasp's id is its running index across "
+                             "all inputs")
+    parser.add_argument("--out", required=True,
+                        help="output: a directory of Parquet parts, or a file ending in "
+                             ".parquet; a re-run of the same command resumes it")
+    objects = parser.add_argument_group("grasps drawn on objects (instead of INPUT files)")
+    objects.add_argument("--mesh", nargs="+", default=[], metavar="FILE",
+                         help="meshes (.obj/.stl/.ply) or point clouds with outward normals "
+                              "(.npz/.ply)")
+    objects.add_argument("--objects", nargs="+", default=[], choices=OBJECT_NAMES,
+                         metavar="NAME", help=f"built-in objects: {', '.join(OBJECT_NAMES)}")
+    objects.add_argument("--grasps-per-object", type=_positive_int, metavar="K")
+    objects.add_argument("--fingers", type=_positive_int, default=DEFAULT_FINGERS,
+                         help=f"contacts per grasp (default {DEFAULT_FINGERS})")
+    objects.add_argument("--mu", type=_positive_float, default=DEFAULT_MU,
+                         help=f"friction coefficient (default tan 10 deg = {DEFAULT_MU:.4f})")
+    objects.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    objects.add_argument("--points", type=_positive_int, default=DEFAULT_N_POINTS,
+                         help=f"surface points sampled per object (default {DEFAULT_N_POINTS})")
+    cluster = parser.add_argument_group("cluster and chunks")
+    cluster.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                         help="an existing Dask scheduler (default: a local cluster)")
+    cluster.add_argument("--scheduler-file", metavar="FILE",
+                         help="an existing Dask scheduler, by the file that `dask scheduler "
+                              "--scheduler-file FILE` wrote")
+    cluster.add_argument("--workers", type=_positive_int,
+                         help="worker processes of the local cluster (default: the cores)")
+    cluster.add_argument("--chunk-size", type=_positive_int, default=DEFAULT_CHUNK_SIZE,
+                         help=f"grasps per chunk and output part (default {DEFAULT_CHUNK_SIZE:,})")
+    cluster.add_argument("--no-filter", action="store_true",
+                         help="skip the torque filter (same verdicts, slower)")
+    cluster.add_argument("--origins", choices=("seed", "all"), default="seed",
+                         help="torque origins of the filter (default seed)")
+    cluster.add_argument("--no-progress", action="store_true", help="no progress line")
+    return parser
+
+
+def make_plan(args):
+    """The :class:`~grasp_fc_ros.labelling.runner.Plan` of the parsed arguments.
+
+    Raises
+    ------
+    InputError
+        A bad input file or object (checked on the client: keys, shapes, meshes).
+    """
+    from .runner import Plan
+    from .sources import object_sources
+
+    settings = {"chunk_size": args.chunk_size, "use_filter": not args.no_filter,
+                "origins": args.origins}
+    if args.inputs:
+        return Plan.from_files(args.inputs, **settings)
+    return Plan(object_sources(args.objects, args.mesh, args.grasps_per_object, args.fingers,
+                               args.mu, args.seed, args.points, args.chunk_size), **settings)
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    drawing = bool(args.mesh or args.objects)
+    if args.inputs and drawing:
+        parser.error("give INPUT files or --objects/--mesh, not both")
+    if not args.inputs and not drawing:
+        parser.error("nothing to label: give INPUT files, or --objects/--mesh")
+    if drawing and args.grasps_per_object is None:
+        parser.error("--objects/--mesh need --grasps-per-object")
+    if args.scheduler and args.scheduler_file:
+        parser.error("give --scheduler or --scheduler-file, not both")
+    if (args.scheduler or args.scheduler_file) and args.workers:
+        parser.error("--workers sets up a local cluster; it cannot go with a scheduler")
+
+    from .output import OutputConflict
+    from .runner import TaskFailed, dask_client, run
+    from .sources import InputError
+
+    try:
+        plan = make_plan(args)
+        with dask_client(args.scheduler, args.workers, args.scheduler_file) as client:
+            summary = run(plan, args.out, client, progress=not args.no_progress)
+    except (InputError, OutputConflict) as error:
+        print(f"{PROG}: error: {error}", file=sys.stderr)
+        return 2
+    except (TaskFailed, OSError, TimeoutError) as error:
+        print(f"{PROG}: failed: {error}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted; the same command resumes", file=sys.stderr)
+        return 130
+    _report(summary)
+    return 0
+
+
+def _report(summary) -> None:
+    counts = ", ".join(f"{name} {n:,}" for name, n in summary.status_counts.items() if n)
+    rate = summary.grasps_written / summary.seconds if summary.seconds else 0.0
+    print(f"{PROG}: {summary.grasps_written:,} grasps labelled in {summary.chunks_written} "
+          f"chunk(s) ({summary.chunks_skipped} already written) in {summary.seconds:.1f} s "
+          f"({rate:,.0f} grasps/s){': ' + counts if counts else ''} -> {summary.out}",
+          file=sys.stderr)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

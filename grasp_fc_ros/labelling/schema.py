@@ -1,0 +1,90 @@
+"""The output columns, one Arrow table per chunk.
+
+Always written:
+
+========================  =========================  =====================================
+column                    type                       meaning
+========================  =========================  =====================================
+``id``                    uint64                     the grasp's id (input ``ids``, or the
+                                                     running index across all inputs)
+``force_closure``         bool                       the verdict
+``status``                uint8                      :class:`~grasp_fc_ros.core.Status` code
+``status_name``           dictionary<string>         its name, e.g. ``FILTERED_OUT``
+``margin``                float64                    the exact test's optimum; NaN where the
+                                                     filter decided
+========================  =========================  =====================================
+
+With grasps drawn on objects (``--objects``/``--mesh``), the grasps themselves too:
+``object`` (string), ``mu`` (float64), ``positions`` and ``normals`` (fixed-size lists of
+3n float64: x, y, z per contact, contact after contact -- the Parquet input layout, so the
+output can be labelled again).
+
+Later columns (``min_friction``, certificates) are added to :data:`LABEL_FIELDS` as
+optional entries of :func:`label_table`, without changing the existing ones.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pyarrow as pa
+
+from grasp_fc_ros.core import Status
+
+STATUS_NAMES = [status.name for status in sorted(Status)]
+
+LABEL_FIELDS = [
+    pa.field("id", pa.uint64(), nullable=False),
+    pa.field("force_closure", pa.bool_(), nullable=False),
+    pa.field("status", pa.uint8(), nullable=False),
+    pa.field("status_name", pa.dictionary(pa.int8(), pa.string()), nullable=False),
+    pa.field("margin", pa.float64(), nullable=False),
+]
+
+
+def grasp_fields(n_contacts: int) -> list[pa.Field]:
+    """The columns that hold the grasps themselves (n contacts each)."""
+    vectors = pa.list_(pa.float64(), 3 * n_contacts)
+    return [pa.field("object", pa.string(), nullable=False),
+            pa.field("mu", pa.float64(), nullable=False),
+            pa.field("positions", vectors, nullable=False),
+            pa.field("normals", vectors, nullable=False)]
+
+
+def output_schema(with_grasps: bool, n_contacts: int) -> pa.Schema:
+    """Schema of every part of one run."""
+    return pa.schema(LABEL_FIELDS + (grasp_fields(n_contacts) if with_grasps else []))
+
+
+def label_table(chunk, result, object_name: str | None = None) -> pa.Table:
+    """One chunk's labels (and grasps, when ``object_name`` is given) as an Arrow table.
+
+    Parameters
+    ----------
+    chunk : grasp_fc_ros.labelling.sources.GraspChunk
+        The k grasps.
+    result : grasp_fc_ros.core.ForceClosureResult
+        Their verdicts, arrays of shape (k,).
+    object_name : str or None
+        The object the grasps were drawn on; None for grasps read from files.
+    """
+    status = np.asarray(result.status, dtype=np.uint8)
+    names = pa.DictionaryArray.from_arrays(pa.array(status.astype(np.int8)),
+                                           pa.array(STATUS_NAMES))
+    columns = [pa.array(chunk.ids, pa.uint64()),
+               pa.array(np.asarray(result.force_closure, dtype=bool)),
+               pa.array(status, pa.uint8()), names,
+               pa.array(np.asarray(result.margin, dtype=np.float64))]
+    n_contacts = chunk.positions.shape[1]
+    if object_name is not None:
+        k = len(chunk.ids)
+        mu = np.broadcast_to(chunk.mu, (k, n_contacts))[:, 0]
+        columns += [pa.array([object_name] * k, pa.string()), pa.array(mu, pa.float64()),
+                    _vectors(chunk.positions), _vectors(chunk.normals)]
+    return pa.Table.from_arrays(columns, schema=output_schema(object_name is not None,
+                                                              n_contacts))
+
+
+def _vectors(values: np.ndarray) -> pa.FixedSizeListArray:
+    k, n, _ = values.shape
+    return pa.FixedSizeListArray.from_arrays(
+        pa.array(np.ascontiguousarray(values, dtype=np.float64).reshape(-1)), 3 * n)

@@ -1,0 +1,63 @@
+"""What a Dask worker runs on one chunk: check it, or label it.
+
+Both are pure functions of (source, start, stop): a chunk re-run after a worker died gives
+the same rows, which is what makes retries and resumption lose and duplicate nothing.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .sources import TORSIONAL_KEY, InputError
+
+
+def validate_chunk(source, start: int, stop: int) -> str | None:
+    """The first problem of rows ``start:stop`` of ``source``, or None if all can be labelled.
+
+    Returns
+    -------
+    str or None
+        ``"FILE: grasp ROW (id ID), contact C: what"``, with ROW the grasp's row in its file.
+    """
+    from grasp_fc_ros.core import validate_grasps
+
+    try:
+        chunk = source.read(start, stop)
+    except InputError as error:
+        return str(error)
+    where = _grasp_names(source.path, chunk)
+    if chunk.torsional is not None:
+        torsional = np.broadcast_to(chunk.torsional, chunk.positions.shape[:2])
+        bad_grasps = (torsional != 0).any(axis=1)
+        if bad_grasps.any():
+            g = int(np.argmax(bad_grasps))
+            c = int(np.argmax(torsional[g] != 0))
+            return (f"{where(g)}, contact {c}: {TORSIONAL_KEY} is {torsional[g, c]}, but the "
+                    "core has no torsional (soft-finger) friction yet: leave it out or "
+                    "make it 0")
+    validation = validate_grasps(chunk.positions, chunk.normals, chunk.mu)
+    if validation.valid.all():
+        return None
+    g = int(np.argmin(validation.valid))
+    # The core names the grasp by its index in this chunk; name it by its file row and id.
+    detail = validation.reasons[g].removeprefix(f"grasp {g}")
+    return f"{where(g)}{detail}"
+
+
+def _grasp_names(path, chunk):
+    return lambda g: f"{path}: grasp {int(chunk.rows[g])} (id {int(chunk.ids[g])})"
+
+
+def label_chunk(source, start: int, stop: int, use_filter: bool, origins: str):
+    """Labels of rows ``start:stop`` of ``source``, as a ``pyarrow.Table``.
+
+    See :mod:`grasp_fc_ros.labelling.schema` for the columns.
+    """
+    from grasp_fc_ros.core import check_force_closure
+
+    from .schema import label_table
+
+    chunk = source.read(start, stop)
+    result = check_force_closure(chunk.positions, chunk.normals, chunk.mu,
+                                 use_filter=use_filter, origins=origins)
+    return label_table(chunk, result, source.object_name)

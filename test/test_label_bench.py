@@ -1,0 +1,28 @@
+"""The labelling benchmark script runs and prints its figures (tiny sizes; no timing asserted)."""
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_label.py"
+
+
+def test_label_benchmark_prints_scaling_and_memory():
+    done = subprocess.run([sys.executable, str(SCRIPT), "--quick"], capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    out = done.stdout
+
+    def number(pattern):
+        match = re.search(pattern, out)
+        assert match, (pattern, out)
+        return float(match.group(1).replace(",", ""))
+
+    assert number(r"core in-process, 1 core\s+:\s+([\d,]+) grasps/s") > 0
+    for workers in (1, 2):
+        assert number(rf"{workers} worker\(s\) :\s+([\d,]+) grasps/s") > 0
+    assert number(r"2 workers / 1 worker\s+:\s+([\d.]+)x") > 0
+    assert "60,000 three-finger grasps" in out
+    peaks = re.search(r"large run .* worker peak RSS (\d+), (\d+) MiB", out)
+    assert peaks and all(0 < float(p) < 4096 for p in peaks.groups())

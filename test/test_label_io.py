@@ -1,0 +1,272 @@
+"""grasp-fc-label without a cluster: lazy .npz and Parquet reading, chunk checks, output."""
+
+import json
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from grasp_fc_ros.labelling import OutputConflict, Plan, open_input
+from grasp_fc_ros.labelling import cli
+from grasp_fc_ros.labelling.npz_members import read_members
+from grasp_fc_ros.labelling.output import Output
+from grasp_fc_ros.labelling.tasks import label_chunk, validate_chunk
+from grasp_fc_ros.objects import make_object, sample_grasps
+
+
+def _grasps(n_grasps, n_fingers=4, seed=0):
+    return sample_grasps(make_object("box", n_points=500), n_grasps, n_fingers,
+                         np.random.default_rng(seed))
+
+
+def _parquet(path, positions, normals, mu, nested=False, **extra):
+    n_grasps, n = positions.shape[:2]
+    if nested:
+        def column(a):
+            return pa.array(a.tolist(), pa.list_(pa.list_(pa.float64(), 3)))
+    else:
+        def column(a):
+            return pa.FixedSizeListArray.from_arrays(pa.array(a.reshape(-1)), 3 * n)
+    mu = np.asarray(mu, dtype=float)
+    mu_column = (pa.array(np.broadcast_to(mu, (n_grasps,))) if mu.ndim < 2
+                 else pa.array(mu.tolist(), pa.list_(pa.float64())))
+    table = pa.table({"positions": column(positions), "normals": column(normals),
+                      "mu": mu_column, **extra})
+    pq.write_table(table, path, row_group_size=max(n_grasps // 3, 1))
+    return path
+
+
+@settings(max_examples=30, deadline=None)
+@given(rows=st.integers(0, 40), width=st.integers(1, 5), compressed=st.booleans(),
+       dtype=st.sampled_from([np.float64, np.float32, np.int64, np.uint64]),
+       bounds=st.tuples(st.integers(-5, 45), st.integers(-5, 45)))
+def test_npz_member_rows_equal_np_load(tmp_path_factory, rows, width, compressed, dtype,
+                                       bounds):
+    path = tmp_path_factory.mktemp("npz") / "a.npz"
+    array = (np.arange(rows * width * 3).reshape(rows, width, 3) * 7 % 11).astype(dtype)
+    (np.savez_compressed if compressed else np.savez)(path, a=array, s=np.float32(2.5))
+    members = read_members(path)
+    start, stop = bounds
+    assert np.array_equal(members["a"].read(start, stop), array[start:stop])
+    assert members["a"].read(start, stop).dtype == dtype
+    assert members["s"].read() == np.float32(2.5)
+
+
+def test_npz_source_chunk_and_default_ids(tmp_path):
+    positions, normals = _grasps(30)
+    mu = np.linspace(0.2, 0.6, 30)
+    np.savez(tmp_path / "a.npz", positions=positions, normals=normals, mu=mu)
+    source = open_input(tmp_path / "a.npz", id_offset=100)
+    assert (source.n_grasps, source.n_contacts) == (30, 4)
+    chunk = source.read(10, 20)
+    assert np.array_equal(chunk.positions, positions[10:20])
+    assert np.array_equal(chunk.mu[:, 0], mu[10:20])
+    assert np.array_equal(chunk.ids, np.arange(110, 120))
+
+
+@pytest.mark.parametrize("nested", [False, True])
+def test_parquet_source_layouts(tmp_path, nested):
+    positions, normals = _grasps(25)
+    mu = np.random.default_rng(1).uniform(0.2, 0.8, (25, 4))
+    path = _parquet(tmp_path / "g.parquet", positions, normals, mu, nested=nested,
+                    ids=pa.array(np.arange(25, dtype=np.uint64) * 3))
+    source = open_input(path)
+    assert (source.n_grasps, source.n_contacts) == (25, 4)
+    chunk = source.read(7, 19)  # spans row groups of 8 rows
+    assert np.array_equal(chunk.positions, positions[7:19])
+    assert np.array_equal(chunk.normals, normals[7:19])
+    assert np.array_equal(chunk.mu, mu[7:19])
+    assert np.array_equal(chunk.ids, np.arange(7, 19) * 3)
+
+
+@settings(max_examples=40, deadline=None)
+@given(sizes=st.lists(st.integers(0, 50), min_size=1, max_size=4),
+       chunk_size=st.integers(1, 60))
+def test_plan_chunks_partition_every_source(tmp_path_factory, sizes, chunk_size):
+    folder = tmp_path_factory.mktemp("plan")
+    sources = []
+    for i, size in enumerate(sizes):
+        positions, normals = np.zeros((size, 2, 3)), np.ones((size, 2, 3))
+        np.savez(folder / f"{i}.npz", positions=positions, normals=normals, mu=0.5)
+    plan = Plan.from_files([folder / f"{i}.npz" for i in range(len(sizes))],
+                           chunk_size=chunk_size)
+    for s, size in enumerate(sizes):
+        rows = [r for c in plan.chunks if c.source == s for r in range(c.start, c.stop)]
+        assert rows == list(range(size))
+        sources.append(plan.sources[s].id_offset)
+    assert sources == list(np.cumsum([0] + sizes[:-1]))
+    assert all(0 < c.size <= chunk_size for c in plan.chunks)
+    names = [c.part for c in plan.chunks]
+    assert names == sorted(names) and len(set(names)) == len(names)
+
+
+def test_plan_chunks_cover_every_row_once(tmp_path):
+    for name, n_grasps in (("a", 23), ("b", 0), ("c", 5)):
+        positions, normals = _grasps(n_grasps)
+        np.savez(tmp_path / f"{name}.npz", positions=positions, normals=normals, mu=0.5)
+    sources = [open_input(tmp_path / f"{name}.npz") for name in "abc"]
+    chunks = Plan(sources, chunk_size=10).chunks
+    assert [(c.source, c.start, c.stop) for c in chunks] == [
+        (0, 0, 10), (0, 10, 20), (0, 20, 23), (2, 0, 5)]
+    assert len({c.part for c in chunks}) == len(chunks)
+
+
+def test_bad_values_named_by_file_row_and_id(tmp_path):
+    positions, normals = _grasps(20)
+    normals[13, 2] = 0.0
+    np.savez(tmp_path / "bad.npz", positions=positions, normals=normals, mu=0.5,
+             ids=np.arange(20, dtype=np.uint64) + 500)
+    source = open_input(tmp_path / "bad.npz")
+    assert validate_chunk(source, 0, 10) is None
+    problem = validate_chunk(source, 10, 20)
+    assert problem == f"{source.path}: grasp 13 (id 513), contact 2: normal has zero length"
+
+
+def test_negative_id_is_named(tmp_path):
+    positions, normals = _grasps(6)
+    ids = np.arange(6) + 40
+    ids[3] = -1
+    np.savez(tmp_path / "i.npz", positions=positions, normals=normals, mu=0.5, ids=ids)
+    problem = validate_chunk(open_input(tmp_path / "i.npz"), 0, 6)
+    assert problem == f"{tmp_path / 'i.npz'}: grasp 3: ids is negative (-1)"
+
+
+def test_parquet_null_grasp_is_named(tmp_path):
+    positions, normals = _grasps(6)
+    table = pa.table({
+        "positions": pa.array([row.reshape(-1).tolist() if i != 4 else None
+                               for i, row in enumerate(positions)], pa.list_(pa.float64())),
+        "normals": pa.array([row.reshape(-1).tolist() for row in normals]),
+        "mu": pa.array(np.full(6, 0.5))})
+    pq.write_table(table, tmp_path / "n.parquet")
+    problem = validate_chunk(open_input(tmp_path / "n.parquet"), 0, 6)
+    assert "n.parquet: grasp 4: positions has no value" in problem
+
+
+def test_nonzero_torsional_friction_is_refused(tmp_path):
+    positions, normals = _grasps(8)
+    torsional = np.zeros((8, 4))
+    torsional[5, 3] = 0.01
+    np.savez(tmp_path / "t.npz", positions=positions, normals=normals, mu=0.5,
+             torsional_friction=torsional)
+    problem = validate_chunk(open_input(tmp_path / "t.npz"), 0, 8)
+    assert "t.npz: grasp 5 (id 5), contact 3: torsional_friction is 0.01" in problem
+    np.savez(tmp_path / "z.npz", positions=positions, normals=normals, mu=0.5,
+             torsional_friction=0.0)
+    assert validate_chunk(open_input(tmp_path / "z.npz"), 0, 8) is None
+
+
+def test_label_chunk_equals_core(tmp_path):
+    from grasp_fc_ros.core import check_force_closure
+
+    positions, normals = _grasps(40, n_fingers=6)
+    np.savez(tmp_path / "a.npz", positions=positions, normals=normals, mu=0.5)
+    table = label_chunk(open_input(tmp_path / "a.npz"), 0, 40, True, "seed")
+    expected = check_force_closure(positions, normals, 0.5)
+    assert table.column_names == ["id", "force_closure", "status", "status_name", "margin"]
+    assert np.array_equal(table["force_closure"].to_numpy(), expected.force_closure)
+    assert np.array_equal(table["status"].to_numpy(), expected.status)
+    assert np.array_equal(table["margin"].to_numpy(), expected.margin, equal_nan=True)
+    names = table["status_name"].to_pylist()
+    assert set(names) <= {"FORCE_CLOSURE", "NOT_FORCE_CLOSURE", "FILTERED_OUT"}
+    assert len(set(names)) >= 2
+
+
+@pytest.mark.parametrize("arrays, message", [
+    ({"positions": np.zeros((4, 3, 3)), "mu": 0.5}, "missing array(s) normals"),
+    ({"positions": np.zeros((4, 3)), "normals": np.zeros((4, 3)), "mu": 0.5},
+     "positions must have shape (N, n, 3), got (4, 3)"),
+    ({"positions": np.zeros((4, 3, 3)), "normals": np.zeros((4, 3, 3)), "mu": np.ones(3)},
+     "mu must be a scalar or have shape (4,) or (4, 3), got (3,)"),
+    ({"positions": np.zeros((4, 3, 3)), "normals": np.zeros((4, 3, 3)), "mu": 0.5,
+      "ids": np.zeros(4)}, "ids must be integers of shape (4,)"),
+])
+def test_cli_bad_file_exits_2_and_writes_nothing(tmp_path, capsys, arrays, message):
+    good_p, good_n = _grasps(5)
+    np.savez(tmp_path / "good.npz", positions=good_p, normals=good_n, mu=0.5)
+    np.savez(tmp_path / "bad.npz", **arrays)
+    out = tmp_path / "out"
+    code = cli.main([str(tmp_path / "good.npz"), str(tmp_path / "bad.npz"), "--out", str(out)])
+    assert code == 2
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1
+    assert str(tmp_path / "bad.npz") in error[0] and message in error[0]
+    assert not out.exists()
+
+
+def test_cli_usage_errors(tmp_path):
+    with pytest.raises(SystemExit) as stop:
+        cli.main(["--out", str(tmp_path / "o")])
+    assert stop.value.code == 2
+    with pytest.raises(SystemExit) as stop:
+        cli.main(["--objects", "box", "--out", str(tmp_path / "o")])
+    assert stop.value.code == 2
+
+
+def test_output_refuses_another_runs_directory(tmp_path):
+    Output(tmp_path / "o", {"chunk_size": 10}).create()
+    assert Output(tmp_path / "o", {"chunk_size": 10}).existing_parts() == set()
+    with pytest.raises(OutputConflict, match="differs in: chunk_size"):
+        Output(tmp_path / "o", {"chunk_size": 20}).existing_parts()
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "x.txt").write_text("x")
+    with pytest.raises(OutputConflict, match="not a grasp-fc-label output"):
+        Output(tmp_path / "other", {}).existing_parts()
+
+
+def test_failed_part_write_leaves_nothing(tmp_path, monkeypatch):
+    output = Output(tmp_path / "o", {"a": 1})
+    output.create()
+
+    def write_half_then_fail(table, where):
+        open(where, "wb").write(b"PAR1 half a file")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(pq, "write_table", write_half_then_fail)
+    with pytest.raises(OSError, match="disk full"):
+        output.write_part("part-00000-000000.parquet", pa.table({"x": [1]}))
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["_grasp_fc_label.json"]
+    assert json.loads((tmp_path / "o" / "_grasp_fc_label.json").read_text()) == {"a": 1}
+
+
+def test_object_grasps_need_the_plans_chunk_size():
+    from grasp_fc_ros.labelling import object_sources
+
+    sources = object_sources(["box"], [], grasps_per_object=10, fingers=4, mu=0.5, seed=0,
+                             points=200, chunk_size=5)
+    assert [c.size for c in Plan(sources, chunk_size=5).chunks] == [5, 5]
+    with pytest.raises(ValueError, match="chunk size 6"):
+        Plan(sources, chunk_size=6)
+
+
+def test_labelling_imports_and_runs_without_ros(tmp_path):
+    import subprocess
+    import sys
+    import textwrap
+
+    positions, normals = _grasps(30)
+    np.savez(tmp_path / "g.npz", positions=positions, normals=normals, mu=0.5)
+    script = textwrap.dedent(f"""
+        import sys
+        class NoRos:
+            def find_spec(self, name, path=None, target=None):
+                top = name.split('.')[0]
+                if top in ('rclpy', 'grasp_fc_msgs') or top.startswith('rcl'):
+                    raise ImportError('ROS is not installed here: ' + name)
+                return None
+        sys.meta_path.insert(0, NoRos())
+        from grasp_fc_ros.labelling import cli, open_input
+        from grasp_fc_ros.labelling.tasks import label_chunk, validate_chunk
+        source = open_input({str(tmp_path / "g.npz")!r})
+        assert validate_chunk(source, 0, 30) is None
+        assert label_chunk(source, 0, 30, True, "seed").num_rows == 30
+        assert 'rclpy' not in sys.modules
+        print('ok')
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().endswith("ok")
