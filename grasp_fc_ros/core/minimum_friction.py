@@ -1,0 +1,393 @@
+"""The minimum friction coefficient of a grasp, certified from both sides.
+
+Contact i has friction ``mu * ratios_i``. The grasp is force closure for every mu above
+a threshold mu* and for none below it (the cones grow with mu, and force closure asks
+for a strictly internal force, an open condition), so mu* is the boundary
+
+    mu* = inf over forces f with G f = 0, all f_n,i > 0  of  max_i |f_t,i| / (r_i f_n,i)
+
+(with G of rank 6; mu* = inf otherwise). It is a generalised fractional program:
+quasi-convex, one SOCP per fixed mu, not one SOCP. We solve it with the Dinkelbach-type
+method of Crouzeix, Ferland and Schaible (1985), which converges superlinearly: at the
+current upper bound lam, with weights W_i = r_i f_n,i of the previous forces,
+
+    maximise t  s.t.  G f = 0,  sum_i f_n,i = 1,  (lam r_i f_n,i - W_i t, f_t,i) in Q^3,
+
+and every solve yields two certificates, both checked in numpy, never taken on trust:
+
+* an upper bound: the solver's forces, projected exactly onto null(G), with every normal
+  force positive, are inside every cone of friction ``U = max_i |f_t,i| / (r_i f_n,i)``
+  (with a slack for rounding), so the grasp is force closure for every mu > U;
+* a lower bound: the equilibrium multipliers give a wrench w; with a_i = (B_i w) the work
+  of unit forces at contact i, if a_n,i + L r_i |a_t,i| <= 0 for all i then every contact
+  wrench of friction L lies in the closed half-space w . x <= 0, so the grasp is not force
+  closure at L nor below: mu* >= L = min_i -a_n,i / (r_i |a_t,i|).
+
+Iteration stops when U - L <= max(REL_TOL U, ABS_TOL); the answer is U. Rank-deficient
+grasps, and grasps certified not force closure at ``MU_CAP``, get inf; grasps with
+U <= ABS_TOL get 0 (force closure for every positive friction, e.g. frictionless force
+closure).
+
+Relation to :func:`check_force_closure`: it reports force closure only with an internal
+force at least ``MARGIN_TOL`` deep in every cone (normal forces summing to one), i.e. for
+margin t*(mu) >= MARGIN_TOL, not t*(mu) > 0. Below mu* it therefore always says no. Just
+above mu*, t*(mu) grows from 0 roughly like (mu - mu*) * min_i r_i f_n,i, so it says yes
+only from mu* + O(MARGIN_TOL * n / r) on: at mu*(1 + 1e-5) only where that slope is large
+enough. ``margin=MARGIN_TOL`` computes that numerical boundary instead (see
+:func:`minimum_friction`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .grasp_input import GraspBatch, prepare_grasps
+from .stacked_socp import (SOLVE_BATCH, BlockShape, centred_unit, grasp_map, solve_stacked,
+                           split_normal, tangent_bases)
+from .tolerances import RANK_TOL
+
+#: Relative and absolute width of the certified interval [L, U] at which iteration stops
+#: (the issue's 1e-6 relative or 1e-9 absolute).
+REL_TOL = 1e-6
+ABS_TOL = 1e-9
+
+#: Friction coefficients above this are not physical (rubber on rubber is ~1-2); a grasp
+#: certified not force closure at MU_CAP is reported inf.
+MU_CAP = 1e6
+
+#: First friction tried when no closed-form upper bound is at hand, and the factor by
+#: which it grows while no solve has found a witness.
+MU_START = 10.0
+ESCALATE = 100.0
+
+#: Dinkelbach iterations allowed. Measured: 3-7 on random grasps; the limit only ends a
+#: grasp whose certificates stall (it is then reported NaN, never guessed).
+MAX_SOLVES = 40
+
+#: Relative rounding slack of the certificates: forces projected onto null(G) are off by
+#: about eps * cond(G) * |f| (the row space from the SVD is that accurate), and the
+#: work a = G^T w by about eps * |w|. 1e-13 is ~500 eps: generous, yet far below REL_TOL.
+CERT_SLACK = 1e-13
+
+#: A Dinkelbach step that lowers U by less than PROBE_GAIN * REL_TOL * U means U has
+#: converged to the solver's accuracy; the next solve then probes at
+#: U * (1 - PROBE_DEPTH * REL_TOL), inside the target interval, for the lower bound.
+PROBE_GAIN = 0.1
+PROBE_DEPTH = 0.5
+
+#: Gap and feasibility tolerances of a probe's solve. Just below mu* the separating
+#: wrench's work at loaded contacts is of order (mu* - lam) / mu* ~ REL_TOL; the
+#: multipliers must be far more accurate than that to get its sign right.
+PROBE_SOLVER_TOL = 1e-11
+
+#: The lower bound L certifies that at friction L no equilibrium force lies more than
+#: CERT_MARGIN deep in every cone (the exact test's margin, normal forces summing to
+#: one), not that the margin is exactly 0: a separating wrench must do exactly zero
+#: work at contacts loaded strictly inside their cones, which floating point cannot
+#: show. 1e-9 is three orders below MARGIN_TOL, under which check_force_closure already
+#: calls a grasp not force closure, and above the solver's accuracy (~1e-11 in probes).
+CERT_MARGIN = 1e-9
+
+#: Bisection steps for the largest L a wrench certifies: 2^-60 of the bracket.
+LOWER_BISECTIONS = 60
+
+#: Weights W_i below this fraction of the largest are raised to it: a contact whose
+#: normal force vanished would otherwise drop out of the margin and stall the method.
+WEIGHT_FLOOR = 1e-3
+
+
+@dataclass(frozen=True)
+class MinimumFriction:
+    """Certified bounds on mu* for N grasps (0-d arrays for one grasp).
+
+    Attributes
+    ----------
+    value : ndarray of float
+        mu*: the certified upper bound, 0 if that is <= ABS_TOL, inf if no friction up
+        to MU_CAP (or none at all) makes the grasp force closure, NaN if unresolved.
+    lower, upper : ndarray of float
+        Certified bounds: not force closure at ``lower``, force closure above ``upper``.
+    solves : ndarray of int
+        SOCP solves the grasp took (each the size of one exact test).
+    """
+
+    value: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    solves: np.ndarray
+
+
+def minimum_friction(positions, normals, ratios=1.0) -> np.ndarray:
+    """The least friction coefficient at which a grasp is force closure.
+
+    Parameters
+    ----------
+    positions : array_like, shape (n, 3) or (N, n, 3)
+        Contact positions (any length unit).
+    normals : array_like, same shape
+        Inward contact normals, any non-zero length.
+    ratios : float or array_like broadcastable to (N, n)
+        Contact i has friction mu * ratios_i (> 0); 1 for equal friction everywhere.
+
+    Returns
+    -------
+    ndarray of float, shape () for one grasp or (N,)
+        mu* (dimensionless), certified to REL_TOL relative or ABS_TOL absolute:
+        force closure for every mu > mu*, for no mu < mu*. 0: force closure for every
+        positive friction; inf: for none (up to MU_CAP).
+
+    Raises
+    ------
+    ValueError
+        On bad input, naming the grasp and contact.
+    """
+    return minimum_friction_bounds(positions, normals, ratios).value
+
+
+def minimum_friction_bounds(positions, normals, ratios=1.0) -> MinimumFriction:
+    """:func:`minimum_friction` with its certified bounds and solve counts."""
+    try:
+        grasps = prepare_grasps(positions, normals, ratios)
+    except ValueError as error:
+        raise ValueError(str(error).replace("friction coefficient", "friction ratio")) from None
+    lower, upper, solves = solve_minimum_friction(grasps)
+    value = np.where(upper <= ABS_TOL, 0.0, upper)
+    value = np.where(lower >= MU_CAP, np.inf, value)
+    value = np.where(_resolved(lower, upper), value, np.nan)
+    return MinimumFriction(*(grasps.unbatch(a) for a in (value, lower, upper, solves)))
+
+
+def solve_minimum_friction(grasps: GraspBatch):
+    """Certified bounds on mu* for every grasp of a validated batch (``mu`` = ratios).
+
+    Returns
+    -------
+    lower, upper : ndarray, shape (N,)
+    solves : ndarray of int, shape (N,)
+    """
+    n_grasps, n_contacts = grasps.mu.shape
+    unit, _, _ = centred_unit(grasps.positions)
+    gmap = grasp_map(unit)                                             # (N, 6, 3n)
+    _, singular, row_space = np.linalg.svd(gmap, full_matrices=False)
+    full_rank = singular[:, -1] > RANK_TOL * singular[:, 0]
+    condition = np.where(full_rank, singular[:, 0] / np.where(full_rank, singular[:, -1], 1.0),
+                         np.inf)
+
+    lower = np.where(full_rank, 0.0, np.inf)
+    # Forces towards the centroid, f_i = c - p_i, are always in equilibrium (they pair
+    # up along chords): where every one pushes into its contact, a free first bound.
+    upper, weights = upper_certificate(-unit.reshape(n_grasps, -1), row_space, condition,
+                                       grasps.normals, grasps.mu)
+    upper = np.where(full_rank, upper, np.inf)
+    solves = np.zeros(n_grasps, dtype=np.int64)
+    lam = np.where(np.isfinite(upper), upper, MU_START)
+    probe = np.zeros(n_grasps, dtype=bool)
+    active = np.flatnonzero(full_rank)
+    for _ in range(MAX_SOLVES):
+        if active.size == 0:
+            break
+        for start in range(0, active.size, SOLVE_BATCH):
+            chunk = active[start:start + SOLVE_BATCH]
+            for probing in (False, True):
+                part = chunk[probe[chunk] == probing]
+                if part.size:
+                    _iterate(part, probing, gmap, row_space, condition, grasps,
+                             lam, weights, lower, upper, probe)
+            solves[chunk] += 1
+        active = active[~_resolved(lower[active], upper[active])]
+    return lower, upper, solves
+
+
+def _resolved(lower, upper):
+    """Where the bounds (same shape) are tight enough, or certify no friction up to MU_CAP."""
+    with np.errstate(invalid="ignore"):
+        close = upper - lower <= np.maximum(REL_TOL * upper, ABS_TOL)
+    return (np.isfinite(upper) & close) | (lower >= MU_CAP)
+
+
+def _iterate(part, probing, gmap, row_space, condition, grasps, lam, weights, lower, upper,
+             probe):
+    """One solve for the grasps ``part``; updates the bounds and the next step in place.
+
+    A Dinkelbach step (at lam = U) moves U down; once U stops moving (a step gains less
+    than PROBE_GAIN * REL_TOL), the next solve probes just below U. The probe's
+    multipliers are a separating wrench: from above mu*, the wrench is blind to contacts
+    that carry force strictly inside their cones (its work there is only the rounding of
+    a vanishing multiplier), from below it is not.
+    """
+    normals, ratios = grasps.normals[part], grasps.mu[part]
+    forces, wrench = _solve_chunk(gmap[part], normals, ratios, lam[part], weights[part],
+                                  tight=probing)
+    new_upper, new_weights = upper_certificate(forces, row_space[part], condition[part],
+                                               normals, ratios)
+    old_upper = upper[part]
+    better = new_upper < old_upper
+    upper[part] = np.minimum(old_upper, new_upper)
+    weights[part[better]] = new_weights[better]
+    ceiling = np.where(np.isfinite(upper[part]), upper[part], MU_CAP)
+    lower[part] = np.maximum(lower[part], lower_certificate(wrench, gmap[part], normals,
+                                                            ratios, ceiling))
+    with np.errstate(invalid="ignore"):
+        gain = old_upper - upper[part]
+    settled = probing | (gain <= PROBE_GAIN * REL_TOL * upper[part])
+    probe[part] = settled & np.isfinite(upper[part])
+    below = np.maximum(lower[part], upper[part] * (1.0 - PROBE_DEPTH * REL_TOL))
+    # Without any upper bound yet, try a friction ESCALATE times larger (at least the
+    # certified lower bound).
+    escalated = np.minimum(np.maximum(lam[part] * ESCALATE, lower[part]), MU_CAP)
+    lam[part] = np.where(probe[part], below,
+                         np.where(np.isfinite(upper[part]), upper[part], escalated))
+
+
+def _block_shape(n_contacts: int) -> BlockShape:
+    """Rows: G f = 0 (6), sum f_n = 1 (1), one Q^3 per contact. Columns: f (3n), t."""
+    n_vars = 3 * n_contacts + 1
+    pattern = np.zeros((7 + 3 * n_contacts, n_vars), dtype=bool)
+    pattern[:7, :3 * n_contacts] = True
+    for i in range(n_contacts):
+        rows = slice(7 + 3 * i, 10 + 3 * i)
+        pattern[rows, 3 * i:3 * i + 3] = True
+        pattern[7 + 3 * i, -1] = True
+    return BlockShape(pattern, zero_rows=7, nonneg_rows=0, soc_sizes=(3,) * n_contacts)
+
+
+def _solve_chunk(gmap, normals, ratios, lam, weights, tight=False):
+    """One weighted-margin SOCP per grasp of a chunk (K grasps).
+
+    Returns the solver's forces (K, 3n) and equilibrium multipliers (K, 6); an
+    unconverged batch is solved again grasp by grasp (its answers are checked anyway).
+    """
+    n_grasps, n_contacts = ratios.shape
+    shape = _block_shape(n_contacts)
+    tangent, bitangent = tangent_bases(normals)
+    a = np.zeros((n_grasps,) + shape.pattern.shape)
+    a[:, :6, :-1] = gmap
+    a[:, 6, :-1] = normals.reshape(n_grasps, -1)
+    # Clarabel's form A x + s = b, s in the cone: each cone row of A holds -s(x).
+    # Each cone's rows are divided by max(lam, 1) (a cone is closed under scaling), and
+    # so is t: a large lam then loosens the tangential rows instead of inflating the
+    # normal ones, which Clarabel could not solve at lam ~ 1e6.
+    scale = np.maximum(lam, 1.0)[:, None, None]
+    cone = -np.stack([((lam[:, None] * ratios)[..., None] * normals), tangent, bitangent],
+                     axis=2) / scale[..., None]                        # (K, n, 3, 3)
+    for i in range(n_contacts):
+        a[:, 7 + 3 * i:10 + 3 * i, 3 * i:3 * i + 3] = cone[:, i]
+        a[:, 7 + 3 * i, -1] = weights[:, i]
+    b = np.zeros((n_grasps, shape.pattern.shape[0]))
+    b[:, 6] = 1.0
+    q = np.zeros((n_grasps, shape.pattern.shape[1]))
+    q[:, -1] = -1.0
+    tol = PROBE_SOLVER_TOL if tight else None
+    solution = solve_stacked(shape, a, b, q, tol)
+    if not solution.converged and n_grasps > 1:
+        parts = [solve_stacked(shape, a[k:k + 1], b[k:k + 1], q[k:k + 1], tol)
+                 for k in range(n_grasps)]
+        x = np.concatenate([p.x for p in parts])
+        z = np.concatenate([p.z for p in parts])
+    else:
+        x, z = solution.x, solution.z
+    return x[:, :-1], z[:, :6]
+
+
+def upper_certificate(forces, row_space, condition, normals, ratios):
+    """The friction above which the given forces prove force closure.
+
+    Parameters
+    ----------
+    forces : ndarray, shape (K, 3n)
+        Candidate contact forces, world frame, of grasps normalised to unit size.
+    row_space : ndarray, shape (K, 6, 3n)
+        Orthonormal basis of the row space of each full-rank grasp map.
+    condition : ndarray, shape (K,)
+        Condition number of each grasp map (scales the rounding slack).
+    normals : ndarray, shape (K, n, 3)
+    ratios : ndarray, shape (K, n)
+
+    Returns
+    -------
+    upper : ndarray, shape (K,)
+        max_i (|f_t,i| + d) / (r_i (f_n,i - d)) of the forces projected onto null(G),
+        d the rounding slack; inf where some normal force is not clearly positive.
+    weights : ndarray, shape (K, n)
+        r_i f_n,i of the projected forces, normalised to sum f_n = 1, floored.
+    """
+    equilibrium = forces - np.einsum("gkv,gk->gv", row_space,
+                                     np.einsum("gkv,gv->gk", row_space, forces))
+    normal_part, tangential = split_normal(equilibrium.reshape(normals.shape), normals)
+    slack = (CERT_SLACK * condition * np.abs(equilibrium).max(axis=1))[:, None]
+    valid = (normal_part > slack).all(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = (tangential + slack) / (ratios * (normal_part - slack))
+        upper = np.where(valid, ratio.max(axis=1), np.inf)
+        weights = ratios * np.maximum(normal_part, 0.0) / normal_part.sum(axis=1, keepdims=True)
+    weights = np.where(valid[:, None], weights, 1.0)
+    weights = np.maximum(weights, WEIGHT_FLOOR * weights.max(axis=1, keepdims=True))
+    return upper, weights
+
+
+def margin_bound(mu, work_normal, work_tangential, ratios):
+    """Upper bound on the exact test's margin t*(mu) proved by one wrench.
+
+    If a wrench w does work a_i = B_i w on unit forces at contact i, with
+    a_n,i <= work_normal_i and |a_t,i| <= work_tangential_i, then any equilibrium with
+    normal forces summing to one and every force t deep in its cone has
+    t <= max(l0, 0) / S, where l0 = max_i (a_n,i + mu_i |a_t,i|) and
+    S = sum_i (l0 - a_n,i) / mu_i (mu_i = mu r_i): the equilibrium's total work against
+    w is zero, each cone bounds its contact's work, and each normal force is >= t / mu_i.
+
+    Parameters
+    ----------
+    mu : ndarray, shape (K,)
+    work_normal, work_tangential : ndarray, shape (K, n)
+    ratios : ndarray, shape (K, n)
+
+    Returns
+    -------
+    ndarray, shape (K,)
+        The bound (0 where w separates: every contact wrench does work <= 0).
+    """
+    friction = mu[:, None] * ratios
+    l0 = (work_normal + friction * work_tangential).max(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        total = ((np.maximum(l0, 0.0)[:, None] - work_normal) / friction).sum(axis=1)
+        bound = np.maximum(l0, 0.0) / total
+    return np.where(l0 > 0, bound, 0.0)
+
+
+def lower_certificate(wrench, gmap, normals, ratios, ceiling):
+    """The largest friction at which a wrench proves the margin at most CERT_MARGIN.
+
+    Parameters
+    ----------
+    wrench : ndarray, shape (K, 6)
+        Candidate separating wrench (either sign is tried), of grasps of unit size.
+    gmap : ndarray, shape (K, 6, 3n)
+    normals : ndarray, shape (K, n, 3)
+    ratios : ndarray, shape (K, n)
+    ceiling : ndarray, shape (K,)
+        Search no higher than this (a finite upper bound on mu*, or MU_CAP).
+
+    Returns
+    -------
+    ndarray, shape (K,)
+        L in [0, ceiling] with :func:`margin_bound` (L) <= CERT_MARGIN for the better
+        sign of w, the work inflated by its rounding slack; 0 if none. t*(mu) only grows
+        with mu, so the margin is at most CERT_MARGIN at every mu <= L too.
+    """
+    work = np.einsum("gkv,gk->gv", gmap, wrench).reshape(normals.shape)
+    normal_part, tangential = split_normal(work, normals)
+    slack = (CERT_SLACK * np.abs(wrench).max(axis=1))[:, None]
+    best = np.zeros(wrench.shape[0])
+    for sign in (1.0, -1.0):
+        work_normal, work_tangential = sign * normal_part + slack, tangential + slack
+        low, high = np.zeros_like(best), ceiling.copy()
+        holds = margin_bound(high, work_normal, work_tangential, ratios) <= CERT_MARGIN
+        low[holds] = high[holds]
+        for _ in range(LOWER_BISECTIONS):
+            middle = 0.5 * (low + high)
+            ok = margin_bound(middle, work_normal, work_tangential, ratios) <= CERT_MARGIN
+            low, high = np.where(ok, middle, low), np.where(ok, high, middle)
+        best = np.maximum(best, low)
+    return best
