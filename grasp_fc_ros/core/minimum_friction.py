@@ -71,16 +71,10 @@ MAX_SOLVES = 40
 #: work a = G^T w by about eps * |w|. 1e-13 is ~500 eps: generous, yet far below REL_TOL.
 CERT_SLACK = 1e-13
 
-#: A Dinkelbach step that lowers U by less than PROBE_GAIN * REL_TOL * U means U has
-#: converged to the solver's accuracy; the next solve then probes at
-#: U * (1 - PROBE_DEPTH * REL_TOL), inside the target interval, for the lower bound.
-PROBE_GAIN = 0.1
-PROBE_DEPTH = 0.5
-
-#: Gap and feasibility tolerances of a probe's solve. Just below mu* the separating
-#: wrench's work at loaded contacts is of order (mu* - lam) / mu* ~ REL_TOL; the
-#: multipliers must be far more accurate than that to get its sign right.
-PROBE_SOLVER_TOL = 1e-11
+#: Cone rows are scaled by max(lam, MARGIN_SCALE_FLOOR): below it, dividing by lam would
+#: make the tangential rows too stiff for the solver, and 1e-3 already resolves lam to
+#: ~1e-11 absolute, below ABS_TOL.
+MARGIN_SCALE_FLOOR = 1e-3
 
 #: The lower bound L certifies that at friction L no equilibrium force lies more than
 #: CERT_MARGIN deep in every cone (the exact test's margin, normal forces summing to
@@ -90,13 +84,14 @@ PROBE_SOLVER_TOL = 1e-11
 #: calls a grasp not force closure, and above the solver's accuracy (~1e-11 in probes).
 CERT_MARGIN = 1e-9
 
+#: Clarabel's gap and feasibility tolerances here. Where a sub-grasp is in equilibrium
+#: on its own, t(lam) is flat at 0 just below mu*, and the separating wrench must do no
+#: work at that sub-grasp's contacts: only multipliers accurate far below CERT_MARGIN
+#: certify anything there.
+SOLVER_TOL = 1e-11
+
 #: Bisection steps for the largest L a wrench certifies: 2^-60 of the bracket.
 LOWER_BISECTIONS = 60
-
-#: Weights W_i below this fraction of the largest are raised to it: a contact whose
-#: normal force vanished would otherwise drop out of the margin and stall the method.
-WEIGHT_FLOOR = 1e-3
-
 
 @dataclass(frozen=True)
 class MinimumFriction:
@@ -167,37 +162,36 @@ def solve_minimum_friction(grasps: GraspBatch):
     lower, upper : ndarray, shape (N,)
     solves : ndarray of int, shape (N,)
     """
-    n_grasps, n_contacts = grasps.mu.shape
+    n_grasps = grasps.mu.shape[0]
     unit, _, _ = centred_unit(grasps.positions)
     gmap = grasp_map(unit)                                             # (N, 6, 3n)
     _, singular, row_space = np.linalg.svd(gmap, full_matrices=False)
     full_rank = singular[:, -1] > RANK_TOL * singular[:, 0]
     condition = np.where(full_rank, singular[:, 0] / np.where(full_rank, singular[:, -1], 1.0),
                          np.inf)
-
-    lower = np.where(full_rank, 0.0, np.inf)
+    state = _RootState.start(n_grasps, full_rank)
     # Forces towards the centroid, f_i = c - p_i, are always in equilibrium (they pair
     # up along chords): where every one pushes into its contact, a free first bound.
-    upper, weights = upper_certificate(-unit.reshape(n_grasps, -1), row_space, condition,
+    centroid_bound = upper_certificate(-unit.reshape(n_grasps, -1), row_space, condition,
                                        grasps.normals, grasps.mu)
-    upper = np.where(full_rank, upper, np.inf)
-    solves = np.zeros(n_grasps, dtype=np.int64)
-    lam = np.where(np.isfinite(upper), upper, MU_START)
-    probe = np.zeros(n_grasps, dtype=bool)
+    state.upper = np.where(full_rank, centroid_bound, np.inf)
+    state.lam = np.where(np.isfinite(state.upper), state.upper, MU_START)
     active = np.flatnonzero(full_rank)
     for _ in range(MAX_SOLVES):
         if active.size == 0:
             break
         for start in range(0, active.size, SOLVE_BATCH):
             chunk = active[start:start + SOLVE_BATCH]
-            for probing in (False, True):
-                part = chunk[probe[chunk] == probing]
-                if part.size:
-                    _iterate(part, probing, gmap, row_space, condition, grasps,
-                             lam, weights, lower, upper, probe)
-            solves[chunk] += 1
-        active = active[~_resolved(lower[active], upper[active])]
-    return lower, upper, solves
+            lam = state.lam[chunk]
+            normals, ratios = grasps.normals[chunk], grasps.mu[chunk]
+            forces, wrench, margin = _solve_chunk(gmap[chunk], normals, ratios, lam)
+            upper = upper_certificate(forces, row_space[chunk], condition[chunk], normals,
+                                      ratios)
+            ceiling = np.where(np.isfinite(state.upper[chunk]), state.upper[chunk], MU_CAP)
+            lower = lower_certificate(wrench, gmap[chunk], normals, ratios, ceiling)
+            state.update(chunk, lam, margin, lower, upper)
+        active = active[~_resolved(state.lower[active], state.upper[active])]
+    return state.lower, state.upper, state.solves
 
 
 def _resolved(lower, upper):
@@ -207,38 +201,58 @@ def _resolved(lower, upper):
     return (np.isfinite(upper) & close) | (lower >= MU_CAP)
 
 
-def _iterate(part, probing, gmap, row_space, condition, grasps, lam, weights, lower, upper,
-             probe):
-    """One solve for the grasps ``part``; updates the bounds and the next step in place.
+@dataclass
+class _RootState:
+    """Per-grasp state of the safeguarded secant search for the sign change of t(lam).
 
-    A Dinkelbach step (at lam = U) moves U down; once U stops moving (a step gains less
-    than PROBE_GAIN * REL_TOL), the next solve probes just below U. The probe's
-    multipliers are a separating wrench: from above mu*, the wrench is blind to contacts
-    that carry force strictly inside their cones (its work there is only the rounding of
-    a vanishing multiplier), from below it is not.
+    t(lam) is the signed margin solved at lam: positive above mu*, not positive below.
+    Each step is the secant through the last two solved points, kept strictly inside the
+    certified interval (L, U) (else the interval is bisected), and moved to within half
+    the target width of L or U when it falls closer than that: one solve on the far side
+    then finishes.
     """
-    normals, ratios = grasps.normals[part], grasps.mu[part]
-    forces, wrench = _solve_chunk(gmap[part], normals, ratios, lam[part], weights[part],
-                                  tight=probing)
-    new_upper, new_weights = upper_certificate(forces, row_space[part], condition[part],
-                                               normals, ratios)
-    old_upper = upper[part]
-    better = new_upper < old_upper
-    upper[part] = np.minimum(old_upper, new_upper)
-    weights[part[better]] = new_weights[better]
-    ceiling = np.where(np.isfinite(upper[part]), upper[part], MU_CAP)
-    lower[part] = np.maximum(lower[part], lower_certificate(wrench, gmap[part], normals,
-                                                            ratios, ceiling))
-    with np.errstate(invalid="ignore"):
-        gain = old_upper - upper[part]
-    settled = probing | (gain <= PROBE_GAIN * REL_TOL * upper[part])
-    probe[part] = settled & np.isfinite(upper[part])
-    below = np.maximum(lower[part], upper[part] * (1.0 - PROBE_DEPTH * REL_TOL))
-    # Without any upper bound yet, try a friction ESCALATE times larger (at least the
-    # certified lower bound).
-    escalated = np.minimum(np.maximum(lam[part] * ESCALATE, lower[part]), MU_CAP)
-    lam[part] = np.where(probe[part], below,
-                         np.where(np.isfinite(upper[part]), upper[part], escalated))
+
+    lower: np.ndarray
+    upper: np.ndarray
+    lam: np.ndarray
+    solves: np.ndarray
+    latest: np.ndarray        # (N, 2): lam, t of the latest solve (NaN: none)
+    previous: np.ndarray      # (N, 2): the solve before
+
+    @classmethod
+    def start(cls, n_grasps, full_rank):
+        none = np.full((n_grasps, 2), np.nan)
+        return cls(lower=np.where(full_rank, 0.0, np.inf), upper=np.full(n_grasps, np.inf),
+                   lam=np.full(n_grasps, MU_START), solves=np.zeros(n_grasps, dtype=np.int64),
+                   latest=none.copy(), previous=none.copy())
+
+    def update(self, chunk, lam, margin, lower, upper):
+        """Take one solve's certificates and margins; choose the next lam of each grasp."""
+        self.solves[chunk] += 1
+        self.lower[chunk] = np.maximum(self.lower[chunk], lower)
+        self.upper[chunk] = np.minimum(self.upper[chunk], upper)
+        self.previous[chunk] = self.latest[chunk]
+        self.latest[chunk] = np.stack([lam, margin], axis=1)
+        self.lam[chunk] = self._next(chunk)
+
+    def _next(self, chunk):
+        lower, upper = self.lower[chunk], self.upper[chunk]
+        (lam1, t1), (lam0, t0) = self.latest[chunk].T, self.previous[chunk].T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            secant = lam1 - t1 * (lam1 - lam0) / (t1 - t0)
+        # After the first solve, the Dinkelbach step: U is the witness's own ratio.
+        guess = np.where(np.isfinite(lam0), secant, upper)
+        first = ~np.isfinite(lam0)
+        middle = np.where(upper > 4.0 * lower, np.sqrt(np.maximum(lower, ABS_TOL) * upper),
+                          0.5 * (lower + upper))
+        inside = ((guess > lower) & (guess < upper)) | (first & np.isfinite(upper))
+        guess = np.where(inside, guess, middle)
+        width = np.maximum(REL_TOL * upper, ABS_TOL)
+        guess = np.where((guess - lower < 0.25 * width) & ~first, lower + 0.5 * width, guess)
+        guess = np.where((upper - guess < 0.25 * width) & ~first, upper - 0.5 * width, guess)
+        # No witness yet: try ESCALATE times more friction (at least the lower bound).
+        escalated = np.minimum(np.maximum(self.lam[chunk] * ESCALATE, lower), MU_CAP)
+        return np.where(np.isfinite(upper), guess, escalated)
 
 
 def _block_shape(n_contacts: int) -> BlockShape:
@@ -253,42 +267,50 @@ def _block_shape(n_contacts: int) -> BlockShape:
     return BlockShape(pattern, zero_rows=7, nonneg_rows=0, soc_sizes=(3,) * n_contacts)
 
 
-def _solve_chunk(gmap, normals, ratios, lam, weights, tight=False):
-    """One weighted-margin SOCP per grasp of a chunk (K grasps).
+def _solve_chunk(gmap, normals, ratios, lam):
+    """The signed-margin SOCP at friction lam * ratios for each grasp of a chunk (K).
 
-    Returns the solver's forces (K, 3n) and equilibrium multipliers (K, 6); an
-    unconverged batch is solved again grasp by grasp (its answers are checked anyway).
+        maximise t  s.t.  G f = 0,  sum_i f_n,i = 1,  (lam r_i f_n,i - t, f_t,i) in Q^3
+
+    Each cone's rows are divided by s = max(lam, MARGIN_SCALE_FLOOR) (a cone is closed
+    under scaling) and the variable is t / s: its optimum is then relative to lam, so the
+    solver's absolute accuracy resolves lam relatively, for small and large lam alike.
+
+    Returns
+    -------
+    forces : ndarray, shape (K, 3n)
+    wrench : ndarray, shape (K, 6)
+        Multipliers of the equilibrium rows.
+    margin : ndarray, shape (K,)
+        The solver's optimum t / s (its sign says which side of mu* lam is on).
     """
     n_grasps, n_contacts = ratios.shape
     shape = _block_shape(n_contacts)
     tangent, bitangent = tangent_bases(normals)
+    scale = np.maximum(lam, MARGIN_SCALE_FLOOR)
     a = np.zeros((n_grasps,) + shape.pattern.shape)
     a[:, :6, :-1] = gmap
     a[:, 6, :-1] = normals.reshape(n_grasps, -1)
     # Clarabel's form A x + s = b, s in the cone: each cone row of A holds -s(x).
-    # Each cone's rows are divided by max(lam, 1) (a cone is closed under scaling), and
-    # so is t: a large lam then loosens the tangential rows instead of inflating the
-    # normal ones, which Clarabel could not solve at lam ~ 1e6.
-    scale = np.maximum(lam, 1.0)[:, None, None]
-    cone = -np.stack([((lam[:, None] * ratios)[..., None] * normals), tangent, bitangent],
-                     axis=2) / scale[..., None]                        # (K, n, 3, 3)
+    cone = -np.stack([((lam / scale)[:, None] * ratios)[..., None] * normals,
+                      tangent / scale[:, None, None], bitangent / scale[:, None, None]],
+                     axis=2)                                           # (K, n, 3, 3)
     for i in range(n_contacts):
         a[:, 7 + 3 * i:10 + 3 * i, 3 * i:3 * i + 3] = cone[:, i]
-        a[:, 7 + 3 * i, -1] = weights[:, i]
+        a[:, 7 + 3 * i, -1] = 1.0
     b = np.zeros((n_grasps, shape.pattern.shape[0]))
     b[:, 6] = 1.0
     q = np.zeros((n_grasps, shape.pattern.shape[1]))
     q[:, -1] = -1.0
-    tol = PROBE_SOLVER_TOL if tight else None
-    solution = solve_stacked(shape, a, b, q, tol)
+    solution = solve_stacked(shape, a, b, q, SOLVER_TOL)
     if not solution.converged and n_grasps > 1:
-        parts = [solve_stacked(shape, a[k:k + 1], b[k:k + 1], q[k:k + 1], tol)
+        parts = [solve_stacked(shape, a[k:k + 1], b[k:k + 1], q[k:k + 1], SOLVER_TOL)
                  for k in range(n_grasps)]
         x = np.concatenate([p.x for p in parts])
         z = np.concatenate([p.z for p in parts])
     else:
         x, z = solution.x, solution.z
-    return x[:, :-1], z[:, :6]
+    return x[:, :-1], z[:, :6], x[:, -1] * scale
 
 
 def upper_certificate(forces, row_space, condition, normals, ratios):
@@ -310,8 +332,6 @@ def upper_certificate(forces, row_space, condition, normals, ratios):
     upper : ndarray, shape (K,)
         max_i (|f_t,i| + d) / (r_i (f_n,i - d)) of the forces projected onto null(G),
         d the rounding slack; inf where some normal force is not clearly positive.
-    weights : ndarray, shape (K, n)
-        r_i f_n,i of the projected forces, normalised to sum f_n = 1, floored.
     """
     equilibrium = forces - np.einsum("gkv,gk->gv", row_space,
                                      np.einsum("gkv,gv->gk", row_space, forces))
@@ -320,11 +340,7 @@ def upper_certificate(forces, row_space, condition, normals, ratios):
     valid = (normal_part > slack).all(axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = (tangential + slack) / (ratios * (normal_part - slack))
-        upper = np.where(valid, ratio.max(axis=1), np.inf)
-        weights = ratios * np.maximum(normal_part, 0.0) / normal_part.sum(axis=1, keepdims=True)
-    weights = np.where(valid[:, None], weights, 1.0)
-    weights = np.maximum(weights, WEIGHT_FLOOR * weights.max(axis=1, keepdims=True))
-    return upper, weights
+        return np.where(valid, ratio.max(axis=1), np.inf)
 
 
 def margin_bound(mu, work_normal, work_tangential, ratios):
