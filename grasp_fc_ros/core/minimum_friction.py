@@ -114,7 +114,7 @@ class MinimumFriction:
     solves: np.ndarray
 
 
-def minimum_friction(positions, normals, ratios=1.0) -> np.ndarray:
+def minimum_friction(positions, normals, ratios=1.0, margin=0.0) -> np.ndarray:
     """The least friction coefficient at which a grasp is force closure.
 
     Parameters
@@ -125,37 +125,47 @@ def minimum_friction(positions, normals, ratios=1.0) -> np.ndarray:
         Inward contact normals, any non-zero length.
     ratios : float or array_like broadcastable to (N, n)
         Contact i has friction mu * ratios_i (> 0); 1 for equal friction everywhere.
+    margin : float
+        0 (default): the force-closure boundary itself. ``MARGIN_TOL``: the boundary of
+        :func:`check_force_closure`'s verdict, the least mu whose exact-test margin
+        t*(mu) reaches it (always > 0). Any margin in [0, 1) may be asked for.
 
     Returns
     -------
     ndarray of float, shape () for one grasp or (N,)
         mu* (dimensionless), certified to REL_TOL relative or ABS_TOL absolute:
-        force closure for every mu > mu*, for no mu < mu*. 0: force closure for every
-        positive friction; inf: for none (up to MU_CAP).
+        force closure (margin above ``margin``) for every mu > mu*, and for no
+        mu < mu* (margin at most max(margin, CERT_MARGIN)). 0: force closure for every
+        positive friction; inf: for none up to MU_CAP; NaN: not resolved in
+        MAX_SOLVES solves (not seen in tests).
 
     Raises
     ------
     ValueError
         On bad input, naming the grasp and contact.
     """
-    return minimum_friction_bounds(positions, normals, ratios).value
+    return minimum_friction_bounds(positions, normals, ratios, margin).value
 
 
-def minimum_friction_bounds(positions, normals, ratios=1.0) -> MinimumFriction:
+def minimum_friction_bounds(positions, normals, ratios=1.0, margin=0.0) -> MinimumFriction:
     """:func:`minimum_friction` with its certified bounds and solve counts."""
+    if not 0.0 <= margin < 1.0:
+        raise ValueError(f"margin must be in [0, 1), got {margin}")
     try:
         grasps = prepare_grasps(positions, normals, ratios)
     except ValueError as error:
         raise ValueError(str(error).replace("friction coefficient", "friction ratio")) from None
-    lower, upper, solves = solve_minimum_friction(grasps)
+    lower, upper, solves = solve_minimum_friction(grasps, float(margin))
     value = np.where(upper <= ABS_TOL, 0.0, upper)
     value = np.where(lower >= MU_CAP, np.inf, value)
     value = np.where(_resolved(lower, upper), value, np.nan)
     return MinimumFriction(*(grasps.unbatch(a) for a in (value, lower, upper, solves)))
 
 
-def solve_minimum_friction(grasps: GraspBatch):
+def solve_minimum_friction(grasps: GraspBatch, margin: float = 0.0):
     """Certified bounds on mu* for every grasp of a validated batch (``mu`` = ratios).
+
+    ``margin``: see :func:`minimum_friction`.
 
     Returns
     -------
@@ -173,7 +183,7 @@ def solve_minimum_friction(grasps: GraspBatch):
     # Forces towards the centroid, f_i = c - p_i, are always in equilibrium (they pair
     # up along chords): where every one pushes into its contact, a free first bound.
     centroid_bound = upper_certificate(-unit.reshape(n_grasps, -1), row_space, condition,
-                                       grasps.normals, grasps.mu)
+                                       grasps.normals, grasps.mu, margin)
     state.upper = np.where(full_rank, centroid_bound, np.inf)
     state.lam = np.where(np.isfinite(state.upper), state.upper, MU_START)
     active = np.flatnonzero(full_rank)
@@ -184,12 +194,12 @@ def solve_minimum_friction(grasps: GraspBatch):
             chunk = active[start:start + SOLVE_BATCH]
             lam = state.lam[chunk]
             normals, ratios = grasps.normals[chunk], grasps.mu[chunk]
-            forces, wrench, margin = _solve_chunk(gmap[chunk], normals, ratios, lam)
+            forces, wrench, depth = _solve_chunk(gmap[chunk], normals, ratios, lam)
             upper = upper_certificate(forces, row_space[chunk], condition[chunk], normals,
-                                      ratios)
+                                      ratios, margin)
             ceiling = np.where(np.isfinite(state.upper[chunk]), state.upper[chunk], MU_CAP)
-            lower = lower_certificate(wrench, gmap[chunk], normals, ratios, ceiling)
-            state.update(chunk, lam, margin, lower, upper)
+            lower = lower_certificate(wrench, gmap[chunk], normals, ratios, ceiling, margin)
+            state.update(chunk, lam, depth - margin, lower, upper)
         active = active[~_resolved(state.lower[active], state.upper[active])]
     return state.lower, state.upper, state.solves
 
@@ -205,7 +215,8 @@ def _resolved(lower, upper):
 class _RootState:
     """Per-grasp state of the safeguarded secant search for the sign change of t(lam).
 
-    t(lam) is the signed margin solved at lam: positive above mu*, not positive below.
+    t(lam) is the signed margin solved at lam, less the margin asked for: positive above
+    mu*, not positive below.
     Each step is the secant through the last two solved points, kept strictly inside the
     certified interval (L, U) (else the interval is bisected), and moved to within half
     the target width of L or U when it falls closer than that: one solve on the far side
@@ -281,8 +292,8 @@ def _solve_chunk(gmap, normals, ratios, lam):
     forces : ndarray, shape (K, 3n)
     wrench : ndarray, shape (K, 6)
         Multipliers of the equilibrium rows.
-    margin : ndarray, shape (K,)
-        The solver's optimum t / s (its sign says which side of mu* lam is on).
+    depth : ndarray, shape (K,)
+        The solver's optimum t (the signed margin of the exact test).
     """
     n_grasps, n_contacts = ratios.shape
     shape = _block_shape(n_contacts)
@@ -313,8 +324,8 @@ def _solve_chunk(gmap, normals, ratios, lam):
     return x[:, :-1], z[:, :6], x[:, -1] * scale
 
 
-def upper_certificate(forces, row_space, condition, normals, ratios):
-    """The friction above which the given forces prove force closure.
+def upper_certificate(forces, row_space, condition, normals, ratios, margin=0.0):
+    """The friction above which the given forces prove force closure with ``margin``.
 
     Parameters
     ----------
@@ -326,12 +337,16 @@ def upper_certificate(forces, row_space, condition, normals, ratios):
         Condition number of each grasp map (scales the rounding slack).
     normals : ndarray, shape (K, n, 3)
     ratios : ndarray, shape (K, n)
+    margin : float
+        Depth t >= 0 the forces must have in every cone (normal forces summing to one).
 
     Returns
     -------
     upper : ndarray, shape (K,)
-        max_i (|f_t,i| + d) / (r_i (f_n,i - d)) of the forces projected onto null(G),
-        d the rounding slack; inf where some normal force is not clearly positive.
+        max_i (|f_t,i| + margin + d) / (r_i (f_n,i - d)) of the forces projected onto
+        null(G) and scaled to sum f_n = 1, d the rounding slack; inf where some normal
+        force is not clearly positive. Above it every cone holds its force more than
+        ``margin`` deep, so the margin t*(mu) of the exact test exceeds ``margin``.
     """
     equilibrium = forces - np.einsum("gkv,gk->gv", row_space,
                                      np.einsum("gkv,gv->gk", row_space, forces))
@@ -339,7 +354,8 @@ def upper_certificate(forces, row_space, condition, normals, ratios):
     slack = (CERT_SLACK * condition * np.abs(equilibrium).max(axis=1))[:, None]
     valid = (normal_part > slack).all(axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = (tangential + slack) / (ratios * (normal_part - slack))
+        total = normal_part.sum(axis=1, keepdims=True)
+        ratio = ((tangential + slack) / total + margin) / (ratios * (normal_part - slack) / total)
         return np.where(valid, ratio.max(axis=1), np.inf)
 
 
@@ -372,8 +388,8 @@ def margin_bound(mu, work_normal, work_tangential, ratios):
     return np.where(l0 > 0, bound, 0.0)
 
 
-def lower_certificate(wrench, gmap, normals, ratios, ceiling):
-    """The largest friction at which a wrench proves the margin at most CERT_MARGIN.
+def lower_certificate(wrench, gmap, normals, ratios, ceiling, margin=0.0):
+    """The largest friction at which a wrench proves the margin at most ``margin``.
 
     Parameters
     ----------
@@ -384,26 +400,29 @@ def lower_certificate(wrench, gmap, normals, ratios, ceiling):
     ratios : ndarray, shape (K, n)
     ceiling : ndarray, shape (K,)
         Search no higher than this (a finite upper bound on mu*, or MU_CAP).
+    margin : float
+        The margin to certify against; CERT_MARGIN is used where it is larger.
 
     Returns
     -------
     ndarray, shape (K,)
-        L in [0, ceiling] with :func:`margin_bound` (L) <= CERT_MARGIN for the better
-        sign of w, the work inflated by its rounding slack; 0 if none. t*(mu) only grows
-        with mu, so the margin is at most CERT_MARGIN at every mu <= L too.
+        L in [0, ceiling] with :func:`margin_bound` (L) <= max(margin, CERT_MARGIN) for
+        the better sign of w, the work inflated by its rounding slack; 0 if none. t*(mu)
+        only grows with mu, so the bound holds at every mu <= L too.
     """
     work = np.einsum("gkv,gk->gv", gmap, wrench).reshape(normals.shape)
     normal_part, tangential = split_normal(work, normals)
     slack = (CERT_SLACK * np.abs(wrench).max(axis=1))[:, None]
     best = np.zeros(wrench.shape[0])
+    threshold = max(margin, CERT_MARGIN)
     for sign in (1.0, -1.0):
         work_normal, work_tangential = sign * normal_part + slack, tangential + slack
         low, high = np.zeros_like(best), ceiling.copy()
-        holds = margin_bound(high, work_normal, work_tangential, ratios) <= CERT_MARGIN
+        holds = margin_bound(high, work_normal, work_tangential, ratios) <= threshold
         low[holds] = high[holds]
         for _ in range(LOWER_BISECTIONS):
             middle = 0.5 * (low + high)
-            ok = margin_bound(middle, work_normal, work_tangential, ratios) <= CERT_MARGIN
+            ok = margin_bound(middle, work_normal, work_tangential, ratios) <= threshold
             low, high = np.where(ok, middle, low), np.where(ok, high, middle)
         best = np.maximum(best, low)
     return best
