@@ -103,7 +103,10 @@ class MinimumFriction:
         mu*: the certified upper bound, 0 if that is <= ABS_TOL, inf if no friction up
         to MU_CAP (or none at all) makes the grasp force closure, NaN if unresolved.
     lower, upper : ndarray of float
-        Certified bounds: not force closure at ``lower``, force closure above ``upper``.
+        Certified bounds: at ``lower`` and below, no equilibrium force is more than
+        max(margin, CERT_MARGIN) deep in every cone (the exact test's margin; clipped
+        to ``upper``); above ``upper`` some equilibrium force is more than ``margin``
+        deep in every cone (force closure).
     solves : ndarray of int
         SOCP solves the grasp took (each the size of one exact test).
     """
@@ -156,6 +159,9 @@ def minimum_friction_bounds(positions, normals, ratios=1.0, margin=0.0) -> Minim
     except ValueError as error:
         raise ValueError(str(error).replace("friction coefficient", "friction ratio")) from None
     lower, upper, solves = solve_minimum_friction(grasps, float(margin))
+    # L certifies a margin of at most CERT_MARGIN, so for margin = 0 it may pass the
+    # exact boundary by ~CERT_MARGIN / slope; U is a witness of force closure.
+    lower = np.minimum(lower, upper)
     value = np.where(upper <= ABS_TOL, 0.0, upper)
     value = np.where(lower >= MU_CAP, np.inf, value)
     value = np.where(_resolved(lower, upper), value, np.nan)
@@ -259,8 +265,9 @@ class _RootState:
         inside = ((guess > lower) & (guess < upper)) | (first & np.isfinite(upper))
         guess = np.where(inside, guess, middle)
         width = np.maximum(REL_TOL * upper, ABS_TOL)
-        guess = np.where((guess - lower < 0.25 * width) & ~first, lower + 0.5 * width, guess)
-        guess = np.where((upper - guess < 0.25 * width) & ~first, upper - 0.5 * width, guess)
+        with np.errstate(invalid="ignore"):         # inf - inf where no witness yet
+            guess = np.where((guess - lower < 0.25 * width) & ~first, lower + 0.5 * width, guess)
+            guess = np.where((upper - guess < 0.25 * width) & ~first, upper - 0.5 * width, guess)
         # No witness yet: try ESCALATE times more friction (at least the lower bound).
         escalated = np.minimum(np.maximum(self.lam[chunk] * ESCALATE, lower), MU_CAP)
         return np.where(np.isfinite(upper), guess, escalated)
