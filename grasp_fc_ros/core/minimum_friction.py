@@ -186,13 +186,24 @@ def solve_minimum_friction(grasps: GraspBatch, margin: float = 0.0):
     condition = np.where(full_rank, singular[:, 0] / np.where(full_rank, singular[:, -1], 1.0),
                          np.inf)
     state = _RootState.start(n_grasps, full_rank)
+    # Where the total normal force is a combination of the rows of G (a = G^T w = the
+    # normals: w lifts every contact straight off), every equilibrium has zero total
+    # normal force and the SOCP (sum f_n = 1) is infeasible, which would fail its whole
+    # stacked batch. Its certificate needs no solve.
+    gram = np.einsum("gkv,gjv->gkj", gmap, gmap)
+    gram[~full_rank] = np.eye(6)
+    normal_work = np.einsum("gkv,gv->gk", gmap, grasps.normals.reshape(n_grasps, -1))
+    lift_wrench = np.linalg.solve(gram, normal_work[..., None])[..., 0]   # G^T w ~ normals
+    lifted = lower_certificate(lift_wrench, gmap, grasps.normals, grasps.mu,
+                               np.full(n_grasps, MU_CAP)) >= MU_CAP
+    state.lower[lifted & full_rank] = np.inf
+    active = np.flatnonzero(full_rank & ~lifted)
     # Forces towards the centroid, f_i = c - p_i, are always in equilibrium (they pair
     # up along chords): where every one pushes into its contact, a free first bound.
     centroid_bound = upper_certificate(-unit.reshape(n_grasps, -1), row_space, condition,
                                        grasps.normals, grasps.mu, margin)
     state.upper = np.where(full_rank, centroid_bound, np.inf)
     state.lam = np.where(np.isfinite(state.upper), state.upper, MU_START)
-    active = np.flatnonzero(full_rank)
     for _ in range(MAX_SOLVES):
         if active.size == 0:
             break
