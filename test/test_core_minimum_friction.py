@@ -8,8 +8,10 @@ from hypothesis import strategies as st
 
 from grasp_cases import ellipsoid_grasps, random_rotation
 from grasp_fc_ros.core import check_force_closure
+from grasp_fc_ros.core import stacked_socp
 from grasp_fc_ros.core.minimum_friction import (ABS_TOL, CERT_MARGIN, MU_CAP, REL_TOL,
-                                                minimum_friction, minimum_friction_bounds)
+                                                lower_certificate, minimum_friction,
+                                                minimum_friction_bounds, upper_certificate)
 from grasp_fc_ros.core.tolerances import MARGIN_TOL
 from reference_pyramids import pyramid_minimum_friction
 
@@ -196,6 +198,63 @@ def test_bounds_mean_what_they_certify():
     assert (above.margin > 0).all()
 
 
+def test_a_wrench_doing_no_work_certifies_nothing():
+    """w = 0 (or any w with G^T w = 0) bounds no margin: the lower bound stays 0."""
+    positions, normals = ellipsoid_grasps(np.random.default_rng(1), 2, 5)
+    unit, _, _ = stacked_socp.centred_unit(positions)
+    gmap = stacked_socp.grasp_map(unit)
+    lower = lower_certificate(np.zeros((2, 6)), gmap, normals, np.ones((2, 5)),
+                              np.full(2, MU_CAP))
+    assert (lower == 0).all()
+
+
+COVERAGE = {"lower": 0, "upper": 0}
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n_contacts=st.integers(3, 7))
+def test_certificates_from_arbitrary_wrenches_and_forces_are_sound(seed, n_contacts):
+    """The certificate checks do not trust the solver: for any wrench, the exact test
+    finds no margin above CERT_MARGIN at the friction it certifies; for any forces, a
+    positive margin just above the friction they certify."""
+    rng = np.random.default_rng(seed)
+    positions, _ = ellipsoid_grasps(rng, 8, n_contacts)
+    ratios = rng.uniform(0.5, 2.0, (8, n_contacts))
+    unit, _, _ = stacked_socp.centred_unit(positions)
+    gmap = stacked_socp.grasp_map(unit)
+    # A random wrench, and normals within 80 degrees of minus its work at each contact:
+    # it separates up to some friction L > 0 (cot of the largest angle / ratio).
+    wrench = rng.normal(size=(8, 6))
+    work = np.einsum("gkv,gk->gv", gmap, wrench).reshape(8, n_contacts, 3)
+    away = -work / np.linalg.norm(work, axis=2, keepdims=True)
+    side = np.cross(away, rng.normal(size=away.shape))
+    side /= np.linalg.norm(side, axis=2, keepdims=True)
+    angle = rng.uniform(0, np.radians(80), (8, n_contacts, 1))
+    normals = np.cos(angle) * away + np.sin(angle) * side
+    lower = lower_certificate(wrench, gmap, normals, ratios, np.full(8, 50.0))
+    expected = (1 / np.tan(angle[..., 0]) / ratios).min(axis=1)
+    np.testing.assert_allclose(lower, np.minimum(expected, 50.0), rtol=1e-6)
+    COVERAGE["lower"] += int((lower > 0).sum())
+    # The exact test (batch accuracy ~1e-8) finds no margin there.
+    at = check_force_closure(positions, normals, lower[:, None] * ratios, use_filter=False)
+    assert not at.force_closure.any()
+    assert (at.margin <= CERT_MARGIN + 5e-8).all()
+    # Forces near the squeeze towards the centroid, on ordinary ellipsoid grasps.
+    positions, normals = ellipsoid_grasps(rng, 8, n_contacts)
+    unit, _, _ = stacked_socp.centred_unit(positions)
+    _, singular, row_space = np.linalg.svd(stacked_socp.grasp_map(unit), full_matrices=False)
+    forces = -unit.reshape(8, -1) + 0.3 * rng.normal(size=(8, 3 * n_contacts))
+    upper = upper_certificate(forces, row_space, singular[:, 0] / singular[:, -1], normals,
+                              ratios)
+    finite = np.isfinite(upper)
+    COVERAGE["upper"] += int(finite.sum())
+    if finite.any():
+        above = check_force_closure(positions[finite], normals[finite],
+                                    upper[finite, None] * (1 + 1e-6) * ratios[finite],
+                                    use_filter=False)
+        assert (above.margin > 0).all()
+
+
 def test_bad_input_names_the_grasp_and_contact():
     positions, normals = ellipsoid_grasps(np.random.default_rng(0), 2, 4)
     ratios = np.ones((2, 4))
@@ -208,3 +267,8 @@ def test_bad_input_names_the_grasp_and_contact():
         minimum_friction(positions, bad)
     with pytest.raises(ValueError, match="margin"):
         minimum_friction(positions, normals, margin=-1e-3)
+
+
+def test_the_certificate_property_test_certified_something():
+    """Runs after the property test (file order): it must have checked some of each."""
+    assert COVERAGE["lower"] > 0 and COVERAGE["upper"] > 0

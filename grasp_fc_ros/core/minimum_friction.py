@@ -159,12 +159,12 @@ def minimum_friction_bounds(positions, normals, ratios=1.0, margin=0.0) -> Minim
     except ValueError as error:
         raise ValueError(str(error).replace("friction coefficient", "friction ratio")) from None
     lower, upper, solves = solve_minimum_friction(grasps, float(margin))
-    # L certifies a margin of at most CERT_MARGIN, so for margin = 0 it may pass the
-    # exact boundary by ~CERT_MARGIN / slope; U is a witness of force closure.
-    lower = np.minimum(lower, upper)
     value = np.where(upper <= ABS_TOL, 0.0, upper)
     value = np.where(lower >= MU_CAP, np.inf, value)
     value = np.where(_resolved(lower, upper), value, np.nan)
+    # L certifies a margin of at most CERT_MARGIN, so for margin = 0 it may pass the
+    # exact boundary by ~CERT_MARGIN / slope; U is a witness of force closure.
+    lower = np.minimum(lower, upper)
     return MinimumFriction(*(grasps.unbatch(a) for a in (value, lower, upper, solves)))
 
 
@@ -396,14 +396,15 @@ def margin_bound(mu, work_normal, work_tangential, ratios):
     Returns
     -------
     ndarray, shape (K,)
-        The bound (0 where w separates: every contact wrench does work <= 0).
+        The bound (0 where w separates: every contact wrench does work <= 0); inf where
+        S is not positive (w does no work at any contact, e.g. w = 0: no information).
     """
     friction = mu[:, None] * ratios
     l0 = (work_normal + friction * work_tangential).max(axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         total = ((np.maximum(l0, 0.0)[:, None] - work_normal) / friction).sum(axis=1)
-        bound = np.maximum(l0, 0.0) / total
-    return np.where(l0 > 0, bound, 0.0)
+        bound = np.where(l0 > 0, np.maximum(l0, 0.0) / total, 0.0)
+    return np.where(total > 0, bound, np.inf)
 
 
 def lower_certificate(wrench, gmap, normals, ratios, ceiling, margin=0.0):
