@@ -7,26 +7,27 @@ for a strictly internal force, an open condition), so mu* is the boundary
     mu* = inf over forces f with G f = 0, all f_n,i > 0  of  max_i |f_t,i| / (r_i f_n,i)
 
 (with G of rank 6; mu* = inf otherwise). It is a generalised fractional program:
-quasi-convex, one SOCP per fixed mu, not one SOCP. We solve it with the Dinkelbach-type
-method of Crouzeix, Ferland and Schaible (1985), which converges superlinearly: at the
-current upper bound lam, with weights W_i = r_i f_n,i of the previous forces,
+quasi-convex, one SOCP per fixed mu, not one SOCP. Each solve is the exact test's SOCP
+with a signed margin,
 
-    maximise t  s.t.  G f = 0,  sum_i f_n,i = 1,  (lam r_i f_n,i - W_i t, f_t,i) in Q^3,
+    t(lam) = max t  s.t.  G f = 0,  sum_i f_n,i = 1,  (lam r_i f_n,i - t, f_t,i) in Q^3,
 
-and every solve yields two certificates, both checked in numpy, never taken on trust:
+positive above mu* and not positive below; a safeguarded Newton/secant search (see
+:class:`_RootState`) picks the next lam. Every solve yields two certificates, both
+checked in numpy, never taken on trust:
 
 * an upper bound: the solver's forces, projected exactly onto null(G), with every normal
   force positive, are inside every cone of friction ``U = max_i |f_t,i| / (r_i f_n,i)``
   (with a slack for rounding), so the grasp is force closure for every mu > U;
-* a lower bound: the equilibrium multipliers give a wrench w; with a_i = (B_i w) the work
-  of unit forces at contact i, if a_n,i + L r_i |a_t,i| <= 0 for all i then every contact
-  wrench of friction L lies in the closed half-space w . x <= 0, so the grasp is not force
-  closure at L nor below: mu* >= L = min_i -a_n,i / (r_i |a_t,i|).
+* a lower bound: the equilibrium multipliers give a wrench w; with a_i = B_i w the work
+  of unit forces at contact i, it bounds the margin at any mu (:func:`margin_bound`); L is
+  the largest mu where that bound is at most CERT_MARGIN. Where a_n,i + L r_i |a_t,i| <= 0
+  for all i (every contact wrench in the half-space w . x <= 0) the bound is 0.
 
 Iteration stops when U - L <= max(REL_TOL U, ABS_TOL); the answer is U. Rank-deficient
-grasps, and grasps certified not force closure at ``MU_CAP``, get inf; grasps with
+grasps, and grasps certified not force closure up to ``MU_CAP``, get inf; grasps with
 U <= ABS_TOL get 0 (force closure for every positive friction, e.g. frictionless force
-closure).
+closure). The whole design and its measurements: docs/quality.md.
 
 Relation to :func:`check_force_closure`: it reports force closure only with an internal
 force at least ``MARGIN_TOL`` deep in every cone (normal forces summing to one), i.e. for
@@ -62,8 +63,8 @@ MU_CAP = 1e6
 MU_START = 10.0
 ESCALATE = 100.0
 
-#: Dinkelbach iterations allowed. Measured: 3-7 on random grasps; the limit only ends a
-#: grasp whose certificates stall (it is then reported NaN, never guessed).
+#: SOCP solves allowed per grasp. Measured: mean 5-8, at most ~20 on random grasps; the
+#: limit only ends a grasp whose certificates stall (it is then reported NaN, not guessed).
 MAX_SOLVES = 40
 
 #: Relative rounding slack of the certificates: forces projected onto null(G) are off by
@@ -81,7 +82,7 @@ MARGIN_SCALE_FLOOR = 1e-3
 #: one), not that the margin is exactly 0: a separating wrench must do exactly zero
 #: work at contacts loaded strictly inside their cones, which floating point cannot
 #: show. 1e-9 is three orders below MARGIN_TOL, under which check_force_closure already
-#: calls a grasp not force closure, and above the solver's accuracy (~1e-11 in probes).
+#: calls a grasp not force closure, and above the solver's accuracy (~1e-11, SOLVER_TOL).
 CERT_MARGIN = 1e-9
 
 #: Clarabel's gap and feasibility tolerances here. Where a sub-grasp is in equilibrium
@@ -211,12 +212,12 @@ def solve_minimum_friction(grasps: GraspBatch, margin: float = 0.0):
             chunk = active[start:start + SOLVE_BATCH]
             lam = state.lam[chunk]
             normals, ratios = grasps.normals[chunk], grasps.mu[chunk]
-            forces, wrench, depth = _solve_chunk(gmap[chunk], normals, ratios, lam)
+            forces, wrench, depth, slope = _solve_chunk(gmap[chunk], normals, ratios, lam)
             upper = upper_certificate(forces, row_space[chunk], condition[chunk], normals,
                                       ratios, margin)
             ceiling = np.where(np.isfinite(state.upper[chunk]), state.upper[chunk], MU_CAP)
             lower = lower_certificate(wrench, gmap[chunk], normals, ratios, ceiling, margin)
-            state.update(chunk, lam, depth - margin, lower, upper)
+            state.update(chunk, lam, depth - margin, slope, lower, upper)
         active = active[~_resolved(state.lower[active], state.upper[active])]
     return state.lower, state.upper, state.solves
 
@@ -230,21 +231,25 @@ def _resolved(lower, upper):
 
 @dataclass
 class _RootState:
-    """Per-grasp state of the safeguarded secant search for the sign change of t(lam).
+    """Per-grasp state of the safeguarded search for the sign change of t(lam).
 
     t(lam) is the signed margin solved at lam, less the margin asked for: positive above
-    mu*, not positive below.
-    Each step is the secant through the last two solved points, kept strictly inside the
-    certified interval (L, U) (else the interval is bisected), and moved to within half
-    the target width of L or U when it falls closer than that: one solve on the far side
-    then finishes.
+    mu*, not positive below. The search runs on q = t / t' (t' from the multipliers):
+    where t behaves like (lam - mu*)^m, q is (lam - mu*) / m, a simple root, also where
+    the margin vanishes quadratically (a contact's normal force vanishing at mu* too).
+    Each step is the secant on q through the last two solves (a Newton step after the
+    first, or when the secant leaves the certified interval (L, U)); a step a little
+    outside is clamped to the end, one far outside is replaced by bisecting (L, U)
+    (geometrically while it spans orders of magnitude). A step within a quarter of the
+    target width of L or U is moved to half that width from it: one solve on the far
+    side of mu* then finishes.
     """
 
     lower: np.ndarray
     upper: np.ndarray
     lam: np.ndarray
     solves: np.ndarray
-    latest: np.ndarray        # (N, 2): lam, t of the latest solve (NaN: none)
+    latest: np.ndarray        # (N, 2): lam, q of the latest solve (NaN: none)
     previous: np.ndarray      # (N, 2): the solve before
 
     @classmethod
@@ -254,31 +259,41 @@ class _RootState:
                    lam=np.full(n_grasps, MU_START), solves=np.zeros(n_grasps, dtype=np.int64),
                    latest=none.copy(), previous=none.copy())
 
-    def update(self, chunk, lam, margin, lower, upper):
+    def update(self, chunk, lam, margin, slope, lower, upper):
         """Take one solve's certificates and margins; choose the next lam of each grasp."""
         self.solves[chunk] += 1
         self.lower[chunk] = np.maximum(self.lower[chunk], lower)
         self.upper[chunk] = np.minimum(self.upper[chunk], upper)
         self.previous[chunk] = self.latest[chunk]
-        self.latest[chunk] = np.stack([lam, margin], axis=1)
+        # The secant runs on q = t / t', which is (lam - mu*) / m wherever t behaves like
+        # (lam - mu*)^m: a simple root even where the margin vanishes quadratically.
+        with np.errstate(divide="ignore", invalid="ignore"):
+            quotient = np.where(slope > 0, margin / slope, np.nan)
+        self.latest[chunk] = np.stack([lam, quotient], axis=1)
         self.lam[chunk] = self._next(chunk)
 
     def _next(self, chunk):
         lower, upper = self.lower[chunk], self.upper[chunk]
-        (lam1, t1), (lam0, t0) = self.latest[chunk].T, self.previous[chunk].T
+        (lam1, q1), (lam0, q0) = self.latest[chunk].T, self.previous[chunk].T
+        span = upper - lower
         with np.errstate(divide="ignore", invalid="ignore"):
-            secant = lam1 - t1 * (lam1 - lam0) / (t1 - t0)
-        # After the first solve, the Dinkelbach step: U is the witness's own ratio.
-        guess = np.where(np.isfinite(lam0), secant, upper)
-        first = ~np.isfinite(lam0)
+            secant = lam1 - q1 * (lam1 - lam0) / (q1 - q0)
+            newton = lam1 - q1
+            # A step may land a little outside (L, U) when one end is already close to
+            # mu*: it is clamped to that end (and nudged below). Far outside: discarded.
+            secant_near = (secant > lower - 0.01 * span) & (secant < upper + 0.01 * span)
+            newton_near = (newton > lower - 0.01 * span) & (newton < upper + 0.01 * span)
         middle = np.where(upper > 4.0 * lower, np.sqrt(np.maximum(lower, ABS_TOL) * upper),
                           0.5 * (lower + upper))
-        inside = ((guess > lower) & (guess < upper)) | (first & np.isfinite(upper))
-        guess = np.where(inside, guess, middle)
-        width = np.maximum(REL_TOL * upper, ABS_TOL)
+        guess = np.where(secant_near, secant, np.where(newton_near, newton, middle))
+        guess = np.clip(guess, lower, upper)
+        # Within a quarter of the target width of an end: step to half the width from
+        # it, so that one solve on the far side of mu* finishes.
+        from_lower = np.maximum(REL_TOL * lower, ABS_TOL)
+        from_upper = np.maximum(REL_TOL * upper, ABS_TOL)
         with np.errstate(invalid="ignore"):         # inf - inf where no witness yet
-            guess = np.where((guess - lower < 0.25 * width) & ~first, lower + 0.5 * width, guess)
-            guess = np.where((upper - guess < 0.25 * width) & ~first, upper - 0.5 * width, guess)
+            guess = np.where(guess - lower < 0.25 * from_lower, lower + 0.5 * from_lower, guess)
+            guess = np.where(upper - guess < 0.25 * from_upper, upper - 0.5 * from_upper, guess)
         # No witness yet: try ESCALATE times more friction (at least the lower bound).
         escalated = np.minimum(np.maximum(self.lam[chunk] * ESCALATE, lower), MU_CAP)
         return np.where(np.isfinite(upper), guess, escalated)
@@ -339,7 +354,12 @@ def _solve_chunk(gmap, normals, ratios, lam):
         z = np.concatenate([p.z for p in parts])
     else:
         x, z = solution.x, solution.z
-    return x[:, :-1], z[:, :6], x[:, -1] * scale
+    # dt/dlam by the envelope theorem: sum_i (cone i's multiplier on its first row)
+    # * r_i f_n,i; the rows' scaling by s cancels against t = s t'.
+    cone_first = z[:, 7::3][:, :n_contacts]
+    normal_force = (x[:, :-1].reshape(n_grasps, n_contacts, 3) * normals).sum(axis=2)
+    slope = (cone_first * ratios * normal_force).sum(axis=1)
+    return x[:, :-1], z[:, :6], x[:, -1] * scale, slope
 
 
 def upper_certificate(forces, row_space, condition, normals, ratios, margin=0.0):
