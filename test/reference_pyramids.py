@@ -56,17 +56,14 @@ def pyramid_margin(positions, normals, mu, sides=8, inscribed=True):
 def _pyramid_wrench_columns(positions, normals, frictions, sides, inscribed):
     """Primitive wrenches (6, n*sides) of per-contact pyramids, grasp at unit size.
 
-    frictions: (n,) friction coefficient of each contact. Also returns the edges' unit
-    normal components (n*sides,) for force bounds.
+    frictions: (n,) friction coefficient of each contact.
     """
     centred = positions - positions.mean(axis=0)
     centred = centred / np.abs(centred).max()
-    columns, normal_parts = [], []
-    for p, n, mu in zip(centred, normals, frictions):
-        for f in pyramid_edges(n, mu, sides, inscribed):
-            columns.append(np.concatenate([f, np.cross(p, f)]))
-            normal_parts.append(f @ n)
-    return np.array(columns).T, np.array(normal_parts)
+    columns = [np.concatenate([f, np.cross(p, f)])
+               for p, n, mu in zip(centred, normals, frictions)
+               for f in pyramid_edges(n, mu, sides, inscribed)]
+    return np.array(columns).T
 
 
 def pyramid_is_force_closure(positions, normals, frictions, sides=8, inscribed=True,
@@ -75,8 +72,8 @@ def pyramid_is_force_closure(positions, normals, frictions, sides=8, inscribed=T
 
     Same LP as :func:`pyramid_margin` (lam >= s, sum(lam) = 1, W lam = 0, maximise s).
     """
-    wrenches, _ = _pyramid_wrench_columns(positions, normals, np.asarray(frictions, float),
-                                          sides, inscribed)
+    wrenches = _pyramid_wrench_columns(positions, normals, np.asarray(frictions, float),
+                                       sides, inscribed)
     if np.linalg.matrix_rank(wrenches, tol=1e-9) < 6:
         return False
     k = wrenches.shape[1]

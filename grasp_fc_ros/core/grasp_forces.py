@@ -218,15 +218,14 @@ def _solve_and_check(gmap, normals, mu, direction, limits, limited, tol):
     b = np.zeros((n_grasps, shape.pattern.shape[0]))
     a[:, :6, :-1] = gmap
     a[:, :6, -1] = direction
-    flat_normals = normals.reshape(n_grasps, n_contacts, 3)
     cone = -np.stack([mu[..., None] * normals, tangent, bitangent], axis=2)   # (K, n, 3, 3)
     for i in range(n_contacts):
         columns = slice(3 * i, 3 * i + 3)
-        a[:, 6 + i, columns] = flat_normals[:, i]
+        a[:, 6 + i, columns] = normals[:, i]
         if limited:
             finite = np.isfinite(limits[:, i])
             # An unlimited contact's row reads 0 <= 1.
-            a[:, 6 + n_contacts + i, columns] = np.where(finite[:, None], flat_normals[:, i], 0)
+            a[:, 6 + n_contacts + i, columns] = np.where(finite[:, None], normals[:, i], 0)
             a[:, 6 + n_contacts + i, -1] = -np.where(finite, limits[:, i], 0.0)
             b[:, 6 + n_contacts + i] = np.where(finite, 0.0, 1.0)
         a[:, 6 + n_nonneg + 3 * i:9 + n_nonneg + 3 * i, columns] = cone[:, i]

@@ -94,6 +94,7 @@ SOLVER_TOL = 1e-11
 #: Bisection steps for the largest L a wrench certifies: 2^-40 (~1e-12) of the bracket.
 LOWER_BISECTIONS = 40
 
+
 @dataclass(frozen=True)
 class MinimumFriction:
     """Certified bounds on mu* for N grasps (0-d arrays for one grasp).
