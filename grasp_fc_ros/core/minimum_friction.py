@@ -67,10 +67,24 @@ ESCALATE = 100.0
 #: limit only ends a grasp whose certificates stall (it is then reported NaN, not guessed).
 MAX_SOLVES = 40
 
-#: Relative rounding slack of the certificates: forces projected onto null(G) are off by
-#: about eps * cond(G) * |f| (the row space from the SVD is that accurate), and the
-#: work a = G^T w by about eps * |w|. 1e-13 is ~500 eps: generous, yet far below REL_TOL.
+#: A grasp whose solves improved neither bound this many times in a row (each after the
+#: first alone, at a new lam) is given up: reported NaN with its certified bounds. Seen
+#: on ~0.1% of 4-finger box grasps (a lone side contact that only friction balances),
+#: where Clarabel cannot resolve the margin (~1e-9) near mu* to the needed accuracy.
+MAX_STALLS = 3
+
+#: Relative rounding slack of the lower certificate: the work a = G^T w is computed to
+#: about eps * |w|. 1e-13 is ~500 eps: generous, yet far below REL_TOL.
 CERT_SLACK = 1e-13
+
+#: Relative rounding bound of a sum of products (~ n eps for the sizes here, with room):
+#: used to bound the equilibrium residual of witness forces and the eigenvalue of the
+#: 6 x 6 matrix their correction solves with.
+ROUNDING = 1e-14
+
+#: Weights of the witness correction below this fraction of the largest are raised to
+#: it, so that the 6 x 6 system stays solvable.
+WEIGHT_FLOOR = 1e-12
 
 #: Cone rows are scaled by max(lam, MARGIN_SCALE_FLOOR): below it, dividing by lam would
 #: make the tangential rows too stiff for the solver, and 1e-3 already resolves lam to
@@ -183,44 +197,60 @@ def solve_minimum_friction(grasps: GraspBatch, margin: float = 0.0):
     n_grasps = grasps.mu.shape[0]
     unit, _, _ = centred_unit(grasps.positions)
     gmap = grasp_map(unit)                                             # (N, 6, 3n)
-    _, singular, row_space = np.linalg.svd(gmap, full_matrices=False)
+    singular = np.linalg.svd(gmap, compute_uv=False)
     full_rank = singular[:, -1] > RANK_TOL * singular[:, 0]
-    condition = np.where(full_rank, singular[:, 0] / np.where(full_rank, singular[:, -1], 1.0),
-                         np.inf)
     state = _RootState.start(n_grasps, full_rank)
-    # Where the total normal force is a combination of the rows of G (a = G^T w = the
-    # normals: w lifts every contact straight off), every equilibrium has zero total
-    # normal force and the SOCP (sum f_n = 1) is infeasible, which would fail its whole
-    # stacked batch. Its certificate needs no solve.
-    gram = np.einsum("gkv,gjv->gkj", gmap, gmap)
-    gram[~full_rank] = np.eye(6)
-    normal_work = np.einsum("gkv,gv->gk", gmap, grasps.normals.reshape(n_grasps, -1))
-    lift_wrench = np.linalg.solve(gram, normal_work[..., None])[..., 0]   # G^T w ~ normals
-    lifted = lower_certificate(lift_wrench, gmap, grasps.normals, grasps.mu,
-                               np.full(n_grasps, MU_CAP)) >= MU_CAP
-    state.lower[lifted & full_rank] = np.inf
+    lifted = _lifts_off(gmap, grasps.normals, grasps.mu, full_rank)
+    state.lower[lifted] = np.inf
     active = np.flatnonzero(full_rank & ~lifted)
     # Forces towards the centroid, f_i = c - p_i, are always in equilibrium (they pair
     # up along chords): where every one pushes into its contact, a free first bound.
-    centroid_bound = upper_certificate(-unit.reshape(n_grasps, -1), row_space, condition,
-                                       grasps.normals, grasps.mu, margin)
+    centroid_bound = upper_certificate(-unit.reshape(n_grasps, -1), gmap, grasps.normals,
+                                       grasps.mu, margin)
     state.upper = np.where(full_rank, centroid_bound, np.inf)
     state.lam = np.where(np.isfinite(state.upper), state.upper, MU_START)
     for _ in range(MAX_SOLVES):
         if active.size == 0:
             break
-        for start in range(0, active.size, SOLVE_BATCH):
-            chunk = active[start:start + SOLVE_BATCH]
-            lam = state.lam[chunk]
-            normals, ratios = grasps.normals[chunk], grasps.mu[chunk]
-            forces, wrench, depth, slope = _solve_chunk(gmap[chunk], normals, ratios, lam)
-            upper = upper_certificate(forces, row_space[chunk], condition[chunk], normals,
-                                      ratios, margin)
-            ceiling = np.where(np.isfinite(state.upper[chunk]), state.upper[chunk], MU_CAP)
-            lower = lower_certificate(wrench, gmap[chunk], normals, ratios, ceiling, margin)
-            state.update(chunk, lam, depth - margin, slope, lower, upper)
-        active = active[~_resolved(state.lower[active], state.upper[active])]
+        # A grasp whose last solve improved neither bound is solved alone: a stacked
+        # solve stops on the batch's residuals, and near mu* one grasp may need more
+        # accuracy than its batch gave it.
+        stalled = state.stalled[active]
+        chunks = [active[~stalled][start:start + SOLVE_BATCH]
+                  for start in range(0, int((~stalled).sum()), SOLVE_BATCH)]
+        for chunk in chunks + [active[k:k + 1] for k in np.flatnonzero(stalled)]:
+            _step(chunk, state, gmap, grasps, margin)
+        done = _resolved(state.lower[active], state.upper[active])
+        active = active[~done & (state.stalls[active] < MAX_STALLS)]
     return state.lower, state.upper, state.solves
+
+
+def _step(chunk, state, gmap, grasps, margin):
+    """One stacked solve for the grasps ``chunk``: certificates, then the next lam."""
+    lam = state.lam[chunk]
+    normals, ratios = grasps.normals[chunk], grasps.mu[chunk]
+    forces, wrench, depth, slope = _solve_chunk(gmap[chunk], normals, ratios, lam)
+    upper = upper_certificate(forces, gmap[chunk], normals, ratios, margin)
+    ceiling = np.where(np.isfinite(state.upper[chunk]), state.upper[chunk], MU_CAP)
+    lower = lower_certificate(wrench, gmap[chunk], normals, ratios, ceiling, margin)
+    state.update(chunk, lam, depth - margin, slope, lower, upper)
+
+
+def _lifts_off(gmap, normals, ratios, full_rank):
+    """Grasps (N,) certified not force closure up to MU_CAP without a solve.
+
+    Where the normals' work is a combination of the rows of G (G^T w = the normals: the
+    twist w lifts every contact straight off), every equilibrium has zero total normal
+    force, and the SOCP (sum f_n = 1) is infeasible, which would fail its whole stacked
+    batch. The least-squares w is checked like any other certificate.
+    """
+    gram = np.einsum("gkv,gjv->gkj", gmap, gmap)
+    gram[~full_rank] = np.eye(6)
+    normal_work = np.einsum("gkv,gv->gk", gmap, normals.reshape(len(gmap), -1))
+    lift_wrench = np.linalg.solve(gram, normal_work[..., None])[..., 0]
+    ceiling = np.full(len(gmap), MU_CAP)
+    return full_rank & (lower_certificate(lift_wrench, gmap, normals, ratios, ceiling)
+                        >= MU_CAP)
 
 
 def _resolved(lower, upper):
@@ -252,17 +282,24 @@ class _RootState:
     solves: np.ndarray
     latest: np.ndarray        # (N, 2): lam, q of the latest solve (NaN: none)
     previous: np.ndarray      # (N, 2): the solve before
+    stalled: np.ndarray       # (N,) bool: the latest solve improved neither bound
+    stalls: np.ndarray        # (N,) int: solves in a row that improved neither
 
     @classmethod
     def start(cls, n_grasps, full_rank):
         none = np.full((n_grasps, 2), np.nan)
         return cls(lower=np.where(full_rank, 0.0, np.inf), upper=np.full(n_grasps, np.inf),
                    lam=np.full(n_grasps, MU_START), solves=np.zeros(n_grasps, dtype=np.int64),
-                   latest=none.copy(), previous=none.copy())
+                   latest=none.copy(), previous=none.copy(),
+                   stalled=np.zeros(n_grasps, dtype=bool),
+                   stalls=np.zeros(n_grasps, dtype=np.int64))
 
     def update(self, chunk, lam, margin, slope, lower, upper):
         """Take one solve's certificates and margins; choose the next lam of each grasp."""
         self.solves[chunk] += 1
+        stalled = (lower <= self.lower[chunk]) & (upper >= self.upper[chunk])
+        self.stalled[chunk] = stalled
+        self.stalls[chunk] = np.where(stalled, self.stalls[chunk] + 1, 0)
         self.lower[chunk] = np.maximum(self.lower[chunk], lower)
         self.upper[chunk] = np.minimum(self.upper[chunk], upper)
         self.previous[chunk] = self.latest[chunk]
@@ -295,6 +332,9 @@ class _RootState:
         with np.errstate(invalid="ignore"):         # inf - inf where no witness yet
             guess = np.where(guess - lower < 0.25 * from_lower, lower + 0.5 * from_lower, guess)
             guess = np.where(upper - guess < 0.25 * from_upper, upper - 0.5 * from_upper, guess)
+        # After a solve that improved neither bound, step as far again from the nearer end.
+        away = np.where(lam1 - lower < upper - lam1, 2 * lam1 - lower, 2 * lam1 - upper)
+        guess = np.where(self.stalled[chunk], np.clip(away, lower, upper), guess)
         # No witness yet: try ESCALATE times more friction (at least the lower bound).
         escalated = np.minimum(np.maximum(self.lam[chunk] * ESCALATE, lower), MU_CAP)
         return np.where(np.isfinite(upper), guess, escalated)
@@ -363,17 +403,21 @@ def _solve_chunk(gmap, normals, ratios, lam):
     return x[:, :-1], z[:, :6], x[:, -1] * scale, slope
 
 
-def upper_certificate(forces, row_space, condition, normals, ratios, margin=0.0):
+def upper_certificate(forces, gmap, normals, ratios, margin=0.0):
     """The friction above which the given forces prove force closure with ``margin``.
+
+    The forces are moved onto null(G) by a weighted least-norm correction that loads it
+    onto the contacts carrying the most normal force (weights f_n,i), so that contacts
+    carrying almost nothing near mu* keep their cone depth; the distance from the result
+    to an exact equilibrium is bounded per contact and taken off every depth. (Weights
+    f_n,i^2 would make G W G^T nearly singular where a weak contact is needed for rank 6,
+    and the bound on the strong contacts' distance useless.)
 
     Parameters
     ----------
     forces : ndarray, shape (K, 3n)
         Candidate contact forces, world frame, of grasps normalised to unit size.
-    row_space : ndarray, shape (K, 6, 3n)
-        Orthonormal basis of the row space of each full-rank grasp map.
-    condition : ndarray, shape (K,)
-        Condition number of each grasp map (scales the rounding slack).
+    gmap : ndarray, shape (K, 6, 3n)
     normals : ndarray, shape (K, n, 3)
     ratios : ndarray, shape (K, n)
     margin : float
@@ -381,20 +425,42 @@ def upper_certificate(forces, row_space, condition, normals, ratios, margin=0.0)
 
     Returns
     -------
-    upper : ndarray, shape (K,)
-        max_i (|f_t,i| + margin + d) / (r_i (f_n,i - d)) of the forces projected onto
-        null(G) and scaled to sum f_n = 1, d the rounding slack; inf where some normal
-        force is not clearly positive. Above it every cone holds its force more than
-        ``margin`` deep, so the margin t*(mu) of the exact test exceeds ``margin``.
+    ndarray, shape (K,)
+        max_i (|f_t,i| + d_i + margin S) / (r_i (f_n,i - d_i)) of the corrected forces,
+        d_i the bound on contact i's distance to exact equilibrium and S an upper bound
+        on the total normal force; inf where some f_n,i - d_i is not positive. Above it
+        some equilibrium force is more than ``margin`` deep in every cone (relative to
+        its total normal force), so the exact test's margin t*(mu) exceeds ``margin``.
     """
-    equilibrium = forces - np.einsum("gkv,gk->gv", row_space,
-                                     np.einsum("gkv,gv->gk", row_space, forces))
-    normal_part, tangential = split_normal(equilibrium.reshape(normals.shape), normals)
-    slack = (CERT_SLACK * condition * np.abs(equilibrium).max(axis=1))[:, None]
-    valid = (normal_part > slack).all(axis=1)
+    n_grasps, n_contacts = ratios.shape
+    per_contact = forces.reshape(n_grasps, n_contacts, 3)
+    normal_part = (per_contact * normals).sum(axis=2)
+    weight = np.maximum(normal_part, 0.0)
+    weight = np.maximum(weight, WEIGHT_FLOOR * weight.max(axis=1, keepdims=True) + 1e-300)
+    column_weight = np.repeat(weight, 3, axis=1)                       # (K, 3n)
+    weighted_map = gmap * column_weight[:, None, :]
+    normal_matrix = np.einsum("gkv,gjv->gkj", weighted_map, gmap)      # G W G^T (K, 6, 6)
+    smallest = np.linalg.eigvalsh(normal_matrix)[:, 0]
+    smallest -= ROUNDING * np.abs(normal_matrix).sum(axis=(1, 2))
+    solvable = smallest > 0                     # False for a rank-deficient G
+    normal_matrix[~solvable] = np.eye(6)
+    corrected = forces - np.einsum("gkv,gk->gv", weighted_map, np.linalg.solve(
+        normal_matrix, np.einsum("gkv,gv->gk", gmap, forces)[..., None])[..., 0])
+    # An exact equilibrium is h - W G^T y, y = M^-1 r, r = G h the corrected forces'
+    # residual (bounded with its rounding). Its contact i moves by w_i |G_i^T y|, and
+    # w_i |G_i^T y|^2 <= y^T M y = r^T M^-1 r <= |r|^2 / lambda_min(M), so by at most
+    # sqrt(w_i / lambda_min) |r|: small at weak contacts, and not inflated at strong ones
+    # by a weak contact that M's smallest eigenvalue depends on.
+    residual = np.linalg.norm(np.einsum("gkv,gv->gk", gmap, corrected), axis=1)
+    residual += ROUNDING * np.einsum("gkv,gv->g", np.abs(gmap), np.abs(corrected))
     with np.errstate(divide="ignore", invalid="ignore"):
-        total = normal_part.sum(axis=1, keepdims=True)
-        ratio = ((tangential + slack) / total + margin) / (ratios * (normal_part - slack) / total)
+        distance = np.where(solvable[:, None],
+                            np.sqrt(weight / smallest[:, None]) * residual[:, None], np.inf)
+    normal_part, tangential = split_normal(corrected.reshape(normals.shape), normals)
+    valid = (normal_part > distance).all(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        total = (normal_part + distance).sum(axis=1, keepdims=True)
+        ratio = (tangential + distance + margin * total) / (ratios * (normal_part - distance))
         return np.where(valid, ratio.max(axis=1), np.inf)
 
 
