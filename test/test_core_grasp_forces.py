@@ -8,7 +8,8 @@ from hypothesis import strategies as st
 
 from grasp_cases import ellipsoid_grasps, random_rotation
 from grasp_fc_ros.core import check_force_closure
-from grasp_fc_ros.core.grasp_forces import FORCE_TOL, optimal_contact_forces
+from grasp_fc_ros.core import stacked_socp
+from grasp_fc_ros.core.grasp_forces import FORCE_TOL, lower_bound, optimal_contact_forces
 from reference_pyramids import pyramid_min_max_force
 
 GRAVITY = np.array([0.0, 0.0, -9.81, 0.0, 0.0, 0.0])
@@ -174,6 +175,31 @@ def test_invariant_under_rigid_motion_and_scaling(seed, n_contacts, scale, load)
     for other in (moved, scaled, heavier / load):
         assert (np.isfinite(other) == finite).all()
         np.testing.assert_allclose(other[finite], base[finite], rtol=1e-6)
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n_contacts=st.integers(3, 6))
+def test_dual_lower_bound_is_sound_for_any_wrench(seed, n_contacts):
+    """The bound that certifies s* (and every inf) from below holds for arbitrary dual
+    wrenches, not only the solver's: never above the s* of checked forces."""
+    rng = np.random.default_rng(seed)
+    positions, normals = ellipsoid_grasps(rng, 6, n_contacts)
+    wrench = rng.normal(size=(6, 6))
+    mu = rng.uniform(0.3, 1.2, (6, n_contacts))
+    limits = np.where(rng.random((6, n_contacts)) < 0.3, rng.uniform(0.5, 5.0, (6, n_contacts)),
+                      np.inf)
+    s_star, _ = optimal_contact_forces(positions, normals, mu, wrench, limits)
+    unit, centroid, size = stacked_socp.centred_unit(positions)
+    torque = wrench[:, 3:] - np.cross(centroid, wrench[:, :3])
+    scaled = np.concatenate([wrench[:, :3], torque / size[:, None]], axis=1)
+    magnitude = np.linalg.norm(scaled, axis=1)
+    gmap = stacked_socp.grasp_map(unit)
+    for _ in range(5):
+        dual = rng.normal(size=(6, 6))
+        bound = lower_bound(dual, gmap, normals, mu, scaled / magnitude[:, None],
+                            limits / magnitude[:, None]) * magnitude
+        held = np.isfinite(s_star)
+        assert (bound[held] <= s_star[held] * (1 + 1e-9)).all()
 
 
 def test_batch_shapes():

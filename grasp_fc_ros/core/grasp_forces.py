@@ -22,8 +22,9 @@ moved and scaled along), so the solver's tolerances are relative.
 
 Every answer is checked in numpy before it is returned: the forces are projected exactly
 onto the equilibrium set, then must lie in every cone and within every limit to within
-FORCE_TOL of s*; a grasp that fails even when solved alone with tight tolerances gets
-s* = NaN.
+FORCE_TOL of s*, and s* must be within OPTIMALITY_TOL of a lower bound proved by the
+solver's dual wrench (:func:`lower_bound`), which also certifies every s* = inf. A grasp
+that fails even when solved alone with tight tolerances gets s* = NaN.
 """
 
 from __future__ import annotations
@@ -34,9 +35,9 @@ from .grasp_input import GraspBatch, prepare_grasps
 from .stacked_socp import (SOLVE_BATCH, BlockShape, centred_unit, grasp_map, solve_stacked,
                            split_normal, tangent_bases)
 
-#: beta* (normalised problem, unit wrench) at or below this counts as 0: holding the
-#: load would take normal forces over 1e9 times the load, or no forces can. Clarabel
-#: resolves beta to ~1e-10 absolute with RETRY_TOL, so the verdict is not its noise.
+#: s* = inf is reported where a dual wrench proves s* >= 1 / INFEASIBLE_BETA for the unit
+#: wrench of the normalised grasp (beta* <= 1e-9): no forces hold the load, or only
+#: normal forces over 1e9 times it. Forces are returned only for beta* above it.
 INFEASIBLE_BETA = 1e-9
 
 #: How far outside its cone, or above its limit, a returned force may be, relative to
@@ -48,6 +49,16 @@ FORCE_TOL = 1e-6
 #: normalised grasp: the exact projection leaves rounding (~1e-15) unless W is outside
 #: the range of a rank-deficient G, which this catches.
 EQUILIBRIUM_TOL = 1e-9
+
+#: Returned forces must have s* within this relative distance of the dual lower bound:
+#: the solve is then optimal to that accuracy, not merely feasible.
+OPTIMALITY_TOL = 1e-6
+
+#: Relative rounding slack of the dual wrench's work a = G^T w (~500 eps).
+CERT_SLACK = 1e-13
+
+#: Bisection steps for the root of the dual bound (2^-60 of its bracket).
+ROOT_BISECTIONS = 60
 
 #: Tolerances of a lone retry of a grasp whose batch did not converge or whose answer
 #: failed the checks.
@@ -204,11 +215,12 @@ def _solve_and_check(gmap, normals, mu, direction, limits, limited, tol):
     Returns
     -------
     s_star : ndarray, shape (K,)
-        Largest normal force of the checked forces, for the unit wrench; inf where
-        beta* <= INFEASIBLE_BETA.
+        Largest normal force of the checked forces, for the unit wrench; inf where the
+        dual bound is at least 1 / INFEASIBLE_BETA.
     forces : ndarray, shape (K, n, 3)
     ok : ndarray of bool, shape (K,)
-        The solve converged and the forces passed the checks (or beta* says infeasible).
+        The forces passed the checks and are optimal to OPTIMALITY_TOL, or the dual
+        bound certifies s* = inf.
     """
     n_grasps, n_contacts = mu.shape
     shape = _block_shape(n_contacts, limited)
@@ -234,7 +246,8 @@ def _solve_and_check(gmap, normals, mu, direction, limits, limited, tol):
     q[:, -1] = -1.0
     solution = solve_stacked(shape, a, b, q, tol)
     beta = solution.x[:, -1]
-    infeasible = beta <= INFEASIBLE_BETA
+    lower = lower_bound(solution.z[:, :6], gmap, normals, mu, direction, limits)
+    infeasible = lower >= 1.0 / INFEASIBLE_BETA
     with np.errstate(divide="ignore", invalid="ignore"):
         forces = solution.x[:, :-1] / beta[:, None]
     forces = _project_to_equilibrium(forces, gmap, direction).reshape(n_grasps, n_contacts, 3)
@@ -245,10 +258,66 @@ def _solve_and_check(gmap, normals, mu, direction, limits, limited, tol):
     fits = ((tangential <= mu * normal_part + slack).all(axis=1)
             & (normal_part <= limits + slack).all(axis=1)
             & (np.linalg.norm(residual, axis=1) <= EQUILIBRIUM_TOL))
-    ok = solution.converged & (infeasible | fits)
+    optimal = s_star <= lower * (1.0 + OPTIMALITY_TOL)
+    ok = infeasible | (fits & optimal & (beta > INFEASIBLE_BETA))
     s_star = np.where(infeasible, np.inf, s_star)
     forces[infeasible] = np.nan
     return s_star, forces, ok
+
+
+def lower_bound(wrench, gmap, normals, mu, direction, limits):
+    """Lower bound on s* (unit wrench, normalised grasp) proved by a dual wrench w.
+
+    For any feasible (f, beta) of the homogenised problem, 0 = w . (G f + beta W) =
+    sum_i a_i . f_i + beta w . W with a_i = B_i w, and a_i . f_i <= f_n,i l_i,
+    l_i = a_n,i + mu_i |a_t,i| (the cone), with 0 <= f_n,i <= min(1, beta f_max,i). So
+    g(beta) = sum_i max(l_i, 0) min(1, beta f_max,i) - beta (-w . W) >= 0. g is concave
+    with g(0) = 0: where -w . W > 0, beta* is at most g's positive root, and
+    s* = 1 / beta* at least its inverse (inf if every l_i <= 0: no forces hold W).
+
+    Parameters
+    ----------
+    wrench : ndarray, shape (K, 6)
+        Candidate dual wrench (either sign is tried).
+    gmap : ndarray, shape (K, 6, 3n)
+    normals : ndarray, shape (K, n, 3)
+    mu : ndarray, shape (K, n)
+    direction : ndarray, shape (K, 6)
+        The unit external wrench.
+    limits : ndarray, shape (K, n)
+        Normal-force limits for the unit wrench, inf where none.
+
+    Returns
+    -------
+    ndarray, shape (K,)
+        The bound, the work inflated by its rounding slack; 0 where w proves nothing.
+    """
+    work = np.einsum("gkv,gk->gv", gmap, wrench).reshape(normals.shape)
+    normal_part, tangential = split_normal(work, normals)
+    slack = (CERT_SLACK * np.abs(wrench).max(axis=1))[:, None]
+    best = np.zeros(wrench.shape[0])
+    for sign in (1.0, -1.0):
+        excess = np.maximum(sign * normal_part + slack + mu * (tangential + slack), 0.0)
+        along = -sign * (wrench * direction).sum(axis=1) - slack[:, 0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            high = np.where(along > 0, excess.sum(axis=1) / along, np.inf)    # g(high) <= 0
+        low = np.zeros_like(high)
+        finite = np.isfinite(high) & (high > 0)
+        for _ in range(ROOT_BISECTIONS):
+            middle = 0.5 * (low + high)
+            ok = _dual_room(np.where(finite, middle, 0.0), excess, limits, along) >= 0
+            low, high = np.where(ok, middle, low), np.where(ok, high, middle)
+        with np.errstate(divide="ignore"):
+            bound = np.where(along > 0, 1.0 / high, 0.0)
+        best = np.maximum(best, bound)
+    return best
+
+
+def _dual_room(beta, excess, limits, along):
+    """g(beta) of :func:`lower_bound`, shape (K,): its bound on the work, less beta (-w . W)."""
+    finite = np.isfinite(limits)
+    share = np.where(finite, np.minimum(1.0, beta[:, None] * np.where(finite, limits, 0.0)), 1.0)
+    return (excess * share).sum(axis=1) - beta * along
 
 
 def _project_to_equilibrium(forces, gmap, direction):
