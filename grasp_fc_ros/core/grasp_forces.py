@@ -57,8 +57,9 @@ OPTIMALITY_TOL = 1e-6
 #: Relative rounding slack of the dual wrench's work a = G^T w (~500 eps).
 CERT_SLACK = 1e-13
 
-#: Bisection steps for the root of the dual bound (2^-60 of its bracket).
-ROOT_BISECTIONS = 60
+#: Bisection steps for the root of the dual bound where limits make it piecewise linear
+#: (2^-45, ~3e-14 of its bracket).
+ROOT_BISECTIONS = 45
 
 #: Tolerances of a lone retry of a grasp whose batch did not converge or whose answer
 #: failed the checks.
@@ -303,7 +304,8 @@ def lower_bound(wrench, gmap, normals, mu, direction, limits):
             high = np.where(along > 0, excess.sum(axis=1) / along, np.inf)    # g(high) <= 0
         low = np.zeros_like(high)
         finite = np.isfinite(high) & (high > 0)
-        for _ in range(ROOT_BISECTIONS):
+        # Without limits g is linear and ``high`` is its root: no search.
+        for _ in range(ROOT_BISECTIONS if np.isfinite(limits).any() else 0):
             middle = 0.5 * (low + high)
             ok = _dual_room(np.where(finite, middle, 0.0), excess, limits, along) >= 0
             low, high = np.where(ok, middle, low), np.where(ok, high, middle)
