@@ -105,10 +105,6 @@ CERT_MARGIN = 1e-9
 #: certify anything there.
 SOLVER_TOL = 1e-11
 
-#: A chunk whose every grasp still has U > COARSE_WIDTH * L is solved with Clarabel's
-#: default tolerances (1e-8): its certificates only need to steer there.
-COARSE_WIDTH = 1.1
-
 #: Bisection steps for the largest L a wrench certifies: 2^-40 (~1e-12) of the bracket.
 LOWER_BISECTIONS = 40
 
@@ -236,10 +232,7 @@ def _step(chunk, state, gmap, grasps, margin):
     """One stacked solve for the grasps ``chunk``: certificates, then the next lam."""
     lam = state.lam[chunk]
     normals, ratios = grasps.normals[chunk], grasps.mu[chunk]
-    # Far from mu* the solver's default accuracy steers as well; near it, SOLVER_TOL.
-    far = (state.upper[chunk] > COARSE_WIDTH * np.maximum(state.lower[chunk], ABS_TOL)).all()
-    forces, wrench, depth, slope = _solve_chunk(gmap[chunk], normals, ratios, lam,
-                                                None if far else SOLVER_TOL)
+    forces, wrench, depth, slope = _solve_chunk(gmap[chunk], normals, ratios, lam)
     upper = upper_certificate(forces, gmap[chunk], normals, ratios, margin)
     ceiling = np.where(np.isfinite(state.upper[chunk]), state.upper[chunk], MU_CAP)
     lower = lower_certificate(wrench, gmap[chunk], normals, ratios, ceiling, margin)
@@ -362,7 +355,7 @@ def _block_shape(n_contacts: int) -> BlockShape:
     return BlockShape(pattern, zero_rows=7, nonneg_rows=0, soc_sizes=(3,) * n_contacts)
 
 
-def _solve_chunk(gmap, normals, ratios, lam, tol=SOLVER_TOL):
+def _solve_chunk(gmap, normals, ratios, lam):
     """The signed-margin SOCP at friction lam * ratios for each grasp of a chunk (K).
 
         maximise t  s.t.  G f = 0,  sum_i f_n,i = 1,  (lam r_i f_n,i - t, f_t,i) in Q^3
@@ -397,9 +390,9 @@ def _solve_chunk(gmap, normals, ratios, lam, tol=SOLVER_TOL):
     b[:, 6] = 1.0
     q = np.zeros((n_grasps, shape.pattern.shape[1]))
     q[:, -1] = -1.0
-    solution = solve_stacked(shape, a, b, q, tol)
+    solution = solve_stacked(shape, a, b, q, SOLVER_TOL)
     if not solution.converged and n_grasps > 1:
-        parts = [solve_stacked(shape, a[k:k + 1], b[k:k + 1], q[k:k + 1], tol)
+        parts = [solve_stacked(shape, a[k:k + 1], b[k:k + 1], q[k:k + 1], SOLVER_TOL)
                  for k in range(n_grasps)]
         x = np.concatenate([p.x for p in parts])
         z = np.concatenate([p.z for p in parts])
