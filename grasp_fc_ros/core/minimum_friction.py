@@ -315,6 +315,7 @@ class _RootState:
         self.lam[chunk] = self._next(chunk)
 
     def _next(self, chunk):
+        """The next lam (len(chunk),) of each grasp, by the rules of the class docstring."""
         lower, upper = self.lower[chunk], self.upper[chunk]
         (lam1, q1), (lam0, q0) = self.latest[chunk].T, self.previous[chunk].T
         span = upper - lower
