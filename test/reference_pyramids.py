@@ -51,3 +51,112 @@ def pyramid_margin(positions, normals, mu, sides=8, inscribed=True):
         return 0.0
     assert result.status == 0, result.message
     return max(result.x[-1], 0.0)
+
+
+def _pyramid_wrench_columns(positions, normals, frictions, sides, inscribed):
+    """Primitive wrenches (6, n*sides) of per-contact pyramids, grasp at unit size.
+
+    frictions: (n,) friction coefficient of each contact.
+    """
+    centred = positions - positions.mean(axis=0)
+    centred = centred / np.abs(centred).max()
+    columns = [np.concatenate([f, np.cross(p, f)])
+               for p, n, mu in zip(centred, normals, frictions)
+               for f in pyramid_edges(n, mu, sides, inscribed)]
+    return np.array(columns).T
+
+
+def pyramid_is_force_closure(positions, normals, frictions, sides=8, inscribed=True,
+                             tol=1e-9):
+    """Polyhedral force closure with per-contact friction: rank 6 and an LP margin > tol.
+
+    Same LP as :func:`pyramid_margin` (lam >= s, sum(lam) = 1, W lam = 0, maximise s).
+    """
+    wrenches = _pyramid_wrench_columns(positions, normals, np.asarray(frictions, float),
+                                       sides, inscribed)
+    if np.linalg.matrix_rank(wrenches, tol=1e-9) < 6:
+        return False
+    k = wrenches.shape[1]
+    cost = np.zeros(k + 1)
+    cost[-1] = -1.0
+    a_eq = np.vstack([np.hstack([wrenches, np.zeros((6, 1))]),
+                      np.hstack([np.ones(k), [0.0]])])
+    b_eq = np.concatenate([np.zeros(6), [1.0]])
+    a_ub = np.hstack([-np.eye(k), np.ones((k, 1))])
+    result = _linprog_robust(cost, A_ub=a_ub, b_ub=np.zeros(k), A_eq=a_eq, b_eq=b_eq,
+                             bounds=[(0, None)] * k + [(None, None)])
+    if result.status == 2:
+        return False
+    return result.x[-1] > tol
+
+
+def _linprog_robust(*args, **kwargs):
+    """linprog with HiGHS; its dual simplex, then its interior point, if the default
+    ends with an unknown status (seen on near-degenerate pyramids). Raises if all fail."""
+    for method in ("highs", "highs-ds", "highs-ipm"):
+        result = linprog(*args, method=method, **kwargs)
+        if result.status in (0, 2):
+            return result
+    raise AssertionError(result.message)
+
+
+def pyramid_minimum_friction(positions, normals, ratios=1.0, sides=8, inscribed=True,
+                             high=1e2, steps=36):
+    """Least friction mu (contacts mu * ratios_i) at which the pyramid grasp is FC.
+
+    Bisection on :func:`pyramid_is_force_closure`, geometric while the bracket spans
+    orders of magnitude. Returns (low, high) with not FC at low (or low = 0) and FC at
+    high; (inf, inf) if not FC at ``high``. Inscribed pyramids give an upper bound on
+    the true mu*, circumscribed ones a lower bound.
+    """
+    ratios = np.broadcast_to(np.asarray(ratios, float), (len(positions),))
+    def fc(mu):
+        return pyramid_is_force_closure(positions, normals, mu * ratios, sides, inscribed)
+    if not fc(high):
+        return np.inf, np.inf
+    low = 0.0
+    for _ in range(steps):
+        middle = np.sqrt(max(low, 1e-9) * high) if high > 4 * max(low, 1e-9) else 0.5 * (low + high)
+        if fc(middle):
+            high = middle
+        else:
+            low = middle
+    return low, high
+
+
+def pyramid_min_max_force(positions, normals, mu, wrench, sides=8, inscribed=True,
+                          max_normal_force=None):
+    """Least largest normal force of pyramid forces holding ``wrench`` (LP), or inf.
+
+    Torque about the origin of ``positions`` (not normalised: an independent frame).
+    f_i = sum_j lam_ij e_ij with unit edges e_ij; minimise s subject to
+    sum_i (f_i, p_i x f_i) + wrench = 0, n_i . f_i <= s, n_i . f_i <= limit_i, lam >= 0.
+    """
+    n_contacts = len(positions)
+    frictions = np.broadcast_to(np.asarray(mu, float), (n_contacts,))
+    columns, normal_parts, owner = [], [], []
+    for i, (p, n, m) in enumerate(zip(positions, normals, frictions)):
+        for f in pyramid_edges(n, m, sides, inscribed):
+            columns.append(np.concatenate([f, np.cross(p, f)]))
+            normal_parts.append(f @ n)
+            owner.append(i)
+    wrenches, normal_parts, owner = np.array(columns).T, np.array(normal_parts), np.array(owner)
+    k = wrenches.shape[1]
+    # Variables (lam_1..lam_k, s): minimise s.
+    cost = np.zeros(k + 1)
+    cost[-1] = 1.0
+    per_contact = np.zeros((n_contacts, k))
+    per_contact[owner, np.arange(k)] = normal_parts
+    a_ub = [np.hstack([per_contact, -np.ones((n_contacts, 1))])]
+    b_ub = [np.zeros(n_contacts)]
+    if max_normal_force is not None:
+        limits = np.broadcast_to(np.asarray(max_normal_force, float), (n_contacts,))
+        finite = np.isfinite(limits)
+        a_ub.append(np.hstack([per_contact[finite], np.zeros((finite.sum(), 1))]))
+        b_ub.append(limits[finite])
+    result = _linprog_robust(cost, A_ub=np.vstack(a_ub), b_ub=np.concatenate(b_ub),
+                             A_eq=np.hstack([wrenches, np.zeros((6, 1))]),
+                             b_eq=-np.asarray(wrench, float), bounds=[(0, None)] * (k + 1))
+    if result.status == 2:
+        return np.inf
+    return result.x[-1]

@@ -1,0 +1,546 @@
+"""The minimum friction coefficient of a grasp, certified from both sides.
+
+Contact i has friction ``mu * ratios_i``. The grasp is force closure for every mu above
+a threshold mu* and for none below it (the cones grow with mu, and force closure asks
+for a strictly internal force, an open condition), so mu* is the boundary
+
+    mu* = inf over forces f with G f = 0, all f_n,i > 0  of  max_i |f_t,i| / (r_i f_n,i)
+
+(with G of rank 6; mu* = inf otherwise). It is a generalised fractional program:
+quasi-convex, one SOCP per fixed mu, not one SOCP. Each solve is the exact test's SOCP
+with a signed margin,
+
+    t(lam) = max t  s.t.  G f = 0,  sum_i f_n,i = 1,  (lam r_i f_n,i - t, f_t,i) in Q^3,
+
+positive above mu* and not positive below; a safeguarded Newton/secant search (see
+:class:`_RootState`) picks the next lam. Every solve yields two certificates, both
+checked in numpy, never taken on trust:
+
+* an upper bound: the solver's forces, projected exactly onto null(G), with every normal
+  force positive, are inside every cone of friction ``U = max_i |f_t,i| / (r_i f_n,i)``
+  (with a slack for rounding), so the grasp is force closure for every mu > U;
+* a lower bound: the equilibrium multipliers give a wrench w; with a_i = B_i w the work
+  of unit forces at contact i, it bounds the margin at any mu (:func:`margin_bound`); L is
+  the largest mu where that bound is at most CERT_MARGIN. Where a_n,i + L r_i |a_t,i| <= 0
+  for all i (every contact wrench in the half-space w . x <= 0) the bound is 0.
+
+Iteration stops when U - L <= max(REL_TOL U, ABS_TOL); the answer is U. Rank-deficient
+grasps, and grasps certified not force closure up to ``MU_CAP``, get inf; grasps with
+U <= ABS_TOL get 0 (force closure for every positive friction, e.g. frictionless force
+closure). The whole design and its measurements: docs/quality.md.
+
+Relation to :func:`check_force_closure`: it reports force closure only with an internal
+force at least ``MARGIN_TOL`` deep in every cone (normal forces summing to one), i.e. for
+margin t*(mu) >= MARGIN_TOL, not t*(mu) > 0. Below mu* it therefore always says no. Just
+above mu*, t*(mu) grows from 0 roughly like (mu - mu*) * min_i r_i f_n,i, so it says yes
+only from mu* + O(MARGIN_TOL * n / r) on: at mu*(1 + 1e-5) only where that slope is large
+enough. ``margin=MARGIN_TOL`` computes that numerical boundary instead (see
+:func:`minimum_friction`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .grasp_input import GraspBatch, prepare_grasps
+from .stacked_socp import (SOLVE_BATCH, BlockShape, centred_unit, grasp_map, solve_stacked,
+                           split_normal, tangent_bases)
+from .tolerances import RANK_TOL
+
+#: Relative and absolute width of the certified interval [L, U] at which iteration stops
+#: (the issue's 1e-6 relative or 1e-9 absolute).
+REL_TOL = 1e-6
+ABS_TOL = 1e-9
+
+#: Friction coefficients above this are not physical (rubber on rubber is ~1-2); a grasp
+#: certified not force closure at MU_CAP is reported inf.
+MU_CAP = 1e6
+
+#: First friction tried when no closed-form upper bound is at hand, and the factor by
+#: which it grows while no solve has found a witness.
+MU_START = 10.0
+ESCALATE = 100.0
+
+#: SOCP solves allowed per grasp. Measured: mean 5-8, at most ~20 on random grasps; the
+#: limit only ends a grasp whose certificates stall (it is then reported NaN, not guessed).
+MAX_SOLVES = 40
+
+#: A grasp whose solves improved neither bound this many times in a row (each after the
+#: first alone, at a new lam) is given up: reported NaN with its certified bounds. Seen
+#: on ~0.1% of 4-finger box grasps (a lone side contact that only friction balances),
+#: where Clarabel cannot resolve the margin (~1e-9) near mu* to the needed accuracy.
+MAX_STALLS = 3
+
+#: Relative rounding slack of the lower certificate: the work a = G^T w is computed to
+#: about eps * |w|. 1e-13 is ~500 eps: generous, yet far below REL_TOL.
+CERT_SLACK = 1e-13
+
+#: Relative rounding bound of a sum of products (~ n eps for the sizes here, with room):
+#: used to bound the equilibrium residual of witness forces and the eigenvalue of the
+#: 6 x 6 matrix their correction solves with.
+ROUNDING = 1e-14
+
+#: Weights of the witness correction below this fraction of the largest are raised to
+#: it, so that the 6 x 6 system stays solvable.
+WEIGHT_FLOOR = 1e-12
+
+#: Cone rows are scaled by max(lam, MARGIN_SCALE_FLOOR): below it, dividing by lam would
+#: make the tangential rows too stiff for the solver, and 1e-3 already resolves lam to
+#: ~1e-11 absolute, below ABS_TOL.
+MARGIN_SCALE_FLOOR = 1e-3
+
+#: The lower bound L certifies that at friction L no equilibrium force lies more than
+#: CERT_MARGIN deep in every cone (the exact test's margin, normal forces summing to
+#: one), not that the margin is exactly 0: a separating wrench must do exactly zero
+#: work at contacts loaded strictly inside their cones, which floating point cannot
+#: show. 1e-9 is three orders below MARGIN_TOL, under which check_force_closure already
+#: calls a grasp not force closure, and above the solver's accuracy (~1e-11, SOLVER_TOL).
+CERT_MARGIN = 1e-9
+
+#: Clarabel's gap and feasibility tolerances here. Where a sub-grasp is in equilibrium
+#: on its own, t(lam) is flat at 0 just below mu*, and the separating wrench must do no
+#: work at that sub-grasp's contacts: only multipliers accurate far below CERT_MARGIN
+#: certify anything there.
+SOLVER_TOL = 1e-11
+
+#: Bisection steps for the largest L a wrench certifies: 2^-32 (~2e-10) of the bracket,
+#: far below REL_TOL.
+LOWER_BISECTIONS = 32
+
+
+@dataclass(frozen=True)
+class MinimumFriction:
+    """Certified bounds on mu* for N grasps (0-d arrays for one grasp).
+
+    Attributes
+    ----------
+    value : ndarray of float
+        mu*: the certified upper bound, 0 if that is <= ABS_TOL, inf if no friction up
+        to MU_CAP (or none at all) makes the grasp force closure, NaN if not certified
+        to the tolerance.
+    lower, upper : ndarray of float
+        Certified bounds: at ``lower`` and below, no equilibrium force is more than
+        max(margin, CERT_MARGIN) deep in every cone (the exact test's margin; clipped
+        to ``upper``); above ``upper`` some equilibrium force is more than ``margin``
+        deep in every cone (force closure).
+    solves : ndarray of int
+        SOCP solves the grasp took (each the size of one exact test).
+    """
+
+    value: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    solves: np.ndarray
+
+
+def minimum_friction(positions, normals, ratios=1.0, margin=0.0) -> np.ndarray:
+    """The least friction coefficient at which a grasp is force closure.
+
+    Parameters
+    ----------
+    positions : array_like, shape (n, 3) or (N, n, 3)
+        Contact positions (any length unit).
+    normals : array_like, same shape
+        Inward contact normals, any non-zero length.
+    ratios : float or array_like broadcastable to (N, n)
+        Contact i has friction mu * ratios_i (> 0); 1 for equal friction everywhere.
+    margin : float
+        0 (default): the force-closure boundary itself. ``MARGIN_TOL``: the boundary of
+        :func:`check_force_closure`'s verdict, the least mu whose exact-test margin
+        t*(mu) reaches it (always > 0). Any margin in [0, 1) may be asked for.
+
+    Returns
+    -------
+    ndarray of float, shape () for one grasp or (N,)
+        mu* (dimensionless), certified to REL_TOL relative or ABS_TOL absolute:
+        force closure (margin above ``margin``) for every mu > mu*, and for no
+        mu < mu* (margin at most max(margin, CERT_MARGIN)). 0: force closure for every
+        positive friction; inf: for none up to MU_CAP; NaN: not certified to the
+        tolerance (given up after MAX_STALLS fruitless solves, or MAX_SOLVES; ~0.1% of
+        4-finger box grasps, none in the tests; :func:`minimum_friction_bounds` still
+        gives valid bounds).
+
+    Raises
+    ------
+    ValueError
+        On bad input, naming the grasp and contact.
+    """
+    return minimum_friction_bounds(positions, normals, ratios, margin).value
+
+
+def minimum_friction_bounds(positions, normals, ratios=1.0, margin=0.0) -> MinimumFriction:
+    """:func:`minimum_friction` with its certified bounds and solve counts."""
+    if not 0.0 <= margin < 1.0:
+        raise ValueError(f"margin must be in [0, 1), got {margin}")
+    try:
+        grasps = prepare_grasps(positions, normals, ratios)
+    except ValueError as error:
+        raise ValueError(str(error).replace("friction coefficient", "friction ratio")) from None
+    lower, upper, solves = solve_minimum_friction(grasps, float(margin))
+    value = np.where(upper <= ABS_TOL, 0.0, upper)
+    value = np.where(lower >= MU_CAP, np.inf, value)
+    value = np.where(_resolved(lower, upper), value, np.nan)
+    # L certifies a margin of at most CERT_MARGIN, so for margin = 0 it may pass the
+    # exact boundary by ~CERT_MARGIN / slope; U is a witness of force closure.
+    lower = np.minimum(lower, upper)
+    return MinimumFriction(*(grasps.unbatch(a) for a in (value, lower, upper, solves)))
+
+
+def solve_minimum_friction(grasps: GraspBatch, margin: float = 0.0):
+    """Certified bounds on mu* for every grasp of a validated batch (``mu`` = ratios).
+
+    ``margin``: see :func:`minimum_friction`.
+
+    Returns
+    -------
+    lower, upper : ndarray, shape (N,)
+    solves : ndarray of int, shape (N,)
+    """
+    n_grasps = grasps.mu.shape[0]
+    unit, _, _ = centred_unit(grasps.positions)
+    gmap = grasp_map(unit)                                             # (N, 6, 3n)
+    singular = np.linalg.svd(gmap, compute_uv=False)
+    full_rank = singular[:, -1] > RANK_TOL * singular[:, 0]
+    state = _RootState.start(n_grasps, full_rank)
+    lifted = _lifts_off(gmap, grasps.normals, grasps.mu, full_rank)
+    state.lower[lifted] = np.inf
+    active = np.flatnonzero(full_rank & ~lifted)
+    # Forces towards the centroid, f_i = c - p_i, are always in equilibrium (they pair
+    # up along chords): where every one pushes into its contact, a free first bound.
+    centroid_bound = upper_certificate(-unit.reshape(n_grasps, -1), gmap, grasps.normals,
+                                       grasps.mu, margin)
+    state.upper = np.where(full_rank, centroid_bound, np.inf)
+    state.lam = np.where(np.isfinite(state.upper), state.upper, MU_START)
+    for _ in range(MAX_SOLVES):
+        if active.size == 0:
+            break
+        # A grasp whose last solve improved neither bound is solved alone: a stacked
+        # solve stops on the batch's residuals, and near mu* one grasp may need more
+        # accuracy than its batch gave it.
+        stalled = state.stalled[active]
+        chunks = [active[~stalled][start:start + SOLVE_BATCH]
+                  for start in range(0, int((~stalled).sum()), SOLVE_BATCH)]
+        for chunk in chunks + [active[k:k + 1] for k in np.flatnonzero(stalled)]:
+            _step(chunk, state, gmap, grasps, margin)
+        done = _resolved(state.lower[active], state.upper[active])
+        active = active[~done & (state.stalls[active] < MAX_STALLS)]
+    return state.lower, state.upper, state.solves
+
+
+def _step(chunk, state, gmap, grasps, margin):
+    """One stacked solve for the grasps ``chunk``: certificates, then the next lam."""
+    lam = state.lam[chunk]
+    normals, ratios = grasps.normals[chunk], grasps.mu[chunk]
+    forces, wrench, depth, slope = _solve_chunk(gmap[chunk], normals, ratios, lam)
+    upper = upper_certificate(forces, gmap[chunk], normals, ratios, margin)
+    ceiling = np.where(np.isfinite(state.upper[chunk]), state.upper[chunk], MU_CAP)
+    lower = lower_certificate(wrench, gmap[chunk], normals, ratios, ceiling, margin)
+    state.update(chunk, lam, depth - margin, slope, lower, upper)
+
+
+def _lifts_off(gmap, normals, ratios, full_rank):
+    """Grasps (N,) certified not force closure up to MU_CAP without a solve.
+
+    Where the normals' work is a combination of the rows of G (G^T w = the normals: the
+    twist w lifts every contact straight off), every equilibrium has zero total normal
+    force, and the SOCP (sum f_n = 1) is infeasible, which would fail its whole stacked
+    batch. The least-squares w is checked like any other certificate.
+    """
+    gram = np.einsum("gkv,gjv->gkj", gmap, gmap)
+    gram[~full_rank] = np.eye(6)
+    normal_work = np.einsum("gkv,gv->gk", gmap, normals.reshape(len(gmap), -1))
+    lift_wrench = np.linalg.solve(gram, normal_work[..., None])[..., 0]
+    ceiling = np.full(len(gmap), MU_CAP)
+    return full_rank & (lower_certificate(lift_wrench, gmap, normals, ratios, ceiling)
+                        >= MU_CAP)
+
+
+def _resolved(lower, upper):
+    """Where the bounds (same shape) are tight enough, or certify no friction up to MU_CAP."""
+    with np.errstate(invalid="ignore"):
+        close = upper - lower <= np.maximum(REL_TOL * upper, ABS_TOL)
+    return (np.isfinite(upper) & close) | (lower >= MU_CAP)
+
+
+@dataclass
+class _RootState:
+    """Per-grasp state of the safeguarded search for the sign change of t(lam).
+
+    t(lam) is the signed margin solved at lam, less the margin asked for: positive above
+    mu*, not positive below. The search runs on q = t / t' (t' from the multipliers):
+    where t behaves like (lam - mu*)^m, q is (lam - mu*) / m, a simple root, also where
+    the margin vanishes quadratically (a contact's normal force vanishing at mu* too).
+    Each step is the secant on q through the last two solves (a Newton step after the
+    first, or when the secant leaves the certified interval (L, U)); a step a little
+    outside is clamped to the end, one far outside is replaced by bisecting (L, U)
+    (geometrically while it spans orders of magnitude). A step within a quarter of the
+    target width of L or U is moved to half that width from it: one solve on the far
+    side of mu* then finishes.
+    """
+
+    lower: np.ndarray
+    upper: np.ndarray
+    lam: np.ndarray
+    solves: np.ndarray
+    latest: np.ndarray        # (N, 2): lam, q of the latest solve (NaN: none)
+    previous: np.ndarray      # (N, 2): the solve before
+    stalled: np.ndarray       # (N,) bool: the latest solve improved neither bound
+    stalls: np.ndarray        # (N,) int: solves in a row that improved neither
+
+    @classmethod
+    def start(cls, n_grasps, full_rank):
+        none = np.full((n_grasps, 2), np.nan)
+        return cls(lower=np.where(full_rank, 0.0, np.inf), upper=np.full(n_grasps, np.inf),
+                   lam=np.full(n_grasps, MU_START), solves=np.zeros(n_grasps, dtype=np.int64),
+                   latest=none.copy(), previous=none.copy(),
+                   stalled=np.zeros(n_grasps, dtype=bool),
+                   stalls=np.zeros(n_grasps, dtype=np.int64))
+
+    def update(self, chunk, lam, margin, slope, lower, upper):
+        """Take one solve's certificates and margins; choose the next lam of each grasp."""
+        self.solves[chunk] += 1
+        stalled = (lower <= self.lower[chunk]) & (upper >= self.upper[chunk])
+        self.stalled[chunk] = stalled
+        self.stalls[chunk] = np.where(stalled, self.stalls[chunk] + 1, 0)
+        self.lower[chunk] = np.maximum(self.lower[chunk], lower)
+        self.upper[chunk] = np.minimum(self.upper[chunk], upper)
+        self.previous[chunk] = self.latest[chunk]
+        # The secant runs on q = t / t', which is (lam - mu*) / m wherever t behaves like
+        # (lam - mu*)^m: a simple root even where the margin vanishes quadratically.
+        with np.errstate(divide="ignore", invalid="ignore"):
+            quotient = np.where(slope > 0, margin / slope, np.nan)
+        self.latest[chunk] = np.stack([lam, quotient], axis=1)
+        self.lam[chunk] = self._next(chunk)
+
+    def _next(self, chunk):
+        """The next lam (len(chunk),) of each grasp, by the rules of the class docstring."""
+        lower, upper = self.lower[chunk], self.upper[chunk]
+        (lam1, q1), (lam0, q0) = self.latest[chunk].T, self.previous[chunk].T
+        span = upper - lower
+        with np.errstate(divide="ignore", invalid="ignore"):
+            secant = lam1 - q1 * (lam1 - lam0) / (q1 - q0)
+            newton = lam1 - q1
+            # A step may land a little outside (L, U) when one end is already close to
+            # mu*: it is clamped to that end (and nudged below). Far outside: discarded.
+            secant_near = (secant > lower - 0.01 * span) & (secant < upper + 0.01 * span)
+            newton_near = (newton > lower - 0.01 * span) & (newton < upper + 0.01 * span)
+        middle = np.where(upper > 4.0 * lower, np.sqrt(np.maximum(lower, ABS_TOL) * upper),
+                          0.5 * (lower + upper))
+        guess = np.where(secant_near, secant, np.where(newton_near, newton, middle))
+        guess = np.clip(guess, lower, upper)
+        # Within a quarter of the target width of an end: step to half the width from
+        # it, so that one solve on the far side of mu* finishes.
+        from_lower = np.maximum(REL_TOL * lower, ABS_TOL)
+        from_upper = np.maximum(REL_TOL * upper, ABS_TOL)
+        with np.errstate(invalid="ignore"):         # inf - inf where no witness yet
+            guess = np.where(guess - lower < 0.25 * from_lower, lower + 0.5 * from_lower, guess)
+            guess = np.where(upper - guess < 0.25 * from_upper, upper - 0.5 * from_upper, guess)
+        # After a solve that improved neither bound, step as far again from the nearer end.
+        away = np.where(lam1 - lower < upper - lam1, 2 * lam1 - lower, 2 * lam1 - upper)
+        guess = np.where(self.stalled[chunk], np.clip(away, lower, upper), guess)
+        # No witness yet: try ESCALATE times more friction (at least the lower bound).
+        escalated = np.minimum(np.maximum(self.lam[chunk] * ESCALATE, lower), MU_CAP)
+        return np.where(np.isfinite(upper), guess, escalated)
+
+
+def _block_shape(n_contacts: int) -> BlockShape:
+    """Rows: G f = 0 (6), sum f_n = 1 (1), one Q^3 per contact. Columns: f (3n), t."""
+    n_vars = 3 * n_contacts + 1
+    pattern = np.zeros((7 + 3 * n_contacts, n_vars), dtype=bool)
+    pattern[:7, :3 * n_contacts] = True
+    for i in range(n_contacts):
+        rows = slice(7 + 3 * i, 10 + 3 * i)
+        pattern[rows, 3 * i:3 * i + 3] = True
+        pattern[7 + 3 * i, -1] = True
+    return BlockShape(pattern, zero_rows=7, nonneg_rows=0, soc_sizes=(3,) * n_contacts)
+
+
+def _solve_chunk(gmap, normals, ratios, lam):
+    """The signed-margin SOCP at friction lam * ratios for each grasp of a chunk (K).
+
+        maximise t  s.t.  G f = 0,  sum_i f_n,i = 1,  (lam r_i f_n,i - t, f_t,i) in Q^3
+
+    Each cone's rows are divided by s = max(lam, MARGIN_SCALE_FLOOR) (a cone is closed
+    under scaling) and the variable is t / s: its optimum is then relative to lam, so the
+    solver's absolute accuracy resolves lam relatively, for small and large lam alike.
+
+    Returns
+    -------
+    forces : ndarray, shape (K, 3n)
+    wrench : ndarray, shape (K, 6)
+        Multipliers of the equilibrium rows.
+    depth : ndarray, shape (K,)
+        The solver's optimum t (the signed margin of the exact test).
+    """
+    n_grasps, n_contacts = ratios.shape
+    shape = _block_shape(n_contacts)
+    tangent, bitangent = tangent_bases(normals)
+    scale = np.maximum(lam, MARGIN_SCALE_FLOOR)
+    a = np.zeros((n_grasps,) + shape.pattern.shape)
+    a[:, :6, :-1] = gmap
+    a[:, 6, :-1] = normals.reshape(n_grasps, -1)
+    # Clarabel's form A x + s = b, s in the cone: each cone row of A holds -s(x).
+    cone = -np.stack([((lam / scale)[:, None] * ratios)[..., None] * normals,
+                      tangent / scale[:, None, None], bitangent / scale[:, None, None]],
+                     axis=2)                                           # (K, n, 3, 3)
+    for i in range(n_contacts):
+        a[:, 7 + 3 * i:10 + 3 * i, 3 * i:3 * i + 3] = cone[:, i]
+        a[:, 7 + 3 * i, -1] = 1.0
+    b = np.zeros((n_grasps, shape.pattern.shape[0]))
+    b[:, 6] = 1.0
+    q = np.zeros((n_grasps, shape.pattern.shape[1]))
+    q[:, -1] = -1.0
+    solution = solve_stacked(shape, a, b, q, SOLVER_TOL)
+    if not solution.converged and n_grasps > 1:
+        parts = [solve_stacked(shape, a[k:k + 1], b[k:k + 1], q[k:k + 1], SOLVER_TOL)
+                 for k in range(n_grasps)]
+        x = np.concatenate([p.x for p in parts])
+        z = np.concatenate([p.z for p in parts])
+    else:
+        x, z = solution.x, solution.z
+    # dt/dlam by the envelope theorem: sum_i (cone i's multiplier on its first row)
+    # * r_i f_n,i; the rows' scaling by s cancels against t = s t'.
+    cone_first = z[:, 7::3][:, :n_contacts]
+    normal_force = (x[:, :-1].reshape(n_grasps, n_contacts, 3) * normals).sum(axis=2)
+    slope = (cone_first * ratios * normal_force).sum(axis=1)
+    return x[:, :-1], z[:, :6], x[:, -1] * scale, slope
+
+
+def upper_certificate(forces, gmap, normals, ratios, margin=0.0):
+    """The friction above which the given forces prove force closure with ``margin``.
+
+    The forces are moved onto null(G) by a weighted least-norm correction that loads it
+    onto the contacts carrying the most normal force (weights f_n,i), so that contacts
+    carrying almost nothing near mu* keep their cone depth; the distance from the result
+    to an exact equilibrium is bounded per contact and taken off every depth. (Weights
+    f_n,i^2 would make G W G^T nearly singular where a weak contact is needed for rank 6,
+    and the bound on the strong contacts' distance useless.)
+
+    Parameters
+    ----------
+    forces : ndarray, shape (K, 3n)
+        Candidate contact forces, world frame, of grasps normalised to unit size.
+    gmap : ndarray, shape (K, 6, 3n)
+    normals : ndarray, shape (K, n, 3)
+    ratios : ndarray, shape (K, n)
+    margin : float
+        Depth t >= 0 the forces must have in every cone (normal forces summing to one).
+
+    Returns
+    -------
+    ndarray, shape (K,)
+        max_i (|f_t,i| + d_i + margin S) / (r_i (f_n,i - d_i)) of the corrected forces,
+        d_i the bound on contact i's distance to exact equilibrium and S an upper bound
+        on the total normal force; inf where some f_n,i - d_i is not positive. Above it
+        some equilibrium force is more than ``margin`` deep in every cone (relative to
+        its total normal force), so the exact test's margin t*(mu) exceeds ``margin``.
+    """
+    n_grasps, n_contacts = ratios.shape
+    per_contact = forces.reshape(n_grasps, n_contacts, 3)
+    normal_part = (per_contact * normals).sum(axis=2)
+    weight = np.maximum(normal_part, 0.0)
+    weight = np.maximum(weight, WEIGHT_FLOOR * weight.max(axis=1, keepdims=True) + 1e-300)
+    column_weight = np.repeat(weight, 3, axis=1)                       # (K, 3n)
+    weighted_map = gmap * column_weight[:, None, :]
+    normal_matrix = np.einsum("gkv,gjv->gkj", weighted_map, gmap)      # G W G^T (K, 6, 6)
+    smallest = np.linalg.eigvalsh(normal_matrix)[:, 0]
+    smallest -= ROUNDING * np.abs(normal_matrix).sum(axis=(1, 2))
+    solvable = smallest > 0                     # False for a rank-deficient G
+    normal_matrix[~solvable] = np.eye(6)
+    corrected = forces - np.einsum("gkv,gk->gv", weighted_map, np.linalg.solve(
+        normal_matrix, np.einsum("gkv,gv->gk", gmap, forces)[..., None])[..., 0])
+    # An exact equilibrium is h - W G^T y, y = M^-1 r, r = G h the corrected forces'
+    # residual (bounded with its rounding). Its contact i moves by w_i |G_i^T y|, and
+    # w_i |G_i^T y|^2 <= y^T M y = r^T M^-1 r <= |r|^2 / lambda_min(M), so by at most
+    # sqrt(w_i / lambda_min) |r|: small at weak contacts, and not inflated at strong ones
+    # by a weak contact that M's smallest eigenvalue depends on.
+    residual = np.linalg.norm(np.einsum("gkv,gv->gk", gmap, corrected), axis=1)
+    residual += ROUNDING * np.einsum("gkv,gv->g", np.abs(gmap), np.abs(corrected))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        distance = np.where(solvable[:, None],
+                            np.sqrt(weight / smallest[:, None]) * residual[:, None], np.inf)
+    normal_part, tangential = split_normal(corrected.reshape(normals.shape), normals)
+    valid = (normal_part > distance).all(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        total = (normal_part + distance).sum(axis=1, keepdims=True)
+        ratio = (tangential + distance + margin * total) / (ratios * (normal_part - distance))
+        return np.where(valid, ratio.max(axis=1), np.inf)
+
+
+def margin_bound(mu, work_normal, work_tangential, ratios):
+    """Upper bound on the exact test's margin t*(mu) proved by one wrench.
+
+    If a wrench w does work a_i = B_i w on unit forces at contact i, with
+    a_n,i <= work_normal_i and |a_t,i| <= work_tangential_i, then any equilibrium with
+    normal forces summing to one and every force t deep in its cone has
+    t <= max(l0, 0) / S, where l0 = max_i (a_n,i + mu_i |a_t,i|) and
+    S = sum_i (l0 - a_n,i) / mu_i (mu_i = mu r_i): the equilibrium's total work against
+    w is zero, each cone bounds its contact's work, and each normal force is >= t / mu_i.
+
+    Parameters
+    ----------
+    mu : ndarray, shape (K,)
+    work_normal, work_tangential : ndarray, shape (K, n)
+    ratios : ndarray, shape (K, n)
+
+    Returns
+    -------
+    ndarray, shape (K,)
+        The bound (0 where w separates: every contact wrench does work <= 0); inf where
+        S is not positive (w does no work at any contact, e.g. w = 0: no information).
+    """
+    friction = mu[:, None] * ratios
+    l0 = (work_normal + friction * work_tangential).max(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        total = ((np.maximum(l0, 0.0)[:, None] - work_normal) / friction).sum(axis=1)
+        bound = np.where(l0 > 0, np.maximum(l0, 0.0) / total, 0.0)
+    return np.where(total > 0, bound, np.inf)
+
+
+def lower_certificate(wrench, gmap, normals, ratios, ceiling, margin=0.0):
+    """The largest friction at which a wrench proves the margin at most ``margin``.
+
+    Parameters
+    ----------
+    wrench : ndarray, shape (K, 6)
+        Candidate separating wrench (either sign is tried), of grasps of unit size.
+    gmap : ndarray, shape (K, 6, 3n)
+    normals : ndarray, shape (K, n, 3)
+    ratios : ndarray, shape (K, n)
+    ceiling : ndarray, shape (K,)
+        Search no higher than this (a finite upper bound on mu*, or MU_CAP).
+    margin : float
+        The margin to certify against; CERT_MARGIN is used where it is larger.
+
+    Returns
+    -------
+    ndarray, shape (K,)
+        L in [0, ceiling] with :func:`margin_bound` (L) <= max(margin, CERT_MARGIN) for
+        the better sign of w, the work inflated by its rounding slack; 0 if none. t*(mu)
+        only grows with mu, so the bound holds at every mu <= L too.
+    """
+    work = np.einsum("gkv,gk->gv", gmap, wrench).reshape(normals.shape)
+    normal_part, tangential = split_normal(work, normals)
+    slack = (CERT_SLACK * np.abs(wrench).max(axis=1))[:, None]
+    threshold = max(margin, CERT_MARGIN)
+    # Both signs of w at once: rows [w; -w], shape (2K, n).
+    work_normal = np.concatenate([normal_part, -normal_part]) + np.tile(slack, (2, 1))
+    work_tangential = np.tile(tangential + slack, (2, 1))
+    both_ratios, ceiling = np.tile(ratios, (2, 1)), np.tile(ceiling, 2)
+    # Where w strictly separates (no work > 0 anywhere), the closed form: the largest mu
+    # with a_n,i + mu r_i |a_t,i| <= 0 for all i; the bisection starts from there.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        separating = (-work_normal / (both_ratios * work_tangential)).min(axis=1)
+    strict = (work_normal <= 0).all(axis=1) & (np.tile(slack[:, 0], 2) > 0)   # w = 0: nothing
+    low = np.minimum(np.where(strict, separating, 0.0), ceiling)
+    high = ceiling.copy()
+    holds = margin_bound(high, work_normal, work_tangential, both_ratios) <= threshold
+    low[holds] = high[holds]
+    for _ in range(LOWER_BISECTIONS):
+        middle = 0.5 * (low + high)
+        ok = margin_bound(middle, work_normal, work_tangential, both_ratios) <= threshold
+        low, high = np.where(ok, middle, low), np.where(ok, high, middle)
+    best = np.maximum(low[:len(wrench)], low[len(wrench):])
+    return best

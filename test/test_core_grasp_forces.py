@@ -1,0 +1,234 @@
+"""Optimal contact forces for a load: hand cases, the returned forces, normal-force
+limits, the LP pyramid bracket, invariances, batches and input errors."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from grasp_cases import ellipsoid_grasps, random_rotation
+from grasp_fc_ros.core import check_force_closure
+from grasp_fc_ros.core import stacked_socp
+from grasp_fc_ros.core.grasp_forces import FORCE_TOL, lower_bound, optimal_contact_forces
+from reference_pyramids import pyramid_min_max_force
+
+GRAVITY = np.array([0.0, 0.0, -9.81, 0.0, 0.0, 0.0])
+
+
+def equator_grasp():
+    angle = 2 * np.pi * np.arange(3) / 3
+    positions = np.stack([np.cos(angle), np.sin(angle), np.zeros(3)], axis=1)
+    return positions, -positions
+
+
+def assert_holds(positions, normals, mu, wrench, s_star, forces, limits=np.inf):
+    """The forces balance the wrench, lie in their cones and limits, and reach s*."""
+    scale = max(np.abs(wrench).max(), s_star)
+    np.testing.assert_allclose(forces.sum(axis=0), -wrench[:3], atol=1e-9 * scale)
+    torque = np.cross(positions, forces).sum(axis=0)
+    np.testing.assert_allclose(torque, -wrench[3:],
+                               atol=1e-9 * scale * max(1.0, np.abs(positions).max()))
+    normal = (forces * normals).sum(axis=1)
+    tangential = np.linalg.norm(forces - normal[:, None] * normals, axis=1)
+    assert (tangential <= mu * normal + FORCE_TOL * s_star).all()
+    assert (normal <= limits + FORCE_TOL * s_star).all()
+    assert normal.max() == pytest.approx(s_star, rel=1e-12)
+
+
+def test_gravity_on_a_three_finger_equator_grasp():
+    """Horizontal normals: only friction lifts. sum_i mu f_n,i >= m g, so the least
+    largest normal force is m g / (3 mu), reached by equal shares."""
+    positions, normals = equator_grasp()
+    s_star, forces = optimal_contact_forces(positions, normals, 0.5, GRAVITY)
+    assert s_star == pytest.approx(9.81 / 1.5, rel=1e-7)
+    assert_holds(positions, normals, 0.5, GRAVITY, s_star, forces)
+    np.testing.assert_allclose(forces[:, 2], 9.81 / 3, rtol=1e-6)
+
+
+def test_gravity_at_an_offset_centre_of_mass_is_a_torque_about_the_origin():
+    """The load is m g at the centre of mass c: torque c x F about the origin. The same
+    grasp and load moved so that c is the origin give the same s*."""
+    positions, normals = equator_grasp()
+    centre = np.array([0.1, -0.2, 0.05])
+    load = np.concatenate([GRAVITY[:3], np.cross(centre, GRAVITY[:3])])
+    s_star, forces = optimal_contact_forces(positions, normals, 0.8, load)
+    assert_holds(positions, normals, 0.8, load, s_star, forces)
+    moved, _ = optimal_contact_forces(positions - centre, normals, 0.8, GRAVITY)
+    assert s_star == pytest.approx(moved, rel=1e-7)
+    centred, _ = optimal_contact_forces(positions, normals, 0.8, GRAVITY)
+    assert s_star > centred                     # an off-centre load costs more force
+
+
+def test_normal_force_limits():
+    positions, normals = equator_grasp()
+    needed = 9.81 / 1.5
+    s_star, forces = optimal_contact_forces(positions, normals, 0.5, GRAVITY,
+                                            max_normal_force=needed * 0.99)
+    assert s_star == np.inf and np.isnan(forces).all()
+    s_star, forces = optimal_contact_forces(positions, normals, 0.5, GRAVITY,
+                                            max_normal_force=needed * 1.01)
+    assert s_star == pytest.approx(needed, rel=1e-7)
+    # One contact may not push at all: two fingers cannot lift by friction alone here.
+    s_star, _ = optimal_contact_forces(positions, normals, 0.5, GRAVITY,
+                                       max_normal_force=[np.inf, np.inf, 0.0])
+    assert s_star == np.inf
+
+
+def test_limits_raise_s_star_where_the_best_forces_break_them():
+    """A low limit on one contact moves load to the others: s* grows, and the returned
+    forces respect every limit."""
+    rng = np.random.default_rng(7)
+    positions, normals = ellipsoid_grasps(rng, 1, 6)
+    wrench = rng.normal(size=6)
+    free, forces = optimal_contact_forces(positions[0], normals[0], 0.7, wrench)
+    busiest = np.argmax((forces * normals[0]).sum(axis=1))
+    limits = np.full(6, np.inf)
+    limits[busiest] = 0.5 * free
+    limited, limited_forces = optimal_contact_forces(positions[0], normals[0], 0.7, wrench,
+                                                     max_normal_force=limits)
+    assert np.isfinite(free) and limited >= free * (1 - 1e-9)
+    if np.isfinite(limited):
+        assert_holds(positions[0], normals[0], 0.7, wrench, limited, limited_forces, limits)
+
+
+def test_zero_wrench_needs_no_force():
+    positions, normals = equator_grasp()
+    s_star, forces = optimal_contact_forces(positions, normals, 0.5, np.zeros(6))
+    assert s_star == 0.0 and (forces == 0).all()
+
+
+def test_two_antipodal_fingers_cannot_resist_a_torque_about_their_axis():
+    positions = np.array([[1.0, 0, 0], [-1.0, 0, 0]])
+    twist = np.array([0, 0, 0, 1.0, 0, 0])
+    s_star, forces = optimal_contact_forces(positions, -positions, 2.0, twist)
+    assert s_star == np.inf and np.isnan(forces).all()
+    squeeze_load = np.array([0, 0, -1.0, 0, 0, 0])
+    s_star, forces = optimal_contact_forces(positions, -positions, 2.0, squeeze_load)
+    assert s_star == pytest.approx(0.25, rel=1e-7)         # each lifts 1/2 = mu f_n
+
+
+def test_force_closure_grasps_hold_every_wrench_and_others_not_all():
+    rng = np.random.default_rng(8)
+    positions, normals = ellipsoid_grasps(rng, 40, 5)
+    fc = check_force_closure(positions, normals, 0.6).force_closure
+    assert fc.any() and not fc.all()
+    wrenches = rng.normal(size=(8, 6))
+    finite = np.stack([np.isfinite(optimal_contact_forces(positions, normals, 0.6, w)[0])
+                       for w in wrenches])
+    assert finite[:, fc].all()
+    assert not finite[:, ~fc].all(axis=0).any()    # some wrench defeats each of the others
+
+
+def test_returned_forces_hold_the_wrench():
+    rng = np.random.default_rng(9)
+    positions, normals = ellipsoid_grasps(rng, 50, 6)
+    wrenches = rng.normal(size=(50, 6))
+    mu = rng.uniform(0.3, 1.0, (50, 6))
+    s_star, forces = optimal_contact_forces(positions, normals, mu, wrenches)
+    held = np.flatnonzero(np.isfinite(s_star))
+    assert held.size > 10 and not np.isnan(s_star).any()
+    for g in held:
+        assert_holds(positions[g], normals[g], mu[g], wrenches[g], s_star[g], forces[g])
+
+
+def test_lp_pyramids_bracket_s_star():
+    """Circumscribed pyramids need at most s*, inscribed ones at least; with limits too."""
+    rng = np.random.default_rng(10)
+    positions, normals = ellipsoid_grasps(rng, 12, 5)
+    wrenches = rng.normal(size=(12, 6))
+    limits = rng.uniform(0.5, 3.0, (12, 5))
+    for limit in (None, limits):
+        s_star, _ = optimal_contact_forces(positions, normals, 0.6, wrenches, limit)
+        for g in range(12):
+            lim = None if limit is None else limit[g]
+            outer = pyramid_min_max_force(positions[g], normals[g], 0.6, wrenches[g],
+                                          inscribed=False, max_normal_force=lim)
+            inner = pyramid_min_max_force(positions[g], normals[g], 0.6, wrenches[g],
+                                          inscribed=True, max_normal_force=lim)
+            assert outer <= s_star[g] * (1 + 1e-6) + 1e-9
+            assert s_star[g] <= inner * (1 + 1e-6) + 1e-9
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n_contacts=st.integers(3, 7),
+       scale=st.floats(1e-2, 1e2), load=st.floats(1e-3, 1e3))
+def test_invariant_under_rigid_motion_and_scaling(seed, n_contacts, scale, load):
+    """Moving the grasp and the wrench along leaves s*; scaling lengths by k with the
+    torque scaled by k leaves s*; scaling the wrench by c scales s* by c."""
+    rng = np.random.default_rng(seed)
+    positions, normals = ellipsoid_grasps(rng, 4, n_contacts, axes=rng.uniform(0.5, 3, 3))
+    wrench = rng.normal(size=(4, 6))
+    mu = rng.uniform(0.3, 1.2, (4, n_contacts))
+    base, _ = optimal_contact_forces(positions, normals, mu, wrench)
+
+    rotation, shift = random_rotation(rng), rng.uniform(-5, 5, 3)
+    force = wrench[:, :3] @ rotation.T
+    moved_wrench = np.concatenate([force, wrench[:, 3:] @ rotation.T + np.cross(shift, force)],
+                                  axis=1)
+    moved, _ = optimal_contact_forces(positions @ rotation.T + shift, normals @ rotation.T,
+                                      mu, moved_wrench)
+    scaled_wrench = np.concatenate([wrench[:, :3], scale * wrench[:, 3:]], axis=1)
+    scaled, _ = optimal_contact_forces(scale * positions, normals, mu, scaled_wrench)
+    heavier, _ = optimal_contact_forces(positions, normals, mu, load * wrench)
+
+    finite = np.isfinite(base)
+    for other in (moved, scaled, heavier / load):
+        assert (np.isfinite(other) == finite).all()
+        np.testing.assert_allclose(other[finite], base[finite], rtol=1e-6)
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n_contacts=st.integers(3, 6))
+def test_dual_lower_bound_is_sound_for_any_wrench(seed, n_contacts):
+    """The bound that certifies s* (and every inf) from below holds for arbitrary dual
+    wrenches, not only the solver's: never above the s* of checked forces."""
+    rng = np.random.default_rng(seed)
+    positions, normals = ellipsoid_grasps(rng, 6, n_contacts)
+    wrench = rng.normal(size=(6, 6))
+    mu = rng.uniform(0.3, 1.2, (6, n_contacts))
+    limits = np.where(rng.random((6, n_contacts)) < 0.3, rng.uniform(0.5, 5.0, (6, n_contacts)),
+                      np.inf)
+    s_star, _ = optimal_contact_forces(positions, normals, mu, wrench, limits)
+    unit, centroid, size = stacked_socp.centred_unit(positions)
+    torque = wrench[:, 3:] - np.cross(centroid, wrench[:, :3])
+    scaled = np.concatenate([wrench[:, :3], torque / size[:, None]], axis=1)
+    magnitude = np.linalg.norm(scaled, axis=1)
+    gmap = stacked_socp.grasp_map(unit)
+    for _ in range(5):
+        dual = rng.normal(size=(6, 6))
+        bound = lower_bound(dual, gmap, normals, mu, scaled / magnitude[:, None],
+                            limits / magnitude[:, None]) * magnitude
+        held = np.isfinite(s_star)
+        assert (bound[held] <= s_star[held] * (1 + 1e-9)).all()
+
+
+def test_batch_shapes():
+    rng = np.random.default_rng(11)
+    positions, normals = ellipsoid_grasps(rng, 5, 4)
+    one_wrench = rng.normal(size=6)
+    s_batch, f_batch = optimal_contact_forces(positions, normals, 0.9, one_wrench)
+    assert s_batch.shape == (5,) and f_batch.shape == (5, 4, 3)
+    s_one, f_one = optimal_contact_forces(positions[2], normals[2], 0.9, one_wrench)
+    assert s_one.shape == () and f_one.shape == (4, 3)
+    np.testing.assert_allclose(s_one, s_batch[2], rtol=1e-7)
+    many = rng.normal(size=(7, 6))
+    s_many, f_many = optimal_contact_forces(positions[0], normals[0], 0.9, many)
+    assert s_many.shape == (7,) and f_many.shape == (7, 4, 3)
+    lone = [optimal_contact_forces(positions[0], normals[0], 0.9, w)[0] for w in many]
+    np.testing.assert_allclose(s_many, lone, rtol=1e-7)
+
+
+def test_bad_input_is_named():
+    positions, normals = equator_grasp()
+    with pytest.raises(ValueError, match=r"wrench must have shape"):
+        optimal_contact_forces(positions, normals, 0.5, np.zeros(5))
+    with pytest.raises(ValueError, match=r"wrench 1 is not finite"):
+        optimal_contact_forces(np.stack([positions] * 2), np.stack([normals] * 2), 0.5,
+                               np.array([np.zeros(6), [0, 0, np.nan, 0, 0, 0]]))
+    with pytest.raises(ValueError, match=r"grasp 0, contact 1: max_normal_force must be >= 0"):
+        optimal_contact_forces(positions, normals, 0.5, GRAVITY, max_normal_force=[1, -1, 1])
+    with pytest.raises(ValueError, match=r"grasp 0, contact 2: friction coefficient"):
+        optimal_contact_forces(positions, normals, [0.5, 0.5, 0.0], GRAVITY)
+    with pytest.raises(ValueError, match=r"does not match"):
+        optimal_contact_forces(np.stack([positions] * 2), np.stack([normals] * 2), 0.5,
+                               np.zeros((3, 6)))
