@@ -7,8 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from grasp_cases import ellipsoid_grasps, random_rotation
-from grasp_fc_ros.core import check_force_closure
-from grasp_fc_ros.core import stacked_socp
+from grasp_fc_ros.core import certificates, check_force_closure
 from grasp_fc_ros.core.grasp_forces import FORCE_TOL, lower_bound, optimal_contact_forces
 from reference_pyramids import pyramid_min_max_force
 
@@ -189,11 +188,11 @@ def test_dual_lower_bound_is_sound_for_any_wrench(seed, n_contacts):
     limits = np.where(rng.random((6, n_contacts)) < 0.3, rng.uniform(0.5, 5.0, (6, n_contacts)),
                       np.inf)
     s_star, _ = optimal_contact_forces(positions, normals, mu, wrench, limits)
-    unit, centroid, size = stacked_socp.centred_unit(positions)
+    unit, centroid, size = certificates.normalise_positions(positions)
     torque = wrench[:, 3:] - np.cross(centroid, wrench[:, :3])
     scaled = np.concatenate([wrench[:, :3], torque / size[:, None]], axis=1)
     magnitude = np.linalg.norm(scaled, axis=1)
-    gmap = stacked_socp.grasp_map(unit)
+    gmap = certificates.grasp_maps(unit)
     for _ in range(5):
         dual = rng.normal(size=(6, 6))
         bound = lower_bound(dual, gmap, normals, mu, scaled / magnitude[:, None],

@@ -13,6 +13,10 @@ Closure Grasp":
   6-vector wrench, deciding each grasp from certificates;
 * :mod:`.certificates` -- internal forces and bounding wrenches, checked in numpy;
 * :mod:`.pipeline` -- the filter, then the exact test on the survivors;
+* :mod:`.minimum_friction` -- the least friction coefficient that makes a grasp force
+  closure (certified bounds);
+* :mod:`.grasp_forces` -- the least largest normal force that holds a given load;
+* :mod:`.stacked_socp` -- many same-shape SOCPs in one Clarabel solve (for the two above);
 * :mod:`.grasp_input` -- shapes and per-grasp validation;
 * :mod:`.tolerances` -- every numerical tolerance, with the reason for its value.
 
@@ -27,8 +31,10 @@ True
 """
 
 from .certificates import verify_certificates
+from .grasp_forces import optimal_contact_forces
 from .grasp_input import GraspValidation, validate_grasps
 from .interior_point import warm_up
+from .minimum_friction import MinimumFriction, minimum_friction, minimum_friction_bounds
 from .pipeline import ForceClosureResult, Status, check_force_closure, exact_force_closure
 from .torque_space_filter import ORIGIN_CHOICES, torque_filter
 
@@ -36,9 +42,13 @@ __all__ = [
     "ORIGIN_CHOICES",
     "ForceClosureResult",
     "GraspValidation",
+    "MinimumFriction",
     "Status",
     "check_force_closure",
     "exact_force_closure",
+    "minimum_friction",
+    "minimum_friction_bounds",
+    "optimal_contact_forces",
     "torque_filter",
     "validate_grasps",
     "verify_certificates",

@@ -49,6 +49,7 @@ from .certificates import (certified_internal_force, grasp_maps, normalise_posit
                            wrench_bound)
 from .grasp_input import GraspBatch
 from .interior_point import FORCE_CLOSURE, UNDECIDED, solve_fast
+from .stacked_socp import tangent_bases
 from .tolerances import MARGIN_TOL, RANK_TOL
 
 #: What ``margin`` asks for (see :func:`solve_exact`).
@@ -201,21 +202,6 @@ def _solve_clarabel(grasps: GraspBatch, unit: np.ndarray, subset: np.ndarray):
     return force_closure, t_lo, t_hi, failure, forces, wrench
 
 
-def _tangent_bases(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit tangents (..., 3) orthogonal to each unit normal (..., 3) and each other.
-
-    The branch-free orthonormal basis of Duff et al., "Building an Orthonormal Basis,
-    Revisited" (JCGT 2017): elementwise only, well-conditioned for every unit normal.
-    """
-    x, y, z = normals[..., 0], normals[..., 1], normals[..., 2]
-    sign = np.where(z >= 0.0, 1.0, -1.0)
-    a = -1.0 / (sign + z)
-    b = x * y * a
-    first = np.stack((1.0 + sign * x * x * a, sign * b, -sign * x), axis=-1)
-    second = np.stack((b, sign + y * y * a, -y), axis=-1)
-    return first, second
-
-
 @lru_cache(maxsize=32)
 def _socp_pattern(n_grasps: int, n_contacts: int):
     """Sparsity pattern of the stacked constraint matrix A, fixed for (N, n).
@@ -271,7 +257,7 @@ def _solve_batch(grasps: GraspBatch, unit: np.ndarray, grasp_map: np.ndarray,
     """
     normals, mu = grasps.normals[subset[chunk]], grasps.mu[subset[chunk]]
     n_grasps, n_contacts = mu.shape
-    tangent, bitangent = _tangent_bases(normals)
+    tangent, bitangent = tangent_bases(normals)
     # Clarabel's form: A x + s = b with s in the cones, so each row of A holds -s(x).
     values = np.concatenate([
         grasp_map[chunk].ravel(),                                      # G f + s = 0, s = 0

@@ -31,9 +31,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .certificates import grasp_maps, normalise_positions
 from .grasp_input import GraspBatch, prepare_grasps
-from .stacked_socp import (SOLVE_BATCH, BlockShape, centred_unit, grasp_map, solve_stacked,
-                           split_normal, tangent_bases)
+from .stacked_socp import SOLVE_BATCH, BlockShape, solve_stacked, split_normal, tangent_bases
 
 #: s* = inf is reported where a dual wrench proves s* >= 1 / INFEASIBLE_BETA for the unit
 #: wrench of the normalised grasp (beta* <= 1e-9): no forces hold the load, or only
@@ -166,7 +166,7 @@ def solve_contact_forces(grasps: GraspBatch, wrench: np.ndarray, limits: np.ndar
     forces : ndarray, shape (N, n, 3)
     """
     n_grasps, n_contacts = grasps.mu.shape
-    unit, centroid, size = centred_unit(grasps.positions)
+    unit, centroid, size = normalise_positions(grasps.positions)
     # Torque about the centroid, then in units of the grasp's size.
     torque = wrench[:, 3:] - np.cross(centroid, wrench[:, :3])
     scaled = np.concatenate([wrench[:, :3], torque / size[:, None]], axis=1)
@@ -174,7 +174,7 @@ def solve_contact_forces(grasps: GraspBatch, wrench: np.ndarray, limits: np.ndar
     direction = scaled / np.where(magnitude > 0, magnitude, 1.0)[:, None]
     relative_limits = limits / np.where(magnitude > 0, magnitude, 1.0)[:, None]
 
-    gmap = grasp_map(unit)
+    gmap = grasp_maps(unit)
     s_star = np.zeros(n_grasps)
     forces = np.zeros((n_grasps, n_contacts, 3))
     loaded = np.flatnonzero(magnitude > 0)

@@ -44,9 +44,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .certificates import grasp_maps, normalise_positions
 from .grasp_input import GraspBatch, prepare_grasps
-from .stacked_socp import (SOLVE_BATCH, BlockShape, centred_unit, grasp_map, solve_stacked,
-                           split_normal, tangent_bases)
+from .stacked_socp import SOLVE_BATCH, BlockShape, solve_stacked, split_normal, tangent_bases
 from .tolerances import RANK_TOL
 
 #: Relative and absolute width of the certified interval [L, U] at which iteration stops
@@ -199,8 +199,8 @@ def solve_minimum_friction(grasps: GraspBatch, margin: float = 0.0):
     solves : ndarray of int, shape (N,)
     """
     n_grasps = grasps.mu.shape[0]
-    unit, _, _ = centred_unit(grasps.positions)
-    gmap = grasp_map(unit)                                             # (N, 6, 3n)
+    unit, _, _ = normalise_positions(grasps.positions)
+    gmap = grasp_maps(unit)                                             # (N, 6, 3n)
     singular = np.linalg.svd(gmap, compute_uv=False)
     full_rank = singular[:, -1] > RANK_TOL * singular[:, 0]
     state = _RootState.start(n_grasps, full_rank)

@@ -139,44 +139,11 @@ def solve_stacked(shape: BlockShape, a_values: np.ndarray, b: np.ndarray, q: np.
                            solution.status in ACCEPTED)
 
 
-def grasp_map(positions: np.ndarray) -> np.ndarray:
-    """Grasp maps (N, 6, 3n) of contacts at ``positions`` (N, n, 3), torque about 0.
-
-    Column block i maps the force f_i (world frame) to the wrench (f_i, p_i x f_i).
-    """
-    n_grasps, n_contacts = positions.shape[:2]
-    result = np.zeros((n_grasps, 6, n_contacts, 3))
-    result[:, 0, :, 0] = result[:, 1, :, 1] = result[:, 2, :, 2] = 1.0
-    x, y, z = positions[..., 0], positions[..., 1], positions[..., 2]
-    # p x f = (y f_z - z f_y, z f_x - x f_z, x f_y - y f_x).
-    result[:, 3, :, 1], result[:, 3, :, 2] = -z, y
-    result[:, 4, :, 0], result[:, 4, :, 2] = z, -x
-    result[:, 5, :, 0], result[:, 5, :, 1] = -y, x
-    return result.reshape(n_grasps, 6, 3 * n_contacts)
-
-
-def centred_unit(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Move each grasp (N, n, 3) to its centroid and scale it to unit size.
-
-    Returns
-    -------
-    unit : ndarray, shape (N, n, 3)
-    centroid : ndarray, shape (N, 3)
-    size : ndarray, shape (N,)
-        The largest centred coordinate (1 where all contacts coincide).
-    """
-    centroid = positions.mean(axis=1)
-    centred = positions - centroid[:, None, :]
-    size = np.abs(centred).max(axis=(1, 2))
-    size = np.where(size > 0, size, 1.0)
-    return centred / size[:, None, None], centroid, size
-
-
 def tangent_bases(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit tangents (..., 3) orthogonal to each unit normal (..., 3) and each other.
 
     The branch-free orthonormal basis of Duff et al., "Building an Orthonormal Basis,
-    Revisited" (JCGT 2017), as in the exact test.
+    Revisited" (JCGT 2017): elementwise only, well-conditioned for every unit normal.
     """
     x, y, z = normals[..., 0], normals[..., 1], normals[..., 2]
     sign = np.where(z >= 0.0, 1.0, -1.0)
