@@ -101,7 +101,7 @@ def check_force_closure(positions, normals, mu, use_filter: bool | str = "auto",
         Run the torque filter first and the exact test only on the grasps it passes.
         The verdicts are the same either way; the filter only saves time. "auto" (the
         default) runs it only where it is measured to pay (:func:`filter_worthwhile`,
-        by contact count: up to 8 contacts); its cost is bounded for every n anyway.
+        by contact count: up to 4 contacts); its cost is bounded for every n anyway.
     origins : {"seed", "all"}
         Torque origins of the filter (see :func:`torque_filter`).
     margin : {"optimum", "bound"}

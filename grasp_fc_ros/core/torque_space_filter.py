@@ -53,11 +53,12 @@ MAX_ALL_ORIGINS = 64
 
 #: Largest contact count at which the filter saves more exact-test time than it costs
 #: (hit rate x exact cost per grasp > filter cost per grasp), per origin choice. Measured
-#: by benchmarks/bench_filter.py (box grasps, one core) against the Clarabel exact test
-#: at mu = 0.01, tan 10 deg and 0.5 (n = 3 to 64): it paid at tan 10 deg up to these n
-#: (at 0.01 up to 10, at 0.5 up to 6) and at no mu beyond 10, where its hit rate falls
-#: to ~0. A faster exact stage lowers these numbers: re-run the benchmark and update.
-FILTER_PAYS_UP_TO_CONTACTS = {"seed": 8, "all": 8}
+#: by benchmarks/bench_filter.py (box grasps, one core, medians of 3) against the fast
+#: exact stage at mu = 0.01, tan 10 deg and 0.5 (n = 3 to 12): with both origin choices
+#: it paid at every mu up to n = 4, at mu = 0.01 up to 5, and nowhere beyond 5 (against
+#: the Clarabel path, ~30x slower, it had paid up to n = 8). Re-run the benchmark and
+#: update when either stage changes.
+FILTER_PAYS_UP_TO_CONTACTS = {"seed": 4, "all": 4}
 
 #: From this many grasps on, origins are tried one after another so that grasps
 #: already rejected skip the rest; below it, all origins go in one pass, which pays
