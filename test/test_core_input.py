@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from grasp_fc_ros.core import (check_force_closure, exact_force_closure, torque_filter,
                                validate_grasps)
@@ -179,3 +181,35 @@ def test_complex_and_non_numeric_input_is_refused_naming_the_argument(argument):
     values[argument] = np.full(np.shape(values[argument]), "x")
     with pytest.raises(ValueError, match=f"{argument} must be real numbers"):
         check_force_closure(values["positions"], values["normals"], values["mu"])
+
+
+@settings(max_examples=200, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_quick_all_valid_check_agrees_with_the_per_grasp_validation(seed):
+    """prepare_grasps skips the per-grasp validation when a few whole-array checks pass:
+    those must pass exactly when the per-grasp validation finds nothing."""
+    from grasp_fc_ros.core.grasp_input import _all_valid, _validate
+    from grasp_fc_ros.core.tolerances import (MAX_ABS_COORDINATE, MAX_FRICTION_COEFFICIENT,
+                                              MIN_NORMAL_COMPONENT)
+    rng = np.random.default_rng(seed)
+    positions = rng.normal(size=(4, 5, 3))
+    normals = rng.normal(size=(4, 5, 3))
+    mu = rng.uniform(0.1, 1.0, (4, 5))
+    bad_values = {
+        "positions": [np.nan, np.inf, -np.inf, 2 * MAX_ABS_COORDINATE, MAX_ABS_COORDINATE],
+        "normals": [np.nan, np.inf, 0.0, MIN_NORMAL_COMPONENT / 2, MIN_NORMAL_COMPONENT],
+        "mu": [np.nan, np.inf, 0.0, -1.0, 2 * MAX_FRICTION_COEFFICIENT,
+               MAX_FRICTION_COEFFICIENT],
+    }
+    for _ in range(rng.integers(0, 3)):
+        which = rng.choice(list(bad_values))
+        value = rng.choice(bad_values[which])
+        g, c = rng.integers(4), rng.integers(5)
+        if which == "mu":
+            mu[g, c] = value
+        elif which == "normals":
+            normals[g, c] = value if value in (np.nan, np.inf) or value == 0.0 else (
+                value * np.array([1.0, -1.0, 0.5]))
+        else:
+            positions[g, c, rng.integers(3)] = value
+    assert _all_valid(positions, normals, mu) == _validate(positions, normals, mu).valid.all()

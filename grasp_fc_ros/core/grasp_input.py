@@ -193,6 +193,21 @@ def _validate(p: np.ndarray, nrm: np.ndarray, m: np.ndarray) -> GraspValidation:
     return GraspValidation(valid, reasons)
 
 
+def _all_valid(p: np.ndarray, nrm: np.ndarray, m: np.ndarray) -> bool:
+    """True iff :func:`_validate` finds no problem, in a few whole-array reductions.
+
+    The common case of good input then skips the per-check, per-grasp bookkeeping,
+    which dominates the cost of a call with one grasp. NaN fails every comparison and
+    inf every upper bound, so each check of :func:`_validate` is covered.
+    """
+    with np.errstate(invalid="ignore"):
+        return bool(p.shape[1] >= MIN_CONTACTS
+                    and (np.abs(p) <= MAX_ABS_COORDINATE).all()
+                    and np.isfinite(nrm).all()
+                    and (_largest_component(nrm) >= MIN_NORMAL_COMPONENT).all()
+                    and ((m > 0) & (m <= MAX_FRICTION_COEFFICIENT)).all())
+
+
 def prepare_grasps(positions, normals, mu) -> GraspBatch:
     """Validate input and return it as a normalised batch.
 
@@ -202,8 +217,8 @@ def prepare_grasps(positions, normals, mu) -> GraspBatch:
         On wrong shapes or any bad value, naming the first bad grasps and contacts.
     """
     p, nrm, m, single = _as_batch_arrays(positions, normals, mu)
-    validation = _validate(p, nrm, m)
-    if not validation.valid.all():
+    validation = None if _all_valid(p, nrm, m) else _validate(p, nrm, m)
+    if validation is not None and not validation.valid.all():
         bad = [r for r in validation.reasons if r]
         more = f" (and {len(bad) - 3} more)" if len(bad) > 3 else ""
         raise ValueError("invalid grasp input: " + "; ".join(bad[:3]) + more)
