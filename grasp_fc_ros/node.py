@@ -61,8 +61,13 @@ from grasp_fc_ros.conversions import (
     verdicts_to_msgs,
 )
 from grasp_fc_ros.core import ORIGIN_CHOICES, Status
-from grasp_fc_ros.evaluation import MIN_CONTACTS, Settings, Verdicts, evaluate
-from grasp_fc_ros.workers import Cancelled, EvaluationPool
+from grasp_fc_ros.evaluation import MIN_CONTACTS, Settings, Verdicts
+from grasp_fc_ros.workers import (
+    PRIORITY_BATCH,
+    PRIORITY_INTERACTIVE,
+    Cancelled,
+    EvaluationPool,
+)
 
 NODE_NAME = "force_closure"
 DIAGNOSTICS_PERIOD_S = 1.0
@@ -373,7 +378,7 @@ class ForceClosureNode(Node):
                                     f"{len(grasps)} grasps exceed max_batch={settings.max_batch}")
         try:
             packed = contact_arrays_to_packed(grasps)
-            verdicts, seconds = self._decide(packed, settings, start)
+            verdicts, seconds = self._decide(packed, settings, start, PRIORITY_INTERACTIVE)
             replies = verdicts_to_msgs(verdicts, grasps)
             self._stats.record(verdicts.status, seconds, time.perf_counter() - start)
             return replies
@@ -416,19 +421,24 @@ class ForceClosureNode(Node):
         self._answer_single_queries(msgs)
 
     def _answer_single_queries(self, msgs: list[ContactArray]):
-        """Decide ``msgs`` (in this thread: they are small); publish one verdict each."""
+        """Decide ``msgs`` together; publish one verdict each, in order."""
         start = time.perf_counter()
         published = 0
         try:
             packed = contact_arrays_to_packed(msgs, name_by_id=True)
             conversion_s = time.perf_counter() - start
-            verdicts, seconds = evaluate(packed, self._settings)
+            verdicts, seconds = self._pool.decide(packed, self._settings, self._is_stopping,
+                                                  PRIORITY_INTERACTIVE)
             seconds["conversion_s"] = conversion_s
             self._warn_invalid(verdicts)
             for reply in verdicts_to_msgs(verdicts, msgs):
                 self._verdict_pub.publish(reply)
                 published += 1
             self._stats.record(verdicts.status, seconds, time.perf_counter() - start)
+        except Cancelled:
+            with self._lock:  # the node is being destroyed: destroy_node answers them
+                self._pending.extendleft(reversed(msgs))
+            raise
         except Exception as exc:  # noqa: BLE001
             if not rclpy.ok(context=self.context):
                 raise
@@ -452,6 +462,10 @@ class ForceClosureNode(Node):
             self._busy_batch_grasps = len(msg.ids)
         try:
             self._batch_pub.publish(self._batch_reply(msg))
+        except Cancelled:
+            with self._lock:  # the node is being destroyed: destroy_node answers it
+                self._batches.appendleft(msg)
+            raise
         finally:
             with self._lock:
                 self._busy_batch_grasps = 0
@@ -461,7 +475,7 @@ class ForceClosureNode(Node):
         start = time.perf_counter()
         try:
             packed = batch_to_packed(msg)
-            verdicts, seconds = self._decide(packed, self._settings, start)
+            verdicts, seconds = self._decide(packed, self._settings, start, PRIORITY_BATCH)
             reply = verdicts_to_array_msg(verdicts, msg)
             # Counted only once the reply exists, so a failure cannot count it twice.
             self._stats.record(verdicts.status, seconds, time.perf_counter() - start)
@@ -477,10 +491,14 @@ class ForceClosureNode(Node):
             self._stats.record_failures(len(msg.ids))
             return _batch_failure(msg, Status.SOLVER_FAILURE, f"internal error: {exc}")
 
-    def _decide(self, packed, settings: Settings, start: float) -> tuple[Verdicts, dict]:
-        """Decide converted grasps (on the workers when large); warn about invalid ones."""
+    def _is_stopping(self) -> bool:
+        return self._stopping
+
+    def _decide(self, packed, settings: Settings, start: float, priority: int
+                ) -> tuple[Verdicts, dict]:
+        """Decide converted grasps (on the workers if any); warn about invalid ones."""
         conversion_s = time.perf_counter() - start
-        verdicts, seconds = self._pool.decide(packed, settings, lambda: self._stopping)
+        verdicts, seconds = self._pool.decide(packed, settings, self._is_stopping, priority)
         seconds["conversion_s"] = conversion_s
         self._warn_invalid(verdicts)
         return verdicts, seconds
@@ -499,9 +517,10 @@ class ForceClosureNode(Node):
 
         Queued queries get SOLVER_FAILURE with :data:`SHUTDOWN_MESSAGE` when rclpy's
         context is still up (the node destroyed by its owner: the demo, tests, an
-        embedding program). After Ctrl-C or SIGTERM the context is already shut down
-        and nothing can be published any more: the log says how many queries stay
-        unanswered (queued singles, queued batch grasps, the batch being decided).
+        embedding program); so do the queries being decided (their work is abandoned, so
+        that the node stops within a fraction of a second). After Ctrl-C or SIGTERM the
+        context is already shut down and nothing can be published any more: the log
+        says how many queries stay unanswered.
         """
         with self._lock:
             self._stopping = True
@@ -512,8 +531,7 @@ class ForceClosureNode(Node):
         with self._lock:
             singles, self._pending = list(self._pending), deque()
             batches, self._batches = list(self._batches), deque()
-            abandoned = self._busy_batch_grasps
-        unanswered = len(singles) + sum(len(b.ids) for b in batches) + abandoned
+        unanswered = len(singles) + sum(len(b.ids) for b in batches)
         try:
             if not rclpy.ok(context=self.context):
                 raise RuntimeError("rclpy is shut down")

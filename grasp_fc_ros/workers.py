@@ -3,52 +3,104 @@
 The core is CPU-bound Python and numpy, and the GIL lets one process use about one
 core. :class:`EvaluationPool` splits a large :class:`~grasp_fc_ros.evaluation.PackedGrasps`
 into chunks, decides them in worker processes with :func:`~grasp_fc_ros.evaluation.evaluate`
-and puts the verdicts back together in order. Small requests are decided in the
-calling thread: a round trip through a worker costs more than they do.
+and puts the verdicts back together in order. With workers, nothing is decided in the
+calling process: there the core would hold the GIL for milliseconds at a time and
+stall the ROS threads taking and sending messages.
 
-Workers are started by a *forkserver* (a clean process that imports only this module's
-dependencies), never forked from the ROS process, whose DDS threads must not be copied.
-They ignore SIGINT (Ctrl-C reaches the whole process group; the owner decides) and exit
-when their parent goes away, so a SIGKILL of the node leaves no workers behind.
+Each worker is a fresh interpreter, ``python -m grasp_fc_ros.workers``, fed pickled
+chunks on its stdin and answering on its stdout. Not multiprocessing: its spawn and
+forkserver methods re-run the parent's ``__main__`` script in every worker (which breaks
+any unguarded script embedding the node), and fork would copy the ROS process's DDS
+threads. A worker ignores SIGINT (Ctrl-C reaches the whole process group; its owner
+decides) and ends when its stdin closes, so a SIGKILL of the node leaves no workers.
 """
 
 from __future__ import annotations
 
-import multiprocessing
-import os
+import itertools
+import pickle
+import queue
 import signal
+import struct
+import subprocess
+import sys
 import threading
-import time
+from concurrent.futures import Future
+from concurrent.futures import TimeoutError as FutureTimeout
 from typing import Callable
 
 from grasp_fc_ros.evaluation import PackedGrasps, Settings, Verdicts, evaluate
 
-# Requests up to this many contacts are decided inline: a worker round trip (pickling
-# both ways, ~1 ms) would cost more than deciding them (a 6-finger grasp ~0.1 ms).
-INLINE_CONTACTS = 600
-# Contacts per chunk: ~1,000 6-finger grasps, about 0.1 s of core time; short enough
-# that a shutdown or a cancelled batch waits little for the chunk in progress.
-CHUNK_CONTACTS = 6_000
+# Contacts per chunk: ~40 6-finger grasps, ~25 ms of core time (measured: ~0.5 ms per
+# grasp in batches, 2.4 ms per core call), so an interactive request waits at most about
+# that long for a busy worker; the chunk's pickling costs ~1% of it.
+CHUNK_CONTACTS = 256
 # How often a waiting caller looks at its cancel condition (s).
 POLL_S = 0.02
-# How often a worker checks that its parent is still alive (s).
-PARENT_CHECK_S = 0.5
+# Chunk priorities: lower first. Service requests overtake queued batch chunks.
+PRIORITY_INTERACTIVE = 0
+PRIORITY_BATCH = 1
+_HEADER = struct.Struct("<Q")  # length prefix of each pickled message
 
 
 class Cancelled(Exception):
     """The caller's cancel condition became true while its chunks were being decided."""
 
 
-def _init_worker():
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    parent = os.getppid()
+def _write(stream, obj):
+    data = pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
+    stream.write(_HEADER.pack(len(data)))
+    stream.write(data)
+    stream.flush()
 
-    def watch_parent():
-        while os.getppid() == parent:
-            time.sleep(PARENT_CHECK_S)
-        os._exit(0)
 
-    threading.Thread(target=watch_parent, daemon=True).start()
+def _read(stream):
+    header = stream.read(_HEADER.size)
+    if len(header) < _HEADER.size:
+        raise EOFError("worker stream closed")
+    (size,) = _HEADER.unpack(header)
+    return pickle.loads(stream.read(size))
+
+
+class _Worker:
+    """One worker process and the thread that feeds it chunks from the shared queue."""
+
+    def __init__(self, tasks: queue.PriorityQueue, closing: threading.Event, index: int):
+        self._tasks = tasks
+        self._closing = closing
+        self.process = self._start()
+        self.thread = threading.Thread(target=self._feed, daemon=True,
+                                       name=f"grasp_fc_worker_{index}")
+        self.thread.start()
+
+    @staticmethod
+    def _start() -> subprocess.Popen:
+        return subprocess.Popen([sys.executable, "-m", "grasp_fc_ros.workers"],
+                                stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+
+    def _feed(self):
+        while True:
+            _, _, task = self._tasks.get()
+            if task is None:
+                return  # the pool is closing
+            future, chunk, settings = task
+            if not future.set_running_or_notify_cancel():
+                continue
+            try:
+                _write(self.process.stdin, (chunk, settings))
+                ok, answer = _read(self.process.stdout)
+            except Exception as exc:  # noqa: BLE001 - the worker died: fail this chunk only
+                future.set_exception(RuntimeError(f"worker process failed: {exc!r}"))
+                if self._closing.is_set():
+                    return
+                if self.process.poll() is None:
+                    self.process.kill()
+                self.process = self._start()
+                continue
+            if ok:
+                future.set_result(answer)
+            else:
+                future.set_exception(RuntimeError(answer))
 
 
 class EvaluationPool:
@@ -65,32 +117,48 @@ class EvaluationPool:
     def __init__(self, workers: int, chunk_contacts: int = CHUNK_CONTACTS):
         self.workers = workers
         self._chunk_contacts = chunk_contacts
-        self._pool = None
-        if workers:
-            context = multiprocessing.get_context("forkserver")
-            context.set_forkserver_preload(["grasp_fc_ros.evaluation"])
-            self._pool = context.Pool(workers, initializer=_init_worker)
+        self._tasks: queue.PriorityQueue = queue.PriorityQueue()
+        self._order = itertools.count()
+        self._closing = threading.Event()
+        self._workers = [_Worker(self._tasks, self._closing, i) for i in range(workers)]
 
     def decide(self, packed: PackedGrasps, settings: Settings,
-               cancelled: Callable[[], bool] = lambda: False) -> tuple[Verdicts, dict]:
+               cancelled: Callable[[], bool] = lambda: False,
+               priority: int = PRIORITY_BATCH) -> tuple[Verdicts, dict]:
         """Verdicts for every grasp of ``packed``, in order, and the seconds per stage.
 
         Raises
         ------
         Cancelled
-            If ``cancelled()`` became true before all chunks were decided.
+            If ``cancelled()`` became true before all chunks were decided (the chunks
+            not started yet are dropped).
         """
-        if self._pool is None or int(packed.counts.sum()) <= INLINE_CONTACTS:
+        if not self._workers:
             return evaluate(packed, settings)
-        pending = [self._pool.apply_async(evaluate, (chunk, settings))
-                   for chunk in packed.chunks(self._chunk_contacts)]
+        futures = []
+        for chunk in packed.chunks(self._chunk_contacts):
+            future: Future = Future()
+            self._tasks.put((priority, next(self._order), (future, chunk, settings)))
+            futures.append(future)
+        try:
+            return self._collect(futures, cancelled)
+        finally:
+            for future in futures:
+                future.cancel()
+
+    @staticmethod
+    def _collect(futures: list[Future], cancelled: Callable[[], bool]
+                 ) -> tuple[Verdicts, dict]:
         parts, seconds = [], {}
-        for result in pending:
-            while not result.ready():
+        for future in futures:
+            while True:
                 if cancelled():
                     raise Cancelled()
-                result.wait(POLL_S)
-            verdicts, chunk_seconds = result.get()
+                try:
+                    verdicts, chunk_seconds = future.result(POLL_S)
+                    break
+                except FutureTimeout:
+                    continue
             parts.append(verdicts)
             for key, value in chunk_seconds.items():
                 seconds[key] = seconds.get(key, 0.0) + value
@@ -98,7 +166,34 @@ class EvaluationPool:
 
     def close(self):
         """Stop the workers at once (a chunk in progress is abandoned)."""
-        if self._pool is not None:
-            self._pool.terminate()
-            self._pool.join()
-            self._pool = None
+        self._closing.set()
+        for worker in self._workers:
+            self._tasks.put((-1, next(self._order), None))
+        for worker in self._workers:
+            worker.process.kill()
+            worker.process.wait()
+        for worker in self._workers:
+            worker.thread.join(timeout=1.0)
+        self._workers = []
+
+
+def _serve():
+    """Worker main loop: (chunk, settings) in on stdin, (verdicts, seconds) out on stdout."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    stdin, stdout = sys.stdin.buffer, sys.stdout.buffer
+    # Anything else printing to stdout would corrupt the stream: send it to stderr.
+    sys.stdout = sys.stderr
+    while True:
+        try:
+            chunk, settings = _read(stdin)
+        except EOFError:
+            return  # the owner closed the pipe or died
+        try:
+            answer = True, evaluate(chunk, settings)
+        except Exception as exc:  # noqa: BLE001 - reported to the owner, worker goes on
+            answer = False, f"{type(exc).__name__}: {exc}"
+        _write(stdout, answer)
+
+
+if __name__ == "__main__":
+    _serve()
