@@ -69,6 +69,9 @@ class _Worker:
         self._tasks = tasks
         self._closing = closing
         self.process = self._start()
+        # The worker says so once it has imported the core: a pool is ready when its
+        # constructor returns, and the first chunks do not wait for imports.
+        _read(self.process.stdout)
         self.thread = threading.Thread(target=self._feed, daemon=True,
                                        name=f"grasp_fc_worker_{index}")
         self.thread.start()
@@ -96,6 +99,7 @@ class _Worker:
                 if self.process.poll() is None:
                     self.process.kill()
                 self.process = self._start()
+                _read(self.process.stdout)
                 continue
             if ok:
                 future.set_result(answer)
@@ -183,6 +187,7 @@ def _serve():
     stdin, stdout = sys.stdin.buffer, sys.stdout.buffer
     # Anything else printing to stdout would corrupt the stream: send it to stderr.
     sys.stdout = sys.stderr
+    _write(stdout, "ready")
     while True:
         try:
             chunk, settings = _read(stdin)
