@@ -533,7 +533,7 @@ class ForceClosureNode(Node):
             batches, self._batches = list(self._batches), deque()
         unanswered = len(singles) + sum(len(b.ids) for b in batches)
         try:
-            if not rclpy.ok(context=self.context):
+            if (singles or batches) and not rclpy.ok(context=self.context):
                 raise RuntimeError("rclpy is shut down")
             for reply in _failure_replies(singles, Status.SOLVER_FAILURE, SHUTDOWN_MESSAGE):
                 self._verdict_pub.publish(reply)
