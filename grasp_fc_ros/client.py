@@ -96,6 +96,7 @@ class GraspClient:
         self._service = self.node.create_client(CheckForceClosure,
                                                 f"{prefix}/check_force_closure")
         self._matched = 0
+        self._closed = False
         self.node.create_timer(WATCH_PERIOD_S, self._watch_node)
         self._executor = SingleThreadedExecutor(context=self.node.context)
         self._executor.add_node(self.node)
@@ -301,7 +302,13 @@ class GraspClient:
             pass
 
     def close(self):
-        """Stop spinning and destroy the client's node; unanswered futures are cancelled."""
+        """Stop spinning and destroy the client's node; unanswered futures are cancelled.
+
+        A second call does nothing.
+        """
+        if self._closed:
+            return
+        self._closed = True
         self._executor.shutdown()
         self._spinner.join(timeout=5.0)
         self.node.destroy_node()

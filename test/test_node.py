@@ -230,6 +230,25 @@ def test_oversized_batch_is_rejected_whole(client, fc_node, grasps):
     assert "max_batch=3" in got.messages[0]
 
 
+def test_oversized_service_request_is_refused_before_conversion(client, fc_node, grasps,
+                                                                monkeypatch):
+    positions, normals = (a[:4] for a in grasps)
+
+    def no_conversion(*args, **kwargs):
+        raise AssertionError("an oversized request was converted")
+
+    monkeypatch.setattr(node_module, "contact_arrays_to_packed", no_conversion)
+    fc_node.set_parameters([Parameter("max_batch", value=3)])
+    try:
+        verdicts = client.call([grasp_to_contact_array(20 + i, positions[i], normals[i])
+                                for i in range(4)])
+    finally:
+        fc_node.set_parameters([Parameter("max_batch", value=100_000)])
+    assert [v.id for v in verdicts] == [20, 21, 22, 23]
+    assert all(v.status == Status.INVALID_INPUT for v in verdicts)
+    assert verdicts[0].message == "4 grasps exceed max_batch=3"
+
+
 def test_empty_batch_gets_empty_answer(client):
     got = send_batch(client, grasps_to_batch_msg([], np.empty((0, 6, 3)), np.empty((0, 6, 3))))
     assert len(got.ids) == 0 and len(got.status) == 0

@@ -205,6 +205,24 @@ def test_sigterm_during_a_large_batch_exits_within_a_second(client, grasps):
     assert f"{big * len(positions)} queries left unanswered at shutdown" in err
 
 
+def test_second_ctrl_c_during_shutdown_exits_quietly(client, grasps):
+    process = NodeProcess(node_command())
+    try:
+        client.wait_connected()
+        positions, normals = grasps
+        client.batch_pub.publish(grasps_to_batch_msg(np.arange(len(positions)), positions,
+                                                     normals))
+        wait_for_log(process, "ready")
+        process.proc.send_signal(signal.SIGINT)
+        process.proc.send_signal(signal.SIGINT)
+    except BaseException:
+        process.stop(signal.SIGKILL)
+        raise
+    code, _, err = process.stop(signal.SIGINT)
+    assert code in (0, 130), err
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
+
+
 def test_client_resubmits_after_the_node_is_killed_and_restarted(ros, grasps):
     positions, normals = grasps
     namespace = f"/restart_{os.getpid()}"
