@@ -216,6 +216,27 @@ class _Statistics:
         return [KeyValue(key=k, value=str(v)) for k, v in values.items()]
 
 
+class _Throttle:
+    """At most one log line per ``period_s`` and key, decided before calling the logger.
+
+    rclpy's own ``throttle_duration_sec`` inspects the caller's stack on every call,
+    even a suppressed one, which costs more than a whole verdict on the hot path.
+    """
+
+    def __init__(self, period_s: float):
+        self._period_s = period_s
+        self._last: dict[str, float] = {}
+        self._lock = threading.Lock()
+
+    def __call__(self, key: str) -> bool:
+        now = time.monotonic()
+        with self._lock:
+            if now - self._last.get(key, -math.inf) < self._period_s:
+                return False
+            self._last[key] = now
+            return True
+
+
 def _failure_replies(queries, status: Status, message: str) -> list[ForceClosureVerdict]:
     """Verdict messages of ``status`` for ContactArray ``queries``, without the core."""
     return [ForceClosureVerdict(header=q.header, client_id=q.client_id, id=q.id,
@@ -236,6 +257,7 @@ class ForceClosureNode(Node):
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         self._stats = _Statistics()
+        self._may_log = _Throttle(WARN_THROTTLE_S)
         self._lock = threading.Condition()
         # Single-grasp topic queries and batches waiting for their threads, oldest first.
         self._pending: deque[ContactArray] = deque()
@@ -319,8 +341,8 @@ class ForceClosureNode(Node):
     def _overloaded(self, what: str, n_queries: int) -> str:
         message = f"node overloaded: {what}"
         self._stats.count_overloaded(n_queries)
-        self.get_logger().warning(f"{message}; refusing {n_queries} queries (max_batch)",
-                                  throttle_duration_sec=WARN_THROTTLE_S)
+        if self._may_log("overloaded"):
+            self.get_logger().warning(f"{message}; refusing {n_queries} queries (max_batch)")
         return message
 
     def _refuse_single(self, msg: ContactArray, pending: int):
@@ -393,8 +415,8 @@ class ForceClosureNode(Node):
 
     def _internal_error(self, what: str, exc: Exception):
         self._stats.count_error()
-        self.get_logger().error(f"internal error while answering {what}: {exc!r}",
-                                throttle_duration_sec=WARN_THROTTLE_S)
+        if self._may_log("internal error"):
+            self.get_logger().error(f"internal error while answering {what}: {exc!r}")
 
     # --- the threads that decide ------------------------------------------------------
 
@@ -481,7 +503,8 @@ class ForceClosureNode(Node):
             self._stats.record(verdicts.status, seconds, time.perf_counter() - start)
             return reply
         except MalformedBatch as exc:
-            self.get_logger().warning(str(exc), throttle_duration_sec=WARN_THROTTLE_S)
+            if self._may_log("malformed"):
+                self.get_logger().warning(str(exc))
             self._stats.record(np.full(len(msg.ids), Status.INVALID_INPUT, np.uint8), {}, None)
             return _batch_failure(msg, Status.INVALID_INPUT, str(exc))
         except Cancelled:
@@ -505,10 +528,10 @@ class ForceClosureNode(Node):
 
     def _warn_invalid(self, verdicts: Verdicts):
         invalid = np.flatnonzero(verdicts.status == Status.INVALID_INPUT)
-        if len(invalid):
+        if len(invalid) and self._may_log("invalid"):
             self.get_logger().warning(
                 f"{len(invalid)} of {len(verdicts)} queries invalid, e.g. "
-                f"{verdicts.messages[invalid[0]]}", throttle_duration_sec=WARN_THROTTLE_S)
+                f"{verdicts.messages[invalid[0]]}")
 
     # --- shutdown ---------------------------------------------------------------------
 

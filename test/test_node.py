@@ -590,3 +590,19 @@ def test_stacked_contacts_without_counts_are_refused():
         grasps_to_batch_msg([1, 2], positions, positions)
     msg = grasps_to_batch_msg([1, 2], positions, positions, counts=[5, 7])
     assert list(msg.contact_counts) == [5, 7]
+
+
+def test_a_second_node_with_the_same_name_is_logged(own_node, capfd):
+    own_node("/duplicate_test", workers=0)
+    twin = ForceClosureNode(namespace="/duplicate_test",
+                            parameter_overrides=[Parameter("workers", value=0)])
+    spinner = SpinThread(twin)
+    try:
+        deadline = time.monotonic() + REPLY_TIMEOUT_S
+        logged = ""
+        while "another node is named /duplicate_test/force_closure" not in logged:
+            assert time.monotonic() < deadline, "the twin was never reported"
+            time.sleep(0.2)
+            logged += capfd.readouterr().err
+    finally:
+        spinner.stop()
