@@ -14,7 +14,8 @@ and decided by :mod:`grasp_fc_ros.evaluation`, large ones in worker processes
 (:mod:`grasp_fc_ros.workers`).
 
 Flow control: the query topics are reliable and KEEP_ALL (:data:`QUERY_QOS`), so DDS
-pushes back on a publisher instead of overwriting queries the node has not taken yet.
+pushes back on a publisher instead of overwriting queries the node has not taken yet;
+the verdicts go out reliable with a deep history (:data:`VERDICT_QOS`).
 Callbacks only queue: single-grasp queries wait for the ``single_queries`` thread (at
 most ``max_batch`` of them; more are answered at once with SOLVER_FAILURE "node
 overloaded"), batches for the ``batches`` thread, which decides them in chunks on the
@@ -85,11 +86,17 @@ EXECUTOR_THREADS = 4
 # Verdict message of queries still queued when the node is destroyed.
 SHUTDOWN_MESSAGE = "node shutting down: query not evaluated"
 
-# The QoS of the query and verdict topics. Reliable + KEEP_ALL on both ends: a reader
-# never overwrites a sample it has not handed over, so a full node (or client) makes
-# the writer wait instead of losing data. Clients must use the same (see the README).
+# The QoS clients use on all four grasp topics, and the node's query subscriptions.
+# Reliable + KEEP_ALL: a reader never overwrites a sample it has not handed over, so a
+# busy node makes the publisher wait instead of losing queries (see the README).
 QUERY_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
                        history=HistoryPolicy.KEEP_ALL, depth=1)
+# The node's verdict publishers: reliable, and a deep KEEP_LAST history rather than
+# KEEP_ALL, so that a client that stops reading (or was killed and is not yet known to
+# be gone) can never make publish() block the node for everyone. A live client keeps
+# at most its window (2,000) unanswered, far below this depth.
+VERDICT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
+                         history=HistoryPolicy.KEEP_LAST, depth=10_000)
 
 # The wire status codes are the core's Status values.
 assert all(getattr(ForceClosureVerdict, s.name) == s.value for s in Status)
@@ -273,9 +280,10 @@ class ForceClosureNode(Node):
         self._warn_unknown_overrides()
         self._pool = EvaluationPool(self.get_parameter("workers").value)
 
-        self._verdict_pub = self.create_publisher(ForceClosureVerdict, "verdicts", QUERY_QOS)
+        self._verdict_pub = self.create_publisher(ForceClosureVerdict, "verdicts",
+                                                  VERDICT_QOS)
         self._batch_pub = self.create_publisher(ForceClosureVerdictArray, "verdicts_batch",
-                                                QUERY_QOS)
+                                                VERDICT_QOS)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(ContactArray, "contacts", self._on_contacts, QUERY_QOS,
                                  callback_group=MutuallyExclusiveCallbackGroup())
