@@ -272,6 +272,7 @@ class ForceClosureNode(Node):
         self._queued_batch_grasps = 0
         self._busy_batch_grasps = 0
         self._stopping = False
+        self._duplicate_warned = False
         self._settings = Settings(**{name: PARAMETERS[name][0] for name in _SETTING_NAMES})
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
@@ -298,7 +299,6 @@ class ForceClosureNode(Node):
                          for work in (self._single_queries, self._next_batch)]
         for thread in self._threads:
             thread.start()
-        self._duplicate_warned = False
         self.get_logger().info(
             f"ready: topics contacts, contacts_batch; service check_force_closure; "
             f"settings {self._settings}; workers {self._pool.workers}")
