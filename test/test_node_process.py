@@ -247,3 +247,18 @@ def test_client_resubmits_after_the_node_is_killed_and_restarted(ros, grasps):
     expected = check_force_closure(positions, normals, 0.5).status
     np.testing.assert_array_equal(verdicts.status, np.tile(expected, big))
     assert [a.status for a in answers] == expected[:50].tolist()
+
+
+def test_demo_drives_a_running_node_by_name():
+    namespace = f"/demo_target_{os.getpid()}"
+    process = NodeProcess(node_command() + ["--ros-args", "-r", f"__ns:={namespace}"])
+    try:
+        demo = Path(sys.executable).with_name("grasp-fc-demo")
+        done = subprocess.run([str(demo), "--grasps", "120", "--node-name",
+                               f"{namespace}/force_closure"],
+                              capture_output=True, text=True, timeout=90)
+    finally:
+        assert_clean_exit(process, signal.SIGTERM)
+    assert done.returncode == 0, done.stderr
+    assert f"-> node {namespace}/force_closure" in done.stdout
+    assert re.search(r"^  queries\s+120$", done.stdout, re.M), done.stdout
