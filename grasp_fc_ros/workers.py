@@ -3,9 +3,10 @@
 The core is CPU-bound Python and numpy, and the GIL lets one process use about one
 core. :class:`EvaluationPool` splits a large :class:`~grasp_fc_ros.evaluation.PackedGrasps`
 into chunks, decides them in worker processes with :func:`~grasp_fc_ros.evaluation.evaluate`
-and puts the verdicts back together in order. With workers, nothing is decided in the
-calling process: there the core would hold the GIL for milliseconds at a time and
-stall the ROS threads taking and sending messages.
+and puts the verdicts back together in order. Requests of at most
+:data:`INLINE_GRASPS` grasps are decided in the calling thread: a few milliseconds of
+GIL, and no waiting for a worker busy with a batch chunk. Everything larger goes to the
+workers, so the core never holds the node's GIL for long.
 
 Each worker is a fresh interpreter, ``python -m grasp_fc_ros.workers``, fed pickled
 chunks on its stdin and answering on its stdout. Not multiprocessing: its spawn and
@@ -18,6 +19,7 @@ decides) and ends when its stdin closes, so a SIGKILL of the node leaves no work
 from __future__ import annotations
 
 import itertools
+import os
 import pickle
 import queue
 import signal
@@ -31,15 +33,23 @@ from typing import Callable
 
 from grasp_fc_ros.evaluation import PackedGrasps, Settings, Verdicts, evaluate
 
-# Contacts per chunk: ~40 6-finger grasps, ~25 ms of core time (measured: ~0.5 ms per
-# grasp in batches, 2.4 ms per core call), so an interactive request waits at most about
-# that long for a busy worker; the chunk's pickling costs ~1% of it.
-CHUNK_CONTACTS = 256
+# Contacts per chunk: ~170 6-finger grasps. Measured CPU per grasp (6 fingers, one
+# process): 0.34 ms in calls of 42 grasps, 0.28 ms in calls of 170, 0.22 ms from 500 on;
+# 170 keeps a chunk near 50 ms (the time a shutdown waits for it) at ~75% of the core's
+# best efficiency. Pickling a chunk both ways costs well under 1% of it.
+CHUNK_CONTACTS = 1024
+# Requests up to this many grasps are decided inline (one core call, ~2-4 ms): a
+# service call or a trickle of single queries does not wait behind batch chunks.
+INLINE_GRASPS = 4
 # How often a waiting caller looks at its cancel condition (s).
 POLL_S = 0.02
 # Chunk priorities: lower first. Service requests overtake queued batch chunks.
 PRIORITY_INTERACTIVE = 0
 PRIORITY_BATCH = 1
+# The workers are the parallelism: a BLAS thread pool per worker would oversubscribe
+# the cores (OpenBLAS threads spin while waiting).
+_ONE_THREAD = {name: "1" for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS",
+                                      "MKL_NUM_THREADS")}
 _HEADER = struct.Struct("<Q")  # length prefix of each pickled message
 
 
@@ -79,7 +89,8 @@ class _Worker:
     @staticmethod
     def _start() -> subprocess.Popen:
         return subprocess.Popen([sys.executable, "-m", "grasp_fc_ros.workers"],
-                                stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+                                stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                env={**os.environ, **_ONE_THREAD})
 
     def _feed(self):
         while True:
@@ -134,10 +145,12 @@ class EvaluationPool:
         Raises
         ------
         Cancelled
-            If ``cancelled()`` became true before all chunks were decided (the chunks
-            not started yet are dropped).
+            If ``cancelled()`` was true at the start or became true before all chunks
+            were decided (the chunks not started yet are dropped).
         """
-        if not self._workers:
+        if cancelled():
+            raise Cancelled()
+        if not self._workers or len(packed) <= INLINE_GRASPS:
             return evaluate(packed, settings)
         futures = []
         for chunk in packed.chunks(self._chunk_contacts):
