@@ -11,6 +11,11 @@ Prints
 4. the same while a large batch (--big-batch grasps) is being decided;
 5. the service round trip without core work (an invalid one-contact grasp).
 
+Rates depend on what else runs on the machine (and Linux's autogroup scheduling shares
+one session's CPU among all its processes, the node's workers included), so 1. and 2.
+also print CPU seconds per query of the node's process tree, which do not, and the
+rate they allow on idle cores.
+
 The node is started from its console script (grasp-fc-node, next to this Python) in a
 namespace of its own, so other nodes on the same ROS domain do not interfere.
 
@@ -47,6 +52,39 @@ TARGET_SERVICE_BUSY_P99_MS = 50.0
 BATCHES_IN_FLIGHT = 2
 
 
+def process_tree(pid: int) -> list[int]:
+    """``pid`` and all its descendants (Linux /proc): the node and its worker processes."""
+    children: dict[int, list[int]] = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                stat = Path(f"/proc/{entry}/stat").read_text()
+            except OSError:
+                continue
+            children.setdefault(int(stat.rsplit(")", 1)[1].split()[1]), []).append(int(entry))
+    tree, todo = [], [pid]
+    while todo:
+        tree.append(todo.pop())
+        todo.extend(children.get(tree[-1], []))
+    return tree
+
+
+def tree_cpu_s(pid: int) -> float:
+    """CPU seconds (user + system) used so far by ``pid`` and its descendants.
+
+    Unlike wall-clock rates this does not depend on what else the machine runs, so it
+    gives the node's cost per query on a shared machine.
+    """
+    total = 0
+    for member in process_tree(pid):
+        try:
+            fields = Path(f"/proc/{member}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        total += int(fields[11]) + int(fields[12])
+    return total / os.sysconf("SC_CLK_TCK")
+
+
 def bench_single(client: GraspClient, positions, normals, n_queries: int):
     """Queries/s for ``n_queries`` submitted back to back; (rate, lossless)."""
     before = client.next_diagnostics()
@@ -77,10 +115,12 @@ def bench_batches(client: GraspClient, batches):
 
 
 def bench_core(batches):
-    start = time.perf_counter()
+    """(grasps/s, CPU s per grasp) of the core alone in this process."""
+    start, cpu = time.perf_counter(), time.process_time()
     for p, n in batches:
         check_force_closure(p, n, 0.5)
-    return sum(len(p) for p, _ in batches) / (time.perf_counter() - start)
+    n_grasps = sum(len(p) for p, _ in batches)
+    return n_grasps / (time.perf_counter() - start), (time.process_time() - cpu) / n_grasps
 
 
 def bench_service(client: GraspClient, positions, normals, n_calls: int, until=None):
@@ -162,16 +202,22 @@ def main(argv=None) -> int:
     try:
         print(f"object {args.object}, {N_FINGERS}-finger random grasps; node in a separate "
               f"process, QoS reliable KEEP_ALL; {os.cpu_count()} CPUs")
+        cpu = tree_cpu_s(node.pid)
         rate, lossless = bench_single(client, positions, normals, args.queries)
+        single_cpu = (tree_cpu_s(node.pid) - cpu) / args.queries
         print(f"single-grasp topic: {rate:8.0f} queries/s over {args.queries} queries, "
               f"{'no loss, in order' if lossless else 'LOSS or miscount'}  "
               f"[target >= {TARGET_SINGLE_PER_S}/s: "
               f"{verdict(lossless and rate >= TARGET_SINGLE_PER_S)}]")
+        print(f"    node CPU per query {1e3 * single_cpu:.3f} ms (node and workers) -> at most "
+              f"{os.cpu_count() / single_cpu:.0f} queries/s on {os.cpu_count()} idle cores")
 
         # Core alone before and after the ROS run, averaged: the machine's load drifts.
-        core_before = bench_core(batches)
+        core_before, core_cpu = bench_core(batches)
+        cpu = tree_cpu_s(node.pid)
         ros_rate, complete = bench_batches(client, batches)
-        core_after = bench_core(batches)
+        node_cpu = (tree_cpu_s(node.pid) - cpu) / sum(len(p) for p, _ in batches)
+        core_after, _ = bench_core(batches)
         core_rate = 0.5 * (core_before + core_after)
         ratio = ros_rate / core_rate
         print(f"batches of {args.batch_size}: {ros_rate:8.0f} grasps/s through the node, "
@@ -179,6 +225,9 @@ def main(argv=None) -> int:
               f"{core_before:.0f}, {core_after:.0f}) -> {ratio:.2f}x"
               f"{'' if complete else ' (INCOMPLETE replies)'}  "
               f"[target >= {TARGET_BATCH_RATIO}x: {verdict(complete and ratio >= TARGET_BATCH_RATIO)}]")
+        print(f"    CPU per grasp: node and workers {1e3 * node_cpu:.3f} ms, core alone "
+              f"{1e3 * core_cpu:.3f} ms -> on {os.cpu_count()} idle cores at most "
+              f"{os.cpu_count() * core_cpu / node_cpu:.2f}x the core alone")
 
         idle = bench_service(client, positions, normals, args.service_calls)
         print(f"service round trip (one grasp): {percentiles(idle)}  [target p50 <= "
