@@ -18,9 +18,10 @@ pushes back on a publisher instead of overwriting queries the node has not taken
 the verdicts go out reliable with a deep history (:data:`VERDICT_QOS`).
 Callbacks only queue: single-grasp queries wait for the ``single_queries`` thread (at
 most ``max_batch`` of them; more are answered at once with SOLVER_FAILURE "node
-overloaded"), batches for the ``batches`` thread, which decides them in chunks on the
-worker processes. The service decides small requests in its callback and large ones
-on the workers. So no batch holds up the service, single queries or diagnostics.
+overloaded"), batches for the ``batches`` thread. Both, and the service callback, decide
+through :class:`~grasp_fc_ros.workers.EvaluationPool`: tiny requests at once, larger ones
+in chunks on the worker processes, interactive ones (service, single queries) ahead of
+batch chunks. So no batch holds up the service, single queries or diagnostics.
 
 Run it with ``grasp-fc-node`` or ``python -m grasp_fc_ros.node`` (``--help``).
 """
