@@ -28,11 +28,11 @@ from concurrent.futures import TimeoutError as FutureTimeout
 
 import numpy as np
 import rclpy
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
 from grasp_fc_ros.client import GraspClient
 from grasp_fc_ros.core import Status
-from grasp_fc_ros.node import EXECUTOR_THREADS, NODE_NAME, ForceClosureNode, shutdown_rclpy
+from grasp_fc_ros.node import NODE_NAME, ForceClosureNode, shutdown_rclpy
 from grasp_fc_ros.objects import OBJECT_NAMES, make_object, sample_grasps
 
 N_FINGERS = 6
@@ -94,7 +94,7 @@ def run(args) -> int:
     if node_name is None:
         namespace = f"/grasp_fc_demo_{os.getpid()}"
         fc_node = ForceClosureNode(namespace=namespace)
-        spinner = MultiThreadedExecutor(num_threads=EXECUTOR_THREADS)
+        spinner = SingleThreadedExecutor()
         spinner.add_node(fc_node)
         threading.Thread(target=_spin_quietly, args=(spinner,), daemon=True).start()
         node_name = f"{namespace}/{NODE_NAME}"
