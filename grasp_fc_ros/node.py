@@ -52,7 +52,6 @@ from rcl_interfaces.msg import IntegerRange, ParameterDescriptor, ParameterType,
 from rclpy.exceptions import ParameterException
 from rclpy.executors import (
     ExternalShutdownException,
-    MultiThreadedExecutor,
     SingleThreadedExecutor,
 )
 from rclpy.node import Node
@@ -85,8 +84,6 @@ TIMING_WINDOW = 2000
 MAX_CONTACTS_LIMIT = 10_000
 MAX_BATCH_LIMIT = 10_000_000
 MAX_WORKERS = 64
-# Threads serving check_force_closure: a large request does not hold up a small one.
-SERVICE_THREADS = 2
 # Verdict message of queries still queued when the node is destroyed.
 SHUTDOWN_MESSAGE = "node shutting down: query not evaluated"
 
@@ -284,7 +281,17 @@ class ForceClosureNode(Node):
             self.declare_parameter(name, default, descriptor)
         self._warn_unknown_overrides()
         self._pool = EvaluationPool(self.get_parameter("workers").value)
+        self._threads: list[threading.Thread] = []
+        self._service_thread = None
+        try:
+            self._start_interfaces()
+        except BaseException:
+            # E.g. Ctrl-C right after start: threads and the service node are running,
+            # and left to the interpreter's exit they abort the process.
+            self.destroy_node()
+            raise
 
+    def _start_interfaces(self):
         self._verdict_pub = self.create_publisher(ForceClosureVerdict, "verdicts",
                                                   VERDICT_QOS)
         self._batch_pub = self.create_publisher(ForceClosureVerdictArray, "verdicts_batch",
@@ -295,11 +302,11 @@ class ForceClosureNode(Node):
                                  QUERY_QOS)
         self.create_timer(DIAGNOSTICS_PERIOD_S, self._on_timer)
         self._start_service()
-        self._threads = [threading.Thread(target=self._loop, args=(work,), daemon=True,
-                                          name=work.__name__)
-                         for work in (self._single_queries, self._next_batch)]
-        for thread in self._threads:
+        for work in (self._single_queries, self._next_batch):
+            thread = threading.Thread(target=self._loop, args=(work,), daemon=True,
+                                      name=work.__name__)
             thread.start()
+            self._threads.append(thread)
         self.get_logger().info(
             f"ready: topics contacts, contacts_batch; service check_force_closure; "
             f"settings {self._settings}; workers {self._pool.workers}")
@@ -312,19 +319,20 @@ class ForceClosureNode(Node):
         need a multi-threaded executor then (measured: ~3.5x the CPU per single query of
         a single-threaded one). The helper, ``<name>_service``, lives in the node's
         namespace, so the service has its usual name there; it ignores command-line
-        remappings (a ``__node`` remapping would give it the node's own name).
+        remappings (a ``__node`` remapping would give it the node's own name). It
+        serves one request at a time: a multi-threaded executor here crashed the process
+        (SIGSEGV) now and then on a Ctrl-C right after start.
         """
         self._service_node = Node(f"{self.get_name()}_service", namespace=self.get_namespace(),
                                   context=self.context, use_global_arguments=False,
                                   start_parameter_services=False)
         self._service_node.create_service(CheckForceClosure, "check_force_closure",
                                           self._on_service)
-        self._service_executor = MultiThreadedExecutor(num_threads=SERVICE_THREADS,
-                                                       context=self.context)
+        self._service_executor = SingleThreadedExecutor(context=self.context)
         self._service_executor.add_node(self._service_node)
-        self._service_thread = threading.Thread(target=self._spin_service, daemon=True,
-                                                name="service")
-        self._service_thread.start()
+        thread = threading.Thread(target=self._spin_service, daemon=True, name="service")
+        thread.start()
+        self._service_thread = thread
 
     def _spin_service(self):
         try:
@@ -585,9 +593,10 @@ class ForceClosureNode(Node):
         with self._lock:
             self._stopping = True
             self._lock.notify_all()
-        self._service_executor.shutdown()
-        self._service_thread.join()
-        self._service_node.destroy_node()
+        if self._service_thread is not None:
+            self._service_executor.shutdown()
+            self._service_thread.join()
+            self._service_node.destroy_node()
         for thread in self._threads:
             thread.join()
         self._pool.close()
