@@ -220,6 +220,15 @@ def test_second_ctrl_c_during_shutdown_exits_quietly(client, grasps):
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
 
 
+def test_ctrl_c_right_after_start_exits_cleanly():
+    # The node's threads, workers and service node are up when "ready" is logged; a
+    # Ctrl-C at once once aborted the process at exit (threads left to the interpreter).
+    for _ in range(3):
+        process = NodeProcess(node_command())
+        wait_for_log(process, "ready")
+        assert_clean_exit(process, signal.SIGINT)
+
+
 def test_client_resubmits_after_the_node_is_killed_and_restarted(ros, grasps):
     positions, normals = grasps
     namespace = f"/restart_{os.getpid()}"
