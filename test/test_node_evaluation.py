@@ -162,3 +162,29 @@ def test_worker_pool_gives_the_inline_verdicts_in_order():
                                atol=MARGIN_ABS_TOL, equal_nan=True)
     assert pooled.messages == inline.messages
     assert seconds["exact_s"] > 0
+
+
+def test_a_killed_worker_fails_its_chunk_and_is_replaced():
+    rng = np.random.default_rng(13)
+    positions, normals = sample_grasps(make_object("box"), 400, 6, rng)
+    packed = pack(list(zip(positions, normals)))
+    pool = EvaluationPool(1, chunk_contacts=60)  # 40 chunks, one worker
+    try:
+        victim = pool._workers[0].process
+        killed = []
+
+        def kill_once():
+            if not killed:
+                killed.append(True)
+                victim.kill()
+            return False
+
+        with pytest.raises(RuntimeError, match="worker process failed"):
+            pool.decide(packed, Settings(), cancelled=kill_once)
+        # The replacement answers the next request, with the inline verdicts.
+        first = packed.slice(0, 20)
+        again, _ = pool.decide(first, Settings())
+        np.testing.assert_array_equal(again.status, evaluate(first, Settings())[0].status)
+        assert pool._workers[0].process is not victim
+    finally:
+        pool.close()
