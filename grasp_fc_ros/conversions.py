@@ -1,9 +1,9 @@
 """Conversions between grasp_fc_msgs messages and numpy arrays.
 
-The node works on a *packed* representation of many grasps (:class:`PackedGrasps`):
-all contacts of all grasps stacked grasp after grasp, plus one contact count per
-grasp, the same layout as ``ContactArrayBatch``. The packed batch message converts
-with ``np.frombuffer`` on its array fields, without a Python object per contact.
+The node works on the packed representation of :mod:`grasp_fc_ros.evaluation`
+(:class:`PackedGrasps`, :class:`Verdicts`), the layout of ``ContactArrayBatch``: the
+packed batch message converts with ``np.frombuffer`` on its array fields, without a
+Python object per contact.
 
 This module only moves data; it holds no force-closure mathematics.
 """
@@ -11,8 +11,6 @@ This module only moves data; it holds no force-closure mathematics.
 from __future__ import annotations
 
 import array
-from dataclasses import dataclass, field
-
 import numpy as np
 
 from grasp_fc_msgs.msg import (
@@ -22,84 +20,19 @@ from grasp_fc_msgs.msg import (
     ForceClosureVerdict,
     ForceClosureVerdictArray,
 )
+from grasp_fc_ros.evaluation import PackedGrasps, Verdicts
+
+__all__ = [
+    "MalformedBatch", "PackedGrasps", "Verdicts", "batch_size", "batch_to_packed",
+    "contact_arrays_to_packed", "grasp_to_contact_array", "grasps_to_batch_msg",
+    "verdict_array_to_numpy", "verdicts_to_array_msg", "verdicts_to_msgs",
+]
 
 # array.array type codes of the generated message fields.
 _TYPECODE_FLOAT64 = "d"
 _TYPECODE_UINT64 = "Q"
 _TYPECODE_UINT32 = "I"
 _TYPECODE_UINT8 = "B"
-
-
-@dataclass
-class PackedGrasps:
-    """Many grasp queries, stacked contact after contact.
-
-    Attributes
-    ----------
-    ids : (N,) uint64
-        Query id of each grasp.
-    counts : (N,) int64
-        Number of contacts of each grasp (0 where the grasp could not be read).
-    positions : (K, 3) float64
-        Contact positions (m), grasp after grasp; K = counts.sum().
-    normals : (K, 3) float64
-        Inward contact normals, any length (validated later).
-    mu : (K,) float64
-        Friction coefficient per contact; finite values <= 0 mean "node default"
-        (NaN and +-inf are invalid).
-    unreadable : dict[int, str]
-        Grasp index -> reason, for grasps whose data could not be read from the
-        message (their ``counts`` entry is 0).
-    notes : list[str]
-        Batch-level remarks worth a warning (e.g. unused trailing values).
-    name_by_id : bool
-        True when the grasps are separate single-grasp topic queries: messages then
-        name a grasp by its query id only, since its position among the queued
-        queries means nothing to the client.
-    """
-
-    ids: np.ndarray
-    counts: np.ndarray
-    positions: np.ndarray
-    normals: np.ndarray
-    mu: np.ndarray
-    unreadable: dict[int, str] = field(default_factory=dict)
-    notes: list[str] = field(default_factory=list)
-    name_by_id: bool = False
-
-    def __len__(self) -> int:
-        return len(self.ids)
-
-    @property
-    def starts(self) -> np.ndarray:
-        """(N,) int64 index of each grasp's first contact in the stacked arrays."""
-        return np.concatenate(([0], np.cumsum(self.counts)[:-1])).astype(np.int64)
-
-
-@dataclass
-class Verdicts:
-    """One verdict per grasp, as parallel arrays (the ForceClosureVerdictArray layout).
-
-    Attributes
-    ----------
-    ids : (N,) uint64
-    force_closure : (N,) bool
-    status : (N,) uint8
-        ``grasp_fc_ros.core.Status`` codes.
-    margin : (N,) float64
-        NaN where the exact test was not run.
-    messages : list[str]
-        Length N; empty where there is nothing to say.
-    """
-
-    ids: np.ndarray
-    force_closure: np.ndarray
-    status: np.ndarray
-    margin: np.ndarray
-    messages: list[str]
-
-    def __len__(self) -> int:
-        return len(self.ids)
 
 
 def _as_numpy(values, dtype) -> np.ndarray:
@@ -116,63 +49,48 @@ def _to_field(typecode: str, values: np.ndarray) -> array.array:
     return out
 
 
+class MalformedBatch(ValueError):
+    """A ContactArrayBatch whose counts do not match its arrays (no grasp can be trusted)."""
+
+
+def batch_size(msg: ContactArrayBatch) -> int:
+    """Number of grasps a batch claims to hold (len(ids)), read without converting it."""
+    return len(msg.ids)
+
+
 def batch_to_packed(msg: ContactArrayBatch) -> PackedGrasps:
     """Read a ContactArrayBatch into a :class:`PackedGrasps`.
 
-    A malformed batch (contact counts that do not add up to the array lengths,
-    fewer counts than ids, arrays of different lengths) never raises: every grasp
-    whose contacts lie fully inside all arrays is read, the others are listed in
-    ``unreadable`` with the reason.
+    Raises
+    ------
+    MalformedBatch
+        If the batch is mis-packed: not one contact count per id, or positions,
+        normals or friction coefficients not exactly as long as the counts declare.
+        Contacts are stored grasp after grasp, so one wrong count shifts every later
+        grasp: no grasp of such a batch is decided.
     """
     ids = _as_numpy(msg.ids, np.uint64)
-    n_grasps = len(ids)
-    declared = _as_numpy(msg.contact_counts, np.uint32).astype(np.int64)
+    counts = _as_numpy(msg.contact_counts, np.uint32).astype(np.int64)
     flat_positions = _as_numpy(msg.positions, np.float64)
     flat_normals = _as_numpy(msg.normals, np.float64)
     flat_mu = _as_numpy(msg.friction_coefficients, np.float64)
-
-    counts = np.zeros(n_grasps, dtype=np.int64)
-    counts[: min(n_grasps, len(declared))] = declared[:n_grasps]
-    ends = np.cumsum(counts)
-    # Contacts present in every array (positions and normals hold 3 values per contact).
-    available = min(len(flat_positions) // 3, len(flat_normals) // 3)
-    if len(flat_mu):
-        available = min(available, len(flat_mu))
-
-    # Contacts are stored in grasp order, so the readable grasps form a prefix.
-    has_count = np.arange(n_grasps) < len(declared)
-    readable = has_count & (ends <= available)
-    unreadable: dict[int, str] = {}
-    for i in np.flatnonzero(~readable):
-        if not has_count[i]:
-            unreadable[int(i)] = (f"grasp {i}: no contact count "
-                                  f"(batch has {len(declared)} counts for {n_grasps} ids)")
-        else:
-            unreadable[int(i)] = (
-                f"grasp {i}: contacts {ends[i] - counts[i]}..{ends[i] - 1} lie beyond the batch "
-                f"arrays (positions {len(flat_positions)}, normals {len(flat_normals)}, "
-                f"friction_coefficients {len(flat_mu)} values)")
-    counts[~readable] = 0
+    if len(counts) != len(ids):
+        raise MalformedBatch(f"malformed batch: {len(counts)} contact counts for "
+                             f"{len(ids)} ids")
     total = int(counts.sum())
-
-    notes = []
-    declared_total = int(declared.sum())
-    if len(declared) > n_grasps:
-        notes.append(f"{len(declared) - n_grasps} contact counts without an id were ignored")
-    if (len(flat_positions) != 3 * declared_total or len(flat_normals) != 3 * declared_total
-            or len(flat_mu) not in (0, declared_total)):
-        notes.append(
-            f"array lengths (positions {len(flat_positions)}, normals {len(flat_normals)}, "
-            f"friction_coefficients {len(flat_mu)}) do not match the {declared_total} contacts "
-            "declared by contact_counts")
+    if (len(flat_positions) != 3 * total or len(flat_normals) != 3 * total
+            or len(flat_mu) not in (0, total)):
+        raise MalformedBatch(
+            f"malformed batch: contact_counts declare {total} contacts, but positions has "
+            f"{len(flat_positions)} values, normals {len(flat_normals)}, "
+            f"friction_coefficients {len(flat_mu)} (need {3 * total}, {3 * total}, "
+            f"{total} or 0)")
     return PackedGrasps(
         ids=ids,
         counts=counts,
-        positions=flat_positions[: 3 * total].reshape(total, 3),
-        normals=flat_normals[: 3 * total].reshape(total, 3),
-        mu=flat_mu[:total] if len(flat_mu) else np.zeros(total),
-        unreadable=unreadable,
-        notes=notes,
+        positions=flat_positions.reshape(total, 3),
+        normals=flat_normals.reshape(total, 3),
+        mu=flat_mu if len(flat_mu) else np.zeros(total),
     )
 
 
@@ -194,11 +112,17 @@ def contact_arrays_to_packed(grasps: list[ContactArray], name_by_id: bool = Fals
                         normals=values[:, 3:6], mu=values[:, 6], name_by_id=name_by_id)
 
 
-def verdicts_to_array_msg(verdicts: Verdicts, header=None) -> ForceClosureVerdictArray:
-    """Pack verdicts into a ForceClosureVerdictArray (header copied from the query)."""
+def verdicts_to_array_msg(verdicts: Verdicts, query: ContactArrayBatch | None = None
+                          ) -> ForceClosureVerdictArray:
+    """Pack verdicts into a ForceClosureVerdictArray answering batch ``query``.
+
+    The query's header, client_id and request_id are copied.
+    """
     msg = ForceClosureVerdictArray()
-    if header is not None:
-        msg.header = header
+    if query is not None:
+        msg.header = query.header
+        msg.client_id = query.client_id
+        msg.request_id = query.request_id
     msg.ids = _to_field(_TYPECODE_UINT64, verdicts.ids)
     msg.force_closure = np.asarray(verdicts.force_closure, dtype=bool).tolist()
     msg.status = _to_field(_TYPECODE_UINT8, verdicts.status)
@@ -207,15 +131,25 @@ def verdicts_to_array_msg(verdicts: Verdicts, header=None) -> ForceClosureVerdic
     return msg
 
 
-def verdicts_to_msgs(verdicts: Verdicts) -> list[ForceClosureVerdict]:
-    """One ForceClosureVerdict message per grasp, in order."""
-    return [
+def verdicts_to_msgs(verdicts: Verdicts, queries: list[ContactArray] | None = None
+                     ) -> list[ForceClosureVerdict]:
+    """One ForceClosureVerdict message per grasp, in order.
+
+    ``queries`` (one per verdict) are the single-grasp queries answered: their header
+    and client_id are copied into the verdicts.
+    """
+    out = [
         ForceClosureVerdict(id=int(i), force_closure=bool(fc), status=int(st),
                             margin=float(m), message=text)
         for i, fc, st, m, text in zip(verdicts.ids.tolist(), verdicts.force_closure.tolist(),
                                       verdicts.status.tolist(), verdicts.margin.tolist(),
                                       verdicts.messages)
     ]
+    if queries is not None:
+        for reply, query in zip(out, queries, strict=True):
+            reply.header = query.header
+            reply.client_id = query.client_id
+    return out
 
 
 def verdict_array_to_numpy(msg: ForceClosureVerdictArray) -> Verdicts:
@@ -229,7 +163,8 @@ def verdict_array_to_numpy(msg: ForceClosureVerdictArray) -> Verdicts:
     )
 
 
-def grasps_to_batch_msg(ids, positions, normals, mu=None, counts=None) -> ContactArrayBatch:
+def grasps_to_batch_msg(ids, positions, normals, mu=None, counts=None, *, client_id=0,
+                        request_id=0) -> ContactArrayBatch:
     """Build a ContactArrayBatch (client side).
 
     Parameters
@@ -239,6 +174,8 @@ def grasps_to_batch_msg(ids, positions, normals, mu=None, counts=None) -> Contac
     mu : None, scalar, or one value per contact; None or empty means node default
     counts : (N,) int, optional
         Contacts per grasp for stacked (K, 3) input of mixed sizes.
+    client_id, request_id : int
+        Echoed in the verdict array, so that the client recognises its reply.
 
     Raises
     ------
@@ -255,7 +192,7 @@ def grasps_to_batch_msg(ids, positions, normals, mu=None, counts=None) -> Contac
                              "grasp); without counts pass (N, n, 3)")
         counts = np.full(len(ids), positions.shape[1])
     n_contacts = positions.size // 3
-    msg = ContactArrayBatch()
+    msg = ContactArrayBatch(client_id=int(client_id), request_id=int(request_id))
     msg.ids = _to_field(_TYPECODE_UINT64, ids)
     msg.contact_counts = _to_field(_TYPECODE_UINT32, np.asarray(counts))
     msg.positions = _to_field(_TYPECODE_FLOAT64, positions.reshape(-1))
@@ -268,7 +205,8 @@ def grasps_to_batch_msg(ids, positions, normals, mu=None, counts=None) -> Contac
     return msg
 
 
-def grasp_to_contact_array(grasp_id, positions, normals, mu=0.0) -> ContactArray:
+def grasp_to_contact_array(grasp_id, positions, normals, mu=0.0, *, client_id=0
+                           ) -> ContactArray:
     """Build a single-grasp ContactArray (client side).
 
     Parameters
@@ -276,11 +214,13 @@ def grasp_to_contact_array(grasp_id, positions, normals, mu=0.0) -> ContactArray
     grasp_id : int
     positions, normals : (n, 3) float
     mu : scalar or (n,) float; a finite value <= 0 means node default
+    client_id : int
+        Echoed in the verdict.
     """
     positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
     normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
     mus = np.broadcast_to(np.asarray(mu, dtype=np.float64), (len(positions),))
-    msg = ContactArray(id=int(grasp_id))
+    msg = ContactArray(id=int(grasp_id), client_id=int(client_id))
     contacts = []
     for p, nrm, m in zip(positions.tolist(), normals.tolist(), mus.tolist()):
         c = Contact(friction_coefficient=m)

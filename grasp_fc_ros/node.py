@@ -9,36 +9,34 @@ Interfaces (package ``grasp_fc_msgs``):
 - serves ``check_force_closure`` (CheckForceClosure);
 - publishes ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) once a second.
 
-The node is a thin layer: it converts messages to numpy arrays, groups grasps by
-contact count, and hands each group to :func:`grasp_fc_ros.core.check_force_closure`.
-Every query gets exactly one verdict carrying its id; bad queries are answered with
-``INVALID_INPUT`` and a reason, internal errors with ``SOLVER_FAILURE``.
+The node is wiring only: messages are converted by :mod:`grasp_fc_ros.conversions`
+and decided by :mod:`grasp_fc_ros.evaluation`, large ones in worker processes
+(:mod:`grasp_fc_ros.workers`).
 
-Single-grasp topic queries are only queued by their subscription callback; a worker
-thread decides whatever has queued up in one call per contact count and publishes the
-verdicts in arrival order. One core call per query would cap the rate at the core's
-per-call cost. At most ``max_batch`` queries wait: a query arriving when the queue is
-full is answered at once with ``SOLVER_FAILURE`` ("node overloaded: <k> single-grasp
-queries pending"), so it may overtake the verdicts of queries still queued. Batches and
-service requests are answered in their callbacks.
+Flow control: the query topics are reliable and KEEP_ALL (:data:`QUERY_QOS`), so DDS
+pushes back on a publisher instead of overwriting queries the node has not taken yet;
+the verdicts go out reliable with a deep history (:data:`VERDICT_QOS`).
+Callbacks only queue: single-grasp queries wait for the ``single_queries`` thread (at
+most ``max_batch`` of them; more are answered at once with SOLVER_FAILURE "node
+overloaded"), batches for the ``batches`` thread; the service has an executor of its own
+(see :meth:`ForceClosureNode._start_service`). All three decide
+through :class:`~grasp_fc_ros.workers.EvaluationPool`: tiny requests at once, larger ones
+in chunks on the worker processes, interactive ones (service, single queries) ahead of
+batch chunks. So no batch holds up the service, single queries or diagnostics.
 
-Grasps named in messages: a single-grasp topic query by its id ("query id 12, contact
-2: normal has zero length"), a grasp of a batch or service request by its index there
-and its id ("grasp 3 (id 1003), contact 2: ...").
-
-Run it with ``grasp-fc-node`` or ``python -m grasp_fc_ros.node`` (``--ros-args -p
-name:=value`` sets parameters).
+Run it with ``grasp-fc-node`` or ``python -m grasp_fc_ros.node`` (``--help``).
 """
 
 from __future__ import annotations
 
 import math
-import re
+import os
+import signal
 import sys
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass, fields, replace
+from dataclasses import fields, replace
 
 import numpy as np
 import rclpy
@@ -52,20 +50,29 @@ from grasp_fc_msgs.msg import (
 from grasp_fc_msgs.srv import CheckForceClosure
 from rcl_interfaces.msg import IntegerRange, ParameterDescriptor, ParameterType, SetParametersResult
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import (
+    ExternalShutdownException,
+    SingleThreadedExecutor,
+)
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from grasp_fc_ros.conversions import (
-    PackedGrasps,
-    Verdicts,
+    MalformedBatch,
+    batch_size,
     batch_to_packed,
     contact_arrays_to_packed,
     verdicts_to_array_msg,
     verdicts_to_msgs,
 )
-from grasp_fc_ros.core import ORIGIN_CHOICES, Status, check_force_closure, validate_grasps
-from grasp_fc_ros.core.grasp_input import MIN_CONTACTS
+from grasp_fc_ros.core import ORIGIN_CHOICES, Status
+from grasp_fc_ros.evaluation import MIN_CONTACTS, Settings, Verdicts
+from grasp_fc_ros.workers import (
+    PRIORITY_BATCH,
+    PRIORITY_INTERACTIVE,
+    Cancelled,
+    EvaluationPool,
+)
 
 NODE_NAME = "force_closure"
 DIAGNOSTICS_PERIOD_S = 1.0
@@ -74,11 +81,23 @@ WARN_THROTTLE_S = 2.0
 TIMING_WINDOW = 2000
 # Upper bounds of the integer parameters: beyond these a single message would not fit
 # any sensible memory budget.
-MAX_QOS_DEPTH = 100_000
 MAX_CONTACTS_LIMIT = 10_000
 MAX_BATCH_LIMIT = 10_000_000
-# Verdict message of single-grasp queries still queued when the node is destroyed.
+MAX_WORKERS = 64
+# Verdict message of queries still queued when the node is destroyed.
 SHUTDOWN_MESSAGE = "node shutting down: query not evaluated"
+
+# The QoS clients use on all four grasp topics, and the node's query subscriptions.
+# Reliable + KEEP_ALL: a reader never overwrites a sample it has not handed over, so a
+# busy node makes the publisher wait instead of losing queries (see the README).
+QUERY_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
+                       history=HistoryPolicy.KEEP_ALL, depth=1)
+# The node's verdict publishers: reliable, and a deep KEEP_LAST history rather than
+# KEEP_ALL, so that a client that stops reading (or was killed and is not yet known to
+# be gone) can never make publish() block the node for everyone. A live client keeps
+# at most its window (2,000) unanswered, far below this depth.
+VERDICT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
+                         history=HistoryPolicy.KEEP_LAST, depth=10_000)
 
 # The wire status codes are the core's Status values.
 assert all(getattr(ForceClosureVerdict, s.name) == s.value for s in Status)
@@ -103,17 +122,19 @@ PARAMETERS = {
         type=ParameterType.PARAMETER_STRING,
         description="Torque origins of the filter: 'seed' (the paper's) or 'all'",
         additional_constraints="one of: " + ", ".join(ORIGIN_CHOICES))),
-    "qos_depth": (100, _int_descriptor(
-        "History depth of the reliable topics' QoS (applied at start-up)", 1, MAX_QOS_DEPTH,
-        read_only=True)),
     "max_contacts": (64, _int_descriptor(
         "Largest number of contacts accepted in one grasp", MIN_CONTACTS, MAX_CONTACTS_LIMIT)),
     "max_batch": (100_000, _int_descriptor(
-        "Largest number of grasps accepted in one batch message or service request, and of "
-        "single-grasp topic queries waiting to be decided; a topic query arriving when that "
-        "many wait is answered at once with SOLVER_FAILURE 'node overloaded'",
+        "Largest number of grasps accepted in one batch message or service request, of "
+        "single-grasp topic queries waiting to be decided, and of batch grasps waiting; "
+        "beyond that a query is answered at once with SOLVER_FAILURE 'node overloaded'",
         1, MAX_BATCH_LIMIT)),
+    "workers": (min(2, os.cpu_count() or 1), _int_descriptor(
+        "Worker processes deciding large batches and service requests (0: none, decide "
+        "in the node's threads); set at start-up", 0, MAX_WORKERS, read_only=True)),
 }
+
+_SETTING_NAMES = frozenset(f.name for f in fields(Settings))
 
 
 def check_parameter(name: str, value) -> str:
@@ -126,35 +147,23 @@ def check_parameter(name: str, value) -> str:
     return ""
 
 
-@dataclass(frozen=True)
-class _Settings:
-    """The parameters that decide queries, replaced as a whole when one changes.
-
-    Each evaluation reads the node's settings once, so a parameter change arriving
-    meanwhile (from another thread) cannot mix old and new values within one message.
-    """
-
-    friction_coefficient: float
-    use_filter: bool
-    filter_origins: str
-    max_contacts: int
-    max_batch: int
-
-
-_SETTING_NAMES = frozenset(f.name for f in fields(_Settings))
-
-
 class _Statistics:
     """Counters and processing times reported on /diagnostics (thread-safe)."""
 
     def __init__(self):
         self._lock = threading.Lock()
         self.counts = {s: 0 for s in Status}
-        self.queries = 0
+        self.received = 0
+        self.answered = 0
         self.callback_errors = 0
         self.overloaded = 0
-        self.seconds = {"conversion_s": 0.0, "filter_s": 0.0, "exact_s": 0.0}
+        self.seconds = {"conversion_s": 0.0, "validation_s": 0.0, "filter_s": 0.0,
+                        "exact_s": 0.0}
         self.processing_s = deque(maxlen=TIMING_WINDOW)
+
+    def count_received(self, n_queries: int):
+        with self._lock:
+            self.received += n_queries
 
     def record(self, status: np.ndarray, seconds: dict, processing_s: float | None):
         """Count answered queries: their verdict codes and where their time went.
@@ -164,7 +173,7 @@ class _Statistics:
         """
         codes, counts = np.unique(status, return_counts=True)
         with self._lock:
-            self.queries += len(status)
+            self.answered += len(status)
             for code, count in zip(codes.tolist(), counts.tolist()):
                 self.counts[Status(code)] += count
             for key in self.seconds:
@@ -180,20 +189,22 @@ class _Statistics:
         with self._lock:
             self.callback_errors += 1
 
-    def count_overloaded(self):
+    def count_overloaded(self, n_queries: int):
         with self._lock:
-            self.overloaded += 1
+            self.overloaded += n_queries
 
     def failures(self) -> int:
         with self._lock:
             return self.counts[Status.SOLVER_FAILURE] + self.callback_errors
 
-    def key_values(self, pending: int) -> list[KeyValue]:
+    def key_values(self, pending: dict) -> list[KeyValue]:
         with self._lock:
             times_ms = np.array(self.processing_s) * 1e3
             counts = dict(self.counts)
             values = {
-                "queries": self.queries,
+                "received": self.received,
+                "answered": self.answered,
+                "queries": self.answered,
                 "force_closure": counts[Status.FORCE_CLOSURE],
                 "rejected_by_filter": counts[Status.FILTERED_OUT],
                 "decided_by_exact_test": (counts[Status.FORCE_CLOSURE]
@@ -202,10 +213,9 @@ class _Statistics:
                 "solver_failures": counts[Status.SOLVER_FAILURE],
                 "callback_errors": self.callback_errors,
                 "overloaded": self.overloaded,
-                "pending_single_queries": pending,
-                "conversion_time_total_s": f"{self.seconds['conversion_s']:.3f}",
-                "filter_time_total_s": f"{self.seconds['filter_s']:.3f}",
-                "exact_time_total_s": f"{self.seconds['exact_s']:.3f}",
+                **pending,
+                **{f"{key[:-2]}_time_total_s": f"{value:.3f}"
+                   for key, value in self.seconds.items()},
             }
         mean_ms = float(times_ms.mean()) if len(times_ms) else 0.0
         p99_ms = float(np.percentile(times_ms, 99)) if len(times_ms) else 0.0
@@ -214,22 +224,39 @@ class _Statistics:
         return [KeyValue(key=k, value=str(v)) for k, v in values.items()]
 
 
-def _grasp_label(packed: PackedGrasps, index: int) -> str:
-    """How messages name grasp ``index``: 'query id 12', or 'grasp 3 (id 1003)' in a batch."""
-    if packed.name_by_id:
-        return f"query id {packed.ids[index]}"
-    return f"grasp {index} (id {packed.ids[index]})"
+class _Throttle:
+    """At most one log line per ``period_s`` and key, decided before calling the logger.
+
+    rclpy's own ``throttle_duration_sec`` inspects the caller's stack on every call,
+    even a suppressed one, which costs more than a whole verdict on the hot path.
+    """
+
+    def __init__(self, period_s: float):
+        self._period_s = period_s
+        self._last: dict[str, float] = {}
+        self._lock = threading.Lock()
+
+    def __call__(self, key: str) -> bool:
+        now = time.monotonic()
+        with self._lock:
+            if now - self._last.get(key, -math.inf) < self._period_s:
+                return False
+            self._last[key] = now
+            return True
 
 
-def _relabel(reason: str, label: str) -> str:
-    """Make a reason starting 'grasp k' (core, conversions) name the grasp by ``label``."""
-    return re.sub(r"^grasp \d+", lambda _: label, reason)
+def _failure_replies(queries, status: Status, message: str) -> list[ForceClosureVerdict]:
+    """Verdict messages of ``status`` for ContactArray ``queries``, without the core."""
+    return [ForceClosureVerdict(header=q.header, client_id=q.client_id, id=q.id,
+                                force_closure=False, status=int(status), margin=math.nan,
+                                message=message) for q in queries]
 
 
-def _failure_replies(ids, message: str) -> list[ForceClosureVerdict]:
-    """SOLVER_FAILURE verdict messages, built without numpy or the conversions."""
-    return [ForceClosureVerdict(id=int(i), force_closure=False, status=Status.SOLVER_FAILURE,
-                                margin=math.nan, message=message) for i in ids]
+def _batch_failure(msg: ContactArrayBatch, status: Status, message: str
+                   ) -> ForceClosureVerdictArray:
+    """A verdict array answering every grasp of batch ``msg`` with ``status``."""
+    ids = np.frombuffer(msg.ids, np.uint64) if len(msg.ids) else np.empty(0, np.uint64)
+    return verdicts_to_array_msg(Verdicts.failed(ids, status, message), msg)
 
 
 class ForceClosureNode(Node):
@@ -238,30 +265,80 @@ class ForceClosureNode(Node):
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         self._stats = _Statistics()
-        # Single-grasp topic queries waiting for the worker thread, oldest first; at most
-        # max_batch of them (more are refused as overloaded).
+        self._may_log = _Throttle(WARN_THROTTLE_S)
+        self._lock = threading.Condition()
+        # Single-grasp topic queries and batches waiting for their threads, oldest first.
         self._pending: deque[ContactArray] = deque()
-        self._pending_ready = threading.Condition()
+        self._batches: deque[ContactArrayBatch] = deque()
+        self._queued_batch_grasps = 0
+        self._busy_batch_grasps = 0
         self._stopping = False
-        self._settings = _Settings(**{name: PARAMETERS[name][0] for name in _SETTING_NAMES})
+        self._duplicate_warned = False
+        self._settings = Settings(**{name: PARAMETERS[name][0] for name in _SETTING_NAMES})
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
         for name, (default, descriptor) in PARAMETERS.items():
             self.declare_parameter(name, default, descriptor)
+        self._warn_unknown_overrides()
+        self._pool = EvaluationPool(self.get_parameter("workers").value)
+        self._threads: list[threading.Thread] = []
+        self._service_thread = None
+        try:
+            self._start_interfaces()
+        except BaseException:
+            # E.g. Ctrl-C right after start: threads and the service node are running,
+            # and left to the interpreter's exit they abort the process.
+            self.destroy_node()
+            raise
 
-        qos = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
-                         depth=self.get_parameter("qos_depth").value)
-        self._verdict_pub = self.create_publisher(ForceClosureVerdict, "verdicts", qos)
-        self._batch_pub = self.create_publisher(ForceClosureVerdictArray, "verdicts_batch", qos)
+    def _start_interfaces(self):
+        self._verdict_pub = self.create_publisher(ForceClosureVerdict, "verdicts",
+                                                  VERDICT_QOS)
+        self._batch_pub = self.create_publisher(ForceClosureVerdictArray, "verdicts_batch",
+                                                VERDICT_QOS)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(ContactArray, "contacts", self._on_contacts, qos)
-        self.create_subscription(ContactArrayBatch, "contacts_batch", self._on_batch, qos)
-        self.create_service(CheckForceClosure, "check_force_closure", self._on_service)
-        self.create_timer(DIAGNOSTICS_PERIOD_S, self._publish_diagnostics)
-        self._worker = threading.Thread(target=self._single_query_loop, daemon=True,
-                                        name="single_queries")
-        self._worker.start()
-        self.get_logger().info("ready: topics contacts, contacts_batch; service check_force_closure")
+        self.create_subscription(ContactArray, "contacts", self._on_contacts, QUERY_QOS)
+        self.create_subscription(ContactArrayBatch, "contacts_batch", self._on_batch,
+                                 QUERY_QOS)
+        self.create_timer(DIAGNOSTICS_PERIOD_S, self._on_timer)
+        self._start_service()
+        for work in (self._single_queries, self._next_batch):
+            thread = threading.Thread(target=self._loop, args=(work,), daemon=True,
+                                      name=work.__name__)
+            thread.start()
+            self._threads.append(thread)
+        self.get_logger().info(
+            f"ready: topics contacts, contacts_batch; service check_force_closure; "
+            f"settings {self._settings}; workers {self._pool.workers}")
+
+    def _start_service(self):
+        """Serve check_force_closure from a helper node spun by an executor of its own.
+
+        A large request waits for the workers in its callback; on the node's own
+        executor that would hold up the topic queries and /diagnostics. Nor does the node
+        need a multi-threaded executor then (measured: ~3.5x the CPU per single query of
+        a single-threaded one). The helper, ``<name>_service``, lives in the node's
+        namespace, so the service has its usual name there; it ignores command-line
+        remappings (a ``__node`` remapping would give it the node's own name). It
+        serves one request at a time: a multi-threaded executor here crashed the process
+        (SIGSEGV) now and then on a Ctrl-C right after start.
+        """
+        self._service_node = Node(f"{self.get_name()}_service", namespace=self.get_namespace(),
+                                  context=self.context, use_global_arguments=False,
+                                  start_parameter_services=False)
+        self._service_node.create_service(CheckForceClosure, "check_force_closure",
+                                          self._on_service)
+        self._service_executor = SingleThreadedExecutor(context=self.context)
+        self._service_executor.add_node(self._service_node)
+        thread = threading.Thread(target=self._spin_service, daemon=True, name="service")
+        thread.start()
+        self._service_thread = thread
+
+    def _spin_service(self):
+        try:
+            self._service_executor.spin()
+        except Exception:  # noqa: BLE001 - rclpy shut down while spinning: end quietly
+            pass
 
     # --- parameters -------------------------------------------------------------------
 
@@ -272,121 +349,163 @@ class ForceClosureNode(Node):
 
     def _after_set_parameters(self, parameters):
         # Cached so the hot path does not look parameters up per message; replaced whole,
-        # so that a reader sees either the old or the new settings (see _Settings).
+        # so that a reader sees either the old or the new settings.
         changes = {p.name: p.value for p in parameters if p.name in _SETTING_NAMES}
         if changes:
             self._settings = replace(self._settings, **changes)
 
-    # --- callbacks: nothing may escape them, so that spin never dies ------------------
+    def _warn_unknown_overrides(self):
+        """Warn about parameter values given for this node that match no parameter.
+
+        rclpy drops them silently; a typo (``frction_coefficient``) would go unnoticed.
+        rclpy keeps the overrides in a private attribute: read it defensively.
+        """
+        overrides = getattr(self, "_parameter_overrides", {}) or {}
+        unknown = sorted(set(overrides) - set(PARAMETERS) - {"use_sim_time"})
+        if unknown:
+            self.get_logger().warning(
+                f"ignoring unknown parameter(s) {', '.join(unknown)}; this node has "
+                f"{', '.join(PARAMETERS)}")
+
+    # --- callbacks: they only queue, and nothing may escape them ----------------------
 
     def _on_contacts(self, msg: ContactArray):
-        # Only queue it: the worker thread decides queued queries together, in one core
-        # call per contact count, which is what makes thousands of queries/s possible.
         try:
-            with self._pending_ready:
+            self._stats.count_received(1)
+            with self._lock:
                 pending = len(self._pending)
                 accepted = not self._stopping and pending < self._settings.max_batch
                 if accepted:
                     self._pending.append(msg)
-                    self._pending_ready.notify()
+                    self._lock.notify_all()
             if not accepted:
-                self._refuse(msg, pending)
+                self._refuse_single(msg, pending)
         except Exception as exc:  # noqa: BLE001
             self._internal_error("a single-grasp query", exc)
 
-    def _refuse(self, msg: ContactArray, pending: int):
-        """Answer a query that cannot be queued at once (never drop it silently)."""
-        if self._stopping:
-            message = SHUTDOWN_MESSAGE
-        else:
-            message = f"node overloaded: {pending} single-grasp queries pending"
-            self._stats.count_overloaded()
-            self.get_logger().warning(f"{message}; refusing query id {msg.id} (max_batch)",
-                                      throttle_duration_sec=WARN_THROTTLE_S)
+    def _overloaded(self, what: str, n_queries: int) -> str:
+        message = f"node overloaded: {what}"
+        self._stats.count_overloaded(n_queries)
+        if self._may_log("overloaded"):
+            self.get_logger().warning(f"{message}; refusing {n_queries} queries (max_batch)")
+        return message
+
+    def _refuse_single(self, msg: ContactArray, pending: int):
+        """Answer a query that cannot be queued (never drop it silently)."""
+        message = (SHUTDOWN_MESSAGE if self._stopping
+                   else self._overloaded(f"{pending} single-grasp queries pending", 1))
         self._stats.record_failures(1)
-        self._verdict_pub.publish(_failure_replies([msg.id], message)[0])
+        self._verdict_pub.publish(_failure_replies([msg], Status.SOLVER_FAILURE, message)[0])
 
     def _on_batch(self, msg: ContactArrayBatch):
         try:
-            self._batch_pub.publish(self._batch_reply(msg))
-        except Exception as exc:  # noqa: BLE001 - e.g. the failure reply itself failed
+            n_grasps = batch_size(msg)
+            self._stats.count_received(n_grasps)
+            settings = self._settings
+            if n_grasps > settings.max_batch:
+                # Refused before conversion: its size alone settles it.
+                self._stats.record(np.full(n_grasps, Status.INVALID_INPUT, np.uint8), {}, None)
+                self._batch_pub.publish(_batch_failure(
+                    msg, Status.INVALID_INPUT,
+                    f"{n_grasps} grasps exceed max_batch={settings.max_batch}"))
+                return
+            with self._lock:
+                queued = self._queued_batch_grasps
+                accepted = not self._stopping and not (
+                    queued and queued + n_grasps > settings.max_batch)
+                if accepted:
+                    self._batches.append(msg)
+                    self._queued_batch_grasps += n_grasps
+                    self._lock.notify_all()
+            if not accepted:
+                message = (SHUTDOWN_MESSAGE if self._stopping else self._overloaded(
+                    f"{queued} batch grasps pending", n_grasps))
+                self._stats.record_failures(n_grasps)
+                self._batch_pub.publish(_batch_failure(msg, Status.SOLVER_FAILURE, message))
+        except Exception as exc:  # noqa: BLE001
             self._internal_error("a batch (no reply sent)", exc)
-
-    def _batch_reply(self, msg: ContactArrayBatch) -> ForceClosureVerdictArray:
-        """Decide a batch and count it; any failure becomes SOLVER_FAILURE for all of it."""
-        start = time.perf_counter()
-        try:
-            verdicts, seconds = self._decide(lambda: batch_to_packed(msg))
-            reply = verdicts_to_array_msg(verdicts, msg.header)
-            # Counted only once the reply exists, so a failure cannot count it twice.
-            self._stats.record(verdicts.status, seconds, time.perf_counter() - start)
-            return reply
-        except Exception as exc:  # noqa: BLE001 - any failure must still be answered
-            self._internal_error(f"a batch of {len(msg.ids)} grasps", exc)
-            ids = np.frombuffer(msg.ids, np.uint64) if len(msg.ids) else np.empty(0, np.uint64)
-            self._stats.record_failures(len(ids))
-            failed = Verdicts(ids=ids, force_closure=np.zeros(len(ids), bool),
-                              status=np.full(len(ids), Status.SOLVER_FAILURE, dtype=np.uint8),
-                              margin=np.full(len(ids), np.nan),
-                              messages=[f"internal error: {exc}"] * len(ids))
-            return verdicts_to_array_msg(failed, msg.header)
 
     def _on_service(self, request, response):
         try:
-            response.verdicts = self._service_reply(request)
+            response.verdicts = self._service_reply(request.grasps)
         except Exception as exc:  # noqa: BLE001 - the response must still be sent
             # Only reachable if even the failure verdicts cannot be built: the client
             # then gets an empty verdict list rather than no response at all.
             self._internal_error("a service request (empty response sent)", exc)
         return response
 
-    def _service_reply(self, request) -> list[ForceClosureVerdict]:
+    def _service_reply(self, grasps) -> list[ForceClosureVerdict]:
         """Decide a service request and count it; any failure becomes SOLVER_FAILURE."""
         start = time.perf_counter()
+        self._stats.count_received(len(grasps))
+        settings = self._settings
+        if len(grasps) > settings.max_batch:
+            self._stats.record(np.full(len(grasps), Status.INVALID_INPUT, np.uint8), {}, None)
+            return _failure_replies(grasps, Status.INVALID_INPUT,
+                                    f"{len(grasps)} grasps exceed max_batch={settings.max_batch}")
         try:
-            verdicts, seconds = self._decide(lambda: contact_arrays_to_packed(request.grasps))
-            replies = verdicts_to_msgs(verdicts)
+            packed = contact_arrays_to_packed(grasps)
+            verdicts, seconds = self._decide(packed, settings, start, PRIORITY_INTERACTIVE)
+            replies = verdicts_to_msgs(verdicts, grasps)
             self._stats.record(verdicts.status, seconds, time.perf_counter() - start)
             return replies
         except Exception as exc:  # noqa: BLE001
-            self._internal_error(f"a service request of {len(request.grasps)} grasps", exc)
-            self._stats.record_failures(len(request.grasps))
-            return _failure_replies([g.id for g in request.grasps], f"internal error: {exc}")
+            self._internal_error(f"a service request of {len(grasps)} grasps", exc)
+            self._stats.record_failures(len(grasps))
+            return _failure_replies(grasps, Status.SOLVER_FAILURE, f"internal error: {exc}")
+
+    def _on_timer(self):
+        self._publish_diagnostics()
+        self._check_duplicate_name()
 
     def _internal_error(self, what: str, exc: Exception):
         self._stats.count_error()
-        self.get_logger().error(f"internal error while answering {what}: {exc!r}",
-                                throttle_duration_sec=WARN_THROTTLE_S)
+        if self._may_log("internal error"):
+            self.get_logger().error(f"internal error while answering {what}: {exc!r}")
 
-    # --- single-grasp queries: a worker thread, in arrival order ----------------------
+    # --- the threads that decide ------------------------------------------------------
 
-    def _single_query_loop(self):
-        """Answer queued queries until the node is destroyed or rclpy shuts down."""
-        while True:
+    def _loop(self, work):
+        """Run ``work()`` until the node is destroyed or rclpy shuts down."""
+        while not self._stopping:
             try:
-                with self._pending_ready:
-                    self._pending_ready.wait_for(lambda: self._pending or self._stopping)
-                    if self._stopping:
-                        return
-                    take = min(len(self._pending), self._settings.max_batch)
-                    msgs = [self._pending.popleft() for _ in range(take)]
-                self._answer_single_queries(msgs)
-            except Exception as exc:  # noqa: BLE001 - one failed pass must not end the worker
+                work()
+            except Cancelled:
+                return
+            except Exception as exc:  # noqa: BLE001 - one failed pass must not end the loop
                 if not rclpy.ok(context=self.context):
                     return  # publishing after shutdown: nobody can be answered any more
-                self._internal_error("queued single-grasp queries (worker continues)", exc)
+                self._internal_error(f"{work.__name__} (thread continues)", exc)
+
+    def _single_queries(self):
+        """Decide the queued single-grasp queries together, in arrival order."""
+        with self._lock:
+            self._lock.wait_for(lambda: self._pending or self._stopping)
+            if self._stopping:
+                return
+            take = min(len(self._pending), self._settings.max_batch)
+            msgs = [self._pending.popleft() for _ in range(take)]
+        self._answer_single_queries(msgs)
 
     def _answer_single_queries(self, msgs: list[ContactArray]):
-        """Decide queued queries together; publish one verdict each, in arrival order."""
+        """Decide ``msgs`` together; publish one verdict each, in order."""
         start = time.perf_counter()
         published = 0
         try:
-            verdicts, seconds = self._decide(
-                lambda: contact_arrays_to_packed(msgs, name_by_id=True))
-            for reply in verdicts_to_msgs(verdicts):
+            packed = contact_arrays_to_packed(msgs, name_by_id=True)
+            conversion_s = time.perf_counter() - start
+            verdicts, seconds = self._pool.decide(packed, self._settings, self._is_stopping,
+                                                  PRIORITY_INTERACTIVE)
+            seconds["conversion_s"] = conversion_s
+            self._warn_invalid(verdicts)
+            for reply in verdicts_to_msgs(verdicts, msgs):
                 self._verdict_pub.publish(reply)
                 published += 1
             self._stats.record(verdicts.status, seconds, time.perf_counter() - start)
+        except Cancelled:
+            with self._lock:  # the node is being destroyed: destroy_node answers them
+                self._pending.extendleft(reversed(msgs))
+            raise
         except Exception as exc:  # noqa: BLE001
             if not rclpy.ok(context=self.context):
                 raise
@@ -396,141 +515,122 @@ class ForceClosureNode(Node):
             # Queries already answered must not get a second verdict.
             rest = msgs[published:]
             self._stats.record_failures(len(rest))
-            for reply in _failure_replies([m.id for m in rest], f"internal error: {exc}"):
+            for reply in _failure_replies(rest, Status.SOLVER_FAILURE, f"internal error: {exc}"):
                 self._verdict_pub.publish(reply)
 
-    def destroy_node(self):
-        """Stop the worker, answer the queries still queued, destroy the node.
+    def _next_batch(self):
+        """Decide the oldest queued batch (on the workers) and publish its verdicts."""
+        with self._lock:
+            self._lock.wait_for(lambda: self._batches or self._stopping)
+            if self._stopping:
+                return
+            msg = self._batches.popleft()
+            self._queued_batch_grasps -= len(msg.ids)
+            self._busy_batch_grasps = len(msg.ids)
+        try:
+            self._batch_pub.publish(self._batch_reply(msg))
+        except Cancelled:
+            with self._lock:  # the node is being destroyed: destroy_node answers it
+                self._batches.appendleft(msg)
+            raise
+        finally:
+            with self._lock:
+                self._busy_batch_grasps = 0
 
-        Still-queued queries get SOLVER_FAILURE with :data:`SHUTDOWN_MESSAGE` when
-        rclpy's context is still up (the node destroyed by its owner: the demo, tests,
-        an embedding program). After Ctrl-C or SIGTERM the context is already shut
-        down and nothing can be published any more: those queries stay unanswered,
-        which is logged.
-        """
-        with self._pending_ready:
-            self._stopping = True
-            self._pending_ready.notify()
-        self._worker.join()
-        with self._pending_ready:
-            leftover = list(self._pending)
-            self._pending.clear()
-        if leftover:
-            try:
-                if not rclpy.ok(context=self.context):
-                    raise RuntimeError("rclpy is shut down")
-                self._stats.record_failures(len(leftover))
-                for reply in _failure_replies([m.id for m in leftover], SHUTDOWN_MESSAGE):
-                    self._verdict_pub.publish(reply)
-            except Exception as exc:  # noqa: BLE001 - shutdown must go on
-                self.get_logger().warning(
-                    f"{len(leftover)} queued single-grasp queries left unanswered at "
-                    f"shutdown: {exc}")
-        return super().destroy_node()
-
-    # --- evaluation -------------------------------------------------------------------
-
-    def _decide(self, convert) -> tuple[Verdicts, dict]:
-        """Convert a message with ``convert()`` and decide all its grasps; warn about bad ones.
-
-        Returns the verdicts and the seconds spent per stage; counting is the caller's
-        job, once its reply exists.
-        """
+    def _batch_reply(self, msg: ContactArrayBatch) -> ForceClosureVerdictArray:
+        """Decide a batch and count it; any failure becomes one answer for all of it."""
         start = time.perf_counter()
-        packed = convert()
-        seconds = {"conversion_s": time.perf_counter() - start}
-        verdicts = self.evaluate(packed, seconds)
-        for note in packed.notes:
-            self.get_logger().warning(f"malformed batch: {note}",
-                                      throttle_duration_sec=WARN_THROTTLE_S)
-        invalid = np.flatnonzero(verdicts.status == Status.INVALID_INPUT)
-        if len(invalid):
-            self.get_logger().warning(
-                f"{len(invalid)} of {len(verdicts)} queries invalid, e.g. "
-                f"{verdicts.messages[invalid[0]]}", throttle_duration_sec=WARN_THROTTLE_S)
+        try:
+            packed = batch_to_packed(msg)
+            verdicts, seconds = self._decide(packed, self._settings, start, PRIORITY_BATCH)
+            reply = verdicts_to_array_msg(verdicts, msg)
+            # Counted only once the reply exists, so a failure cannot count it twice.
+            self._stats.record(verdicts.status, seconds, time.perf_counter() - start)
+            return reply
+        except MalformedBatch as exc:
+            if self._may_log("malformed"):
+                self.get_logger().warning(str(exc))
+            self._stats.record(np.full(len(msg.ids), Status.INVALID_INPUT, np.uint8), {}, None)
+            return _batch_failure(msg, Status.INVALID_INPUT, str(exc))
+        except Cancelled:
+            raise
+        except Exception as exc:  # noqa: BLE001 - any failure must still be answered
+            self._internal_error(f"a batch of {len(msg.ids)} grasps", exc)
+            self._stats.record_failures(len(msg.ids))
+            return _batch_failure(msg, Status.SOLVER_FAILURE, f"internal error: {exc}")
+
+    def _is_stopping(self) -> bool:
+        return self._stopping
+
+    def _decide(self, packed, settings: Settings, start: float, priority: int
+                ) -> tuple[Verdicts, dict]:
+        """Decide converted grasps (on the workers if any); warn about invalid ones."""
+        conversion_s = time.perf_counter() - start
+        verdicts, seconds = self._pool.decide(packed, settings, self._is_stopping, priority)
+        seconds["conversion_s"] = conversion_s
+        self._warn_invalid(verdicts)
         return verdicts, seconds
 
-    def evaluate(self, packed: PackedGrasps, seconds: dict | None = None) -> Verdicts:
-        """Decide every grasp of ``packed``; one verdict per grasp, in order.
+    def _warn_invalid(self, verdicts: Verdicts):
+        invalid = np.flatnonzero(verdicts.status == Status.INVALID_INPUT)
+        if len(invalid) and self._may_log("invalid"):
+            self.get_logger().warning(
+                f"{len(invalid)} of {len(verdicts)} queries invalid, e.g. "
+                f"{verdicts.messages[invalid[0]]}")
 
-        Time spent in the core's stages is added to ``seconds['filter_s']`` and
-        ``seconds['exact_s']`` when a dict is given.
+    # --- shutdown ---------------------------------------------------------------------
 
-        Grasps are grouped by contact count and each group goes through the core in
-        one batched call. Invalid grasps get ``INVALID_INPUT``; a failing group gets
-        ``SOLVER_FAILURE`` without spoiling the other groups. The parameters are read
-        once, so every grasp of one call is decided with the same settings.
+    def destroy_node(self):
+        """Stop the threads and workers, answer what is still queued, destroy the node.
+
+        Queued queries get SOLVER_FAILURE with :data:`SHUTDOWN_MESSAGE` when rclpy's
+        context is still up (the node destroyed by its owner: the demo, tests, an
+        embedding program); so do the queries being decided (their work is abandoned, so
+        that the node stops within a fraction of a second). After Ctrl-C or SIGTERM the
+        context is already shut down and nothing can be published any more: the log
+        says how many queries stay unanswered.
         """
-        settings = self._settings
-        n_grasps = len(packed)
-        verdicts = Verdicts(ids=packed.ids, force_closure=np.zeros(n_grasps, bool),
-                            status=np.full(n_grasps, Status.INVALID_INPUT, dtype=np.uint8),
-                            margin=np.full(n_grasps, np.nan), messages=[""] * n_grasps)
-        if n_grasps > settings.max_batch:
-            verdicts.messages = [f"{n_grasps} grasps exceed max_batch={settings.max_batch}"
-                                 ] * n_grasps
-            return verdicts
-        for i, reason in packed.unreadable.items():
-            verdicts.messages[i] = _relabel(reason, _grasp_label(packed, i))
-        counts = packed.counts
-        eligible = np.ones(n_grasps, bool)
-        eligible[list(packed.unreadable)] = False
-        wrong_size = (counts < MIN_CONTACTS) | (counts > settings.max_contacts)
-        for i in np.flatnonzero(eligible & wrong_size):
-            eligible[i] = False
-            verdicts.messages[i] = (f"{_grasp_label(packed, i)}: {counts[i]} contacts; a grasp "
-                                    f"needs {MIN_CONTACTS} to max_contacts={settings.max_contacts}")
-        # Only a finite contact friction <= 0 means "use the parameter"; NaN and +-inf stay
-        # and are rejected by the validation as not finite.
-        mu = np.where(np.isfinite(packed.mu) & (packed.mu <= 0),
-                      settings.friction_coefficient, packed.mu)
-        starts = packed.starts
-        for n in np.unique(counts[eligible]):
-            group = np.flatnonzero(eligible & (counts == n))
-            rows = starts[group, None] + np.arange(n)
-            try:
-                timing = self._evaluate_group(packed, group, rows, mu[rows], settings, verdicts)
-                if seconds is not None:
-                    for key in ("filter_s", "exact_s"):
-                        seconds[key] = seconds.get(key, 0.0) + timing.get(key, 0.0)
-            except Exception as exc:  # noqa: BLE001 - one group must not spoil the others
-                self._internal_error(f"{len(group)} grasps of {n} contacts (core failed)", exc)
-                verdicts.status[group] = Status.SOLVER_FAILURE
-                for i in group:
-                    verdicts.messages[i] = f"internal error: {exc}"
-        return verdicts
-
-    def _evaluate_group(self, packed: PackedGrasps, group: np.ndarray, rows: np.ndarray,
-                        mu: np.ndarray, settings: _Settings, verdicts: Verdicts) -> dict:
-        """Decide grasps ``group`` (indices into ``packed``), all with equal contact count.
-
-        ``rows`` (len(group), n) indexes their contacts; verdicts are written in place.
-        Returns the core's timing dict ({} when no grasp was valid).
-        """
-        positions, normals = packed.positions[rows], packed.normals[rows]
-        validation = validate_grasps(positions, normals, mu)
-        for k in np.flatnonzero(~validation.valid):
-            verdicts.messages[group[k]] = _relabel(validation.reasons[k],
-                                                   _grasp_label(packed, int(group[k])))
-        valid = validation.valid
-        if not valid.any():
-            return {}
-        result = check_force_closure(positions[valid], normals[valid], mu[valid],
-                                     use_filter=settings.use_filter,
-                                     origins=settings.filter_origins)
-        target = group[valid]
-        verdicts.status[target] = result.status
-        verdicts.force_closure[target] = result.force_closure
-        verdicts.margin[target] = result.margin
-        return result.timing
+        with self._lock:
+            self._stopping = True
+            self._lock.notify_all()
+        if self._service_thread is not None:
+            self._service_executor.shutdown()
+            self._service_thread.join()
+            self._service_node.destroy_node()
+        for thread in self._threads:
+            thread.join()
+        self._pool.close()
+        with self._lock:
+            singles, self._pending = list(self._pending), deque()
+            batches, self._batches = list(self._batches), deque()
+        unanswered = len(singles) + sum(len(b.ids) for b in batches)
+        try:
+            if (singles or batches) and not rclpy.ok(context=self.context):
+                raise RuntimeError("rclpy is shut down")
+            for reply in _failure_replies(singles, Status.SOLVER_FAILURE, SHUTDOWN_MESSAGE):
+                self._verdict_pub.publish(reply)
+                self._stats.record_failures(1)
+                unanswered -= 1
+            for batch in batches:
+                self._batch_pub.publish(_batch_failure(batch, Status.SOLVER_FAILURE,
+                                                       SHUTDOWN_MESSAGE))
+                self._stats.record_failures(len(batch.ids))
+                unanswered -= len(batch.ids)
+        except Exception as exc:  # noqa: BLE001 - shutdown must go on
+            self.get_logger().warning(f"cannot answer queued queries at shutdown: {exc}")
+        if unanswered:
+            self.get_logger().warning(f"{unanswered} queries left unanswered at shutdown")
+        return super().destroy_node()
 
     # --- diagnostics ------------------------------------------------------------------
 
     def _publish_diagnostics(self):
         try:
             failures = self._stats.failures()
-            with self._pending_ready:
-                pending = len(self._pending)
+            with self._lock:
+                pending = {"pending_single_queries": len(self._pending),
+                           "pending_batch_grasps": (self._queued_batch_grasps
+                                                    + self._busy_batch_grasps)}
             status = DiagnosticStatus(
                 level=DiagnosticStatus.WARN if failures else DiagnosticStatus.OK,
                 name=f"{self.get_fully_qualified_name()}: force-closure queries",
@@ -544,10 +644,110 @@ class ForceClosureNode(Node):
         except Exception as exc:  # noqa: BLE001 - diagnostics must never stop the node
             self._internal_error("diagnostics", exc)
 
+    def _check_duplicate_name(self):
+        """Warn (once) when another node has this node's name and namespace."""
+        if self._duplicate_warned:
+            return
+        me = (self.get_name(), self.get_namespace())
+        if self.get_node_names_and_namespaces().count(me) > 1:
+            self._duplicate_warned = True
+            self.get_logger().warning(
+                f"another node is named {self.get_fully_qualified_name()}: both answer every "
+                "query; give one another name or namespace (--ros-args -r __ns:=/other)")
+
+
+USAGE = f"""usage: grasp-fc-node [-h] [--ros-args ROS_ARGUMENTS...]
+
+The {NODE_NAME} node: force-closure verdicts for grasp queries on the topics
+contacts and contacts_batch and the service check_force_closure (see the README).
+
+ROS arguments (after --ros-args):
+  -p NAME:=VALUE           set a parameter (doubles need a decimal point: 1.0)
+  --params-file FILE       parameters from a YAML file keyed by node name
+                           ({NODE_NAME}, /NAMESPACE/{NODE_NAME} or /**)
+  -r __ns:=/NAMESPACE      run in a namespace
+  -r __node:=NAME          run under another node name
+  --log-level LEVEL        debug, info, warn, error
+
+parameters:
+""" + "\n".join(f"  {name:<22} {default!r:>10}  {descriptor.description}"
+                for name, (default, descriptor) in PARAMETERS.items())
+
+
+class UsageError(Exception):
+    """Command-line arguments the node cannot start with (exit code 2)."""
+
+
+def check_arguments(argv: list[str]) -> bool:
+    """Check the command line before rclpy sees it; True when --help was asked.
+
+    Raises
+    ------
+    UsageError
+        For arguments before ``--ros-args`` (e.g. ``-p x:=y`` without it, which rclpy
+        would ignore) and for a missing, unreadable or malformed params file.
+    """
+    user = argv[1:]
+    split = user.index("--ros-args") if "--ros-args" in user else len(user)
+    before, ros_args = user[:split], user[split + 1:]
+    if "-h" in before or "--help" in before:
+        return True
+    if before:
+        raise UsageError(f"unexpected argument(s) {' '.join(before)}: ROS arguments go after "
+                         "--ros-args (e.g. --ros-args -p friction_coefficient:=0.3); see --help")
+    for i, arg in enumerate(ros_args):
+        if arg == "--params-file":
+            if i + 1 >= len(ros_args):
+                raise UsageError("--params-file needs a file name")
+            _check_params_file(ros_args[i + 1])
+    return False
+
+
+def _check_params_file(path: str):
+    import yaml
+
+    try:
+        with open(path, encoding="utf-8") as stream:
+            content = yaml.safe_load(stream)
+    except OSError as exc:
+        raise UsageError(f"cannot read params file {path}: {exc.strerror}") from None
+    except yaml.YAMLError as exc:
+        raise UsageError(f"params file {path} is not valid YAML: "
+                         f"{str(exc).splitlines()[0]}") from None
+    if not isinstance(content, dict) or not all(
+            isinstance(v, dict) and isinstance(v.get("ros__parameters"), dict)
+            for v in content.values()):
+        raise UsageError(f"params file {path}: expected '<node name>: {{ros__parameters: "
+                         "{...}}' at the top level")
+
+
+def _warn_params_file_keys(argv: list[str], node: Node):
+    """Warn when a params file has no section for this node (rclpy ignores it then)."""
+    import yaml
+
+    names = {"/**", node.get_name(), node.get_fully_qualified_name(),
+             node.get_fully_qualified_name().lstrip("/")}
+    for i, arg in enumerate(argv[:-1]):
+        if arg == "--params-file":
+            with open(argv[i + 1], encoding="utf-8") as stream:
+                keys = set(yaml.safe_load(stream))
+            if not keys & names:
+                node.get_logger().warning(
+                    f"params file {argv[i + 1]} has sections {sorted(keys)} but none for "
+                    f"this node ({node.get_fully_qualified_name()}): it is ignored")
+
 
 def main(args=None) -> int:
     """Run the node until Ctrl-C or SIGTERM; return the process exit code."""
-    rclpy.init(args=args)
+    argv = list(sys.argv if args is None else args)
+    try:
+        if check_arguments(argv):
+            print(USAGE)
+            return 0
+    except UsageError as exc:
+        print(f"{NODE_NAME}: {exc}", file=sys.stderr)
+        return 2
+    rclpy.init(args=argv)
     node = None
     try:
         # The executor exists before the node logs "ready": a Ctrl-C right after that
@@ -555,6 +755,7 @@ def main(args=None) -> int:
         # half-built executor whose __del__ prints a traceback).
         executor = SingleThreadedExecutor()
         node = ForceClosureNode()
+        _warn_params_file_keys(argv, node)
         executor.add_node(node)
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
@@ -568,6 +769,9 @@ def main(args=None) -> int:
         if rclpy.ok():
             raise
     finally:
+        # A second Ctrl-C while shutting down ends the process at once, quietly (the
+        # workers notice their parent is gone and exit too).
+        signal.signal(signal.SIGINT, lambda *_: os._exit(130))
         if node is not None:
             node.destroy_node()
         shutdown_rclpy()

@@ -1,13 +1,16 @@
-"""ROS-specific test helpers for the node tests (imported by test/test_node*.py).
+"""ROS-specific test helpers for the node tests (the fixtures are in conftest.py).
 
 Importing this module picks a ROS_DOMAIN_ID of its own for this test run (derived
 from the process id) *before* rclpy is initialised, so that parallel runs on one
 machine cannot hear each other. Child processes inherit it through the environment.
+
+:class:`Client` speaks the raw protocol (it can send what grasp_fc_ros.client never
+would: malformed batches, queries without a client id); tests of normal use take
+:class:`grasp_fc_ros.client.GraspClient`.
 """
 
 from __future__ import annotations
 
-import atexit
 import os
 import shutil
 import signal
@@ -26,14 +29,11 @@ import pytest  # noqa: E402
 import rclpy  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 
 from grasp_fc_msgs.msg import ContactArray, ContactArrayBatch  # noqa: E402
 from grasp_fc_msgs.msg import ForceClosureVerdict, ForceClosureVerdictArray  # noqa: E402
 from grasp_fc_msgs.srv import CheckForceClosure  # noqa: E402
-
-RELIABLE = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
-                      depth=1000)
+from grasp_fc_ros.node import QUERY_QOS as RELIABLE  # noqa: E402 - the documented QoS
 DISCOVERY_TIMEOUT_S = 20.0
 REPLY_TIMEOUT_S = 20.0
 NODE_EXIT_TIMEOUT_S = 10.0
@@ -131,18 +131,17 @@ class Client:
     def request_batch(self, msg: ContactArrayBatch, timeout=REPLY_TIMEOUT_S):
         """Publish a batch and return the ForceClosureVerdictArray answering it.
 
-        The reply is recognised by a unique header.frame_id (the node copies the
-        query's header), so a stray earlier reply cannot be mistaken for it.
+        The reply is recognised by a unique request_id (the node copies it), so a
+        stray earlier reply cannot be mistaken for it.
         """
         self._sent += 1
-        msg.header.frame_id = f"{self.node.get_name()}/{self._sent}"
+        msg.request_id = self._sent
         self.batch_pub.publish(msg)
         with self._lock:
             ok = self._lock.wait_for(
-                lambda: any(b.header.frame_id == msg.header.frame_id for b in self.batches),
-                timeout)
-            replies = [b for b in self.batches if b.header.frame_id == msg.header.frame_id]
-        assert ok, f"no reply to batch {msg.header.frame_id} within {timeout} s"
+                lambda: any(b.request_id == msg.request_id for b in self.batches), timeout)
+            replies = [b for b in self.batches if b.request_id == msg.request_id]
+        assert ok, f"no reply to batch {msg.request_id} within {timeout} s"
         assert len(replies) == 1, f"{len(replies)} replies to one batch"
         return replies[0]
 
@@ -185,18 +184,6 @@ class Client:
 
     def close(self):
         self.spinner.stop()
-
-
-@pytest.fixture(scope="session")
-def ros():
-    """rclpy initialised once for the whole run; shut down when the process exits.
-
-    Every test module that imports this fixture gets its own copy of it, so it must
-    not initialise twice.
-    """
-    if not rclpy.ok():
-        rclpy.init()
-        atexit.register(rclpy.try_shutdown)
 
 
 def node_command() -> list[str]:

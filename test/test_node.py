@@ -1,7 +1,9 @@
 """The force_closure node in-process, spun on its own executor thread.
 
 A separate client node talks to it through real DDS topics and the service; the
-verdicts are compared with grasp_fc_ros.core on the same grasps.
+verdicts are compared with grasp_fc_ros.core on the same grasps. The node here has no
+worker processes (workers=0), so that tests can break the core by monkeypatching; the
+worker processes are tested in test_node_load.py and test_node_process.py.
 """
 
 from __future__ import annotations
@@ -14,8 +16,9 @@ import numpy as np
 import pytest
 from rclpy.parameter import Parameter
 
-from ros_fixtures import REPLY_TIMEOUT_S, Client, SpinThread, ros  # noqa: F401 - ros: fixture
+from ros_fixtures import REPLY_TIMEOUT_S, Client, SpinThread
 
+from grasp_fc_ros import evaluation as evaluation_module
 from grasp_fc_ros import node as node_module
 from grasp_fc_ros.conversions import (
     Verdicts,
@@ -38,9 +41,9 @@ QUIET_S = 0.5
 
 
 @pytest.fixture(scope="module")
-def system(ros):  # noqa: F811
+def system(ros):
     """(node, client): the node on its executor thread and a connected client."""
-    node = ForceClosureNode()
+    node = ForceClosureNode(parameter_overrides=[Parameter("workers", value=0)])
     spinner = SpinThread(node)
     client = Client()
     client.wait_connected()
@@ -58,30 +61,6 @@ def client(system):
 @pytest.fixture
 def fc_node(system):
     return system[0]
-
-
-@pytest.fixture
-def own_node(ros):  # noqa: F811
-    """Factory: make_node(namespace, **parameters) -> (node, spinner, client).
-
-    A node of its own in ``namespace`` (so the module's node does not answer too),
-    spun on its own thread, with a connected client; both torn down after the test.
-    """
-    made = []
-
-    def make_node(namespace, **parameters):
-        node = ForceClosureNode(namespace=namespace, parameter_overrides=[
-            Parameter(name, value=value) for name, value in parameters.items()])
-        spinner = SpinThread(node)
-        client = Client(f"{namespace}_client", namespace=namespace)
-        made.append((spinner, client))
-        client.wait_connected()
-        return node, spinner, client
-
-    yield make_node
-    for spinner, client in made:
-        client.close()
-        spinner.stop()
 
 
 class StalledWorker:
@@ -214,29 +193,30 @@ def test_too_few_and_too_many_contacts(client, fc_node):
 
 
 @pytest.mark.parametrize("corrupt", ["counts_exceed_arrays", "fewer_counts_than_ids",
-                                     "normals_shorter", "friction_length_wrong"])
-def test_malformed_batch_is_answered_not_fatal(client, grasps, corrupt):
+                                     "normals_shorter", "friction_length_wrong",
+                                     "one_contact_too_many"])
+def test_mis_packed_batch_is_invalid_as_a_whole(client, grasps, corrupt):
     positions, normals = (a[:5] for a in grasps)
     msg = grasps_to_batch_msg(np.arange(5), positions, normals)
     if corrupt == "counts_exceed_arrays":
         msg.contact_counts[4] = 7
-        unreadable = [4]
     elif corrupt == "fewer_counts_than_ids":
         msg.contact_counts = msg.contact_counts[:3]
-        unreadable = [3, 4]
     elif corrupt == "normals_shorter":
         msg.normals = msg.normals[:-4]
-        unreadable = [4]
-    else:
+    elif corrupt == "friction_length_wrong":
         msg.friction_coefficients = [0.5] * 13  # 30 contacts declared
-        unreadable = [2, 3, 4]
+    else:
+        # The issue's case: one contact more than the counts declare; reading it would
+        # shift contacts between grasps.
+        msg.positions.extend([0.0, 0.0, 1.0])
+        msg.normals.extend([0.0, 0.0, -1.0])
     got = send_batch(client, msg)
     np.testing.assert_array_equal(got.ids, np.arange(5))
-    readable = [i for i in range(5) if i not in unreadable]
-    assert (got.status[unreadable] == Status.INVALID_INPUT).all()
-    assert all(got.messages[i] for i in unreadable)
-    assert_matches_core(subset(got, readable), positions[readable],
-                        normals[readable], DEFAULT_MU)
+    assert (got.status == Status.INVALID_INPUT).all()
+    assert not got.force_closure.any()
+    assert got.messages[0].startswith("malformed batch: ")
+    assert len(set(got.messages)) == 1
 
 
 def test_oversized_batch_is_rejected_whole(client, fc_node, grasps):
@@ -248,6 +228,25 @@ def test_oversized_batch_is_rejected_whole(client, fc_node, grasps):
         fc_node.set_parameters([Parameter("max_batch", value=100_000)])
     assert (got.status == Status.INVALID_INPUT).all()
     assert "max_batch=3" in got.messages[0]
+
+
+def test_oversized_service_request_is_refused_before_conversion(client, fc_node, grasps,
+                                                                monkeypatch):
+    positions, normals = (a[:4] for a in grasps)
+
+    def no_conversion(*args, **kwargs):
+        raise AssertionError("an oversized request was converted")
+
+    monkeypatch.setattr(node_module, "contact_arrays_to_packed", no_conversion)
+    fc_node.set_parameters([Parameter("max_batch", value=3)])
+    try:
+        verdicts = client.call([grasp_to_contact_array(20 + i, positions[i], normals[i])
+                                for i in range(4)])
+    finally:
+        fc_node.set_parameters([Parameter("max_batch", value=100_000)])
+    assert [v.id for v in verdicts] == [20, 21, 22, 23]
+    assert all(v.status == Status.INVALID_INPUT for v in verdicts)
+    assert verdicts[0].message == "4 grasps exceed max_batch=3"
 
 
 def test_empty_batch_gets_empty_answer(client):
@@ -319,7 +318,7 @@ def test_without_filter_nothing_is_filtered_and_verdicts_agree(client, fc_node, 
     ("filter_origins", "everywhere", "one of"),
     ("max_contacts", 1, "out of range"),
     ("max_batch", 0, "out of range"),
-    ("qos_depth", 5, "read-only"),
+    ("workers", 1, "read-only"),
 ])
 def test_bad_parameter_values_are_rejected_with_a_reason(fc_node, name, value, why):
     before = fc_node.get_parameter(name).value
@@ -351,7 +350,7 @@ def test_core_exception_becomes_solver_failure_and_node_survives(client, grasps,
     def broken(*args, **kwargs):
         raise RuntimeError("solver exploded")
 
-    monkeypatch.setattr(node_module, "check_force_closure", broken)
+    monkeypatch.setattr(evaluation_module, "check_force_closure", broken)
     got = send_batch(client, grasps_to_batch_msg([1, 2, 3], positions, normals))
     assert (got.status == Status.SOLVER_FAILURE).all()
     assert "solver exploded" in got.messages[0]
@@ -379,14 +378,17 @@ def test_diagnostics_report_exact_counter_changes(client, grasps):
     client.wait_for("verdicts", 1)
     after = client.diagnostics_after(time.time())
 
-    keys = {"queries", "force_closure", "rejected_by_filter", "decided_by_exact_test",
+    keys = {"received", "answered", "queries", "force_closure", "rejected_by_filter", "decided_by_exact_test",
             "invalid_input", "solver_failures", "callback_errors", "overloaded",
-            "pending_single_queries", "conversion_time_total_s", "filter_time_total_s",
-            "exact_time_total_s", "processing_time_mean_ms", "processing_time_p99_ms"}
+            "pending_single_queries", "pending_batch_grasps", "conversion_time_total_s",
+            "validation_time_total_s", "filter_time_total_s", "exact_time_total_s",
+            "processing_time_mean_ms", "processing_time_p99_ms"}
     assert set(after) == keys
     served = check_force_closure(positions[:3], normals[:3], DEFAULT_MU).status
     statuses = np.concatenate([expected, served])
     assert diagnostics_change(before, after) == {
+        "received": 20,
+        "answered": 20,
         "queries": 20,
         "force_closure": int((statuses == Status.FORCE_CLOSURE).sum()),
         "rejected_by_filter": int((statuses == Status.FILTERED_OUT).sum()),
@@ -396,8 +398,10 @@ def test_diagnostics_report_exact_counter_changes(client, grasps):
         "callback_errors": 0,
         "overloaded": 0,
         "pending_single_queries": 0,
+        "pending_batch_grasps": 0,
     }
-    for key in ("conversion_time_total_s", "filter_time_total_s", "exact_time_total_s"):
+    for key in ("conversion_time_total_s", "validation_time_total_s", "filter_time_total_s",
+                "exact_time_total_s"):
         assert float(after[key]) >= float(before[key])
     assert float(after["exact_time_total_s"]) > float(before["exact_time_total_s"])
     assert float(after["processing_time_mean_ms"]) > 0
@@ -456,7 +460,7 @@ def test_single_queries_beyond_max_batch_are_refused_at_once(own_node, grasps, m
 
 def test_core_failure_in_one_drain_fails_those_queries_only(client, grasps, monkeypatch):
     positions, normals = (a[:2] for a in grasps)
-    raise_once(monkeypatch, node_module, "check_force_closure", "solver exploded once")
+    raise_once(monkeypatch, evaluation_module, "check_force_closure", "solver exploded once")
     client.contacts_pub.publish(grasp_to_contact_array(31, positions[0], normals[0]))
     [failed] = client.wait_for("verdicts", 1)
     assert failed.id == 31 and failed.status == Status.SOLVER_FAILURE
@@ -537,7 +541,7 @@ def test_parameters_are_read_once_per_message(client, fc_node, grasps, monkeypat
     sizes = np.array([4, 6, 4, 6])
     positions = np.concatenate([sample_grasps(box, 1, int(n), rng)[0][0] for n in sizes])
     calls = []
-    real = node_module.check_force_closure
+    real = evaluation_module.check_force_closure
 
     def changing_parameters(*args, **kwargs):
         calls.append(kwargs["use_filter"])
@@ -545,7 +549,7 @@ def test_parameters_are_read_once_per_message(client, fc_node, grasps, monkeypat
         fc_node.set_parameters([Parameter("use_filter", value=False)])
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(node_module, "check_force_closure", changing_parameters)
+    monkeypatch.setattr(evaluation_module, "check_force_closure", changing_parameters)
     try:
         send_batch(client, grasps_to_batch_msg(np.arange(4), positions, -positions,
                                                counts=sizes))
@@ -572,10 +576,12 @@ def test_queued_single_queries_are_answered_at_shutdown(own_node, grasps, monkey
     stall.release()
     stopper.join(REPLY_TIMEOUT_S)
     received = client.wait_for("verdicts", 4)
+    # Query 0 was being decided: that work is abandoned, and it is answered like the rest.
     assert [v.id for v in received] == [0, 1, 2, 3]
-    assert received[0].status == check_force_closure(positions[0], normals[0], DEFAULT_MU).status
-    for v in received[1:]:
+    for v in received:
         assert v.status == Status.SOLVER_FAILURE and v.message == SHUTDOWN_MESSAGE
+    time.sleep(QUIET_S)
+    assert len(client.wait_for("verdicts", 4)) == 4, "a query got two verdicts"
 
 
 def test_stacked_contacts_without_counts_are_refused():
@@ -584,3 +590,19 @@ def test_stacked_contacts_without_counts_are_refused():
         grasps_to_batch_msg([1, 2], positions, positions)
     msg = grasps_to_batch_msg([1, 2], positions, positions, counts=[5, 7])
     assert list(msg.contact_counts) == [5, 7]
+
+
+def test_a_second_node_with_the_same_name_is_logged(own_node, capfd):
+    own_node("/duplicate_test", workers=0)
+    twin = ForceClosureNode(namespace="/duplicate_test",
+                            parameter_overrides=[Parameter("workers", value=0)])
+    spinner = SpinThread(twin)
+    try:
+        deadline = time.monotonic() + REPLY_TIMEOUT_S
+        logged = ""
+        while "another node is named /duplicate_test/force_closure" not in logged:
+            assert time.monotonic() < deadline, "the twin was never reported"
+            time.sleep(0.2)
+            logged += capfd.readouterr().err
+    finally:
+        spinner.stop()

@@ -1,0 +1,328 @@
+"""grasp_fc_ros.client: talk to a running ``force_closure`` node from Python.
+
+>>> import rclpy
+>>> from grasp_fc_ros.client import GraspClient
+>>> rclpy.init()
+>>> with GraspClient() as client:                      # node "force_closure"
+...     client.wait_for_node(timeout=10.0)
+...     verdicts = client.check_batch(positions, normals)   # (N, n, 3) arrays
+...     future = client.submit(positions[0], normals[0])  # one query, a Future
+...     print(verdicts.status, future.result(timeout=5.0).status)
+
+The client uses the QoS the node documents (:data:`grasp_fc_ros.node.QUERY_QOS`:
+reliable, KEEP_ALL), keeps at most ``max_in_flight`` single queries unanswered (more
+:meth:`submit` calls wait), keeps only verdicts carrying its own random ``client_id``,
+and publishes again every unanswered query when a node (re)appears on the query topics,
+e.g. after the node was killed and restarted. A verdict answering an id twice (the old
+and the new node both answered) resolves its future once.
+"""
+
+from __future__ import annotations
+
+import secrets
+import threading
+import time
+from concurrent.futures import Future
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
+from grasp_fc_msgs.msg import (
+    ContactArray,
+    ContactArrayBatch,
+    ForceClosureVerdict,
+    ForceClosureVerdictArray,
+)
+from grasp_fc_msgs.srv import CheckForceClosure
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+
+from grasp_fc_ros.conversions import (
+    grasp_to_contact_array,
+    grasps_to_batch_msg,
+    verdict_array_to_numpy,
+)
+from grasp_fc_ros.evaluation import Verdicts
+from grasp_fc_ros.node import NODE_NAME, QUERY_QOS
+
+# Single queries unanswered at most (more submit() calls wait): well inside what the
+# node's KEEP_ALL reader takes without pushing back for long.
+DEFAULT_IN_FLIGHT = 2_000
+DEFAULT_TIMEOUT_S = 60.0
+# How often the client looks for a (re)started node on the query topics (s).
+WATCH_PERIOD_S = 0.25
+# Grace period after matching: DDS matches the two directions at different moments.
+MATCH_GRACE_S = 0.3
+
+
+class GraspClient:
+    """A client of one ``force_closure`` node: batches, single queries, the service.
+
+    Parameters
+    ----------
+    node_name : str
+        The node to talk to: ``force_closure``, or with its namespace
+        (``/robot/force_closure``); the topics are looked up next to it.
+    max_in_flight : int
+        Largest number of single queries sent but not answered.
+    name : str, optional
+        Name of the client's own ROS node (default: a unique one).
+
+    Requires ``rclpy.init()``; the client spins its own node on a thread of its own.
+    """
+
+    def __init__(self, node_name: str = NODE_NAME, max_in_flight: int = DEFAULT_IN_FLIGHT,
+                 name: str | None = None):
+        namespace, _, base = node_name.rpartition("/")
+        prefix = ("/" + namespace.strip("/")).rstrip("/")
+        self.client_id = secrets.randbits(63) | 1  # never 0 ("no client id")
+        self.node = Node(name or f"grasp_fc_client_{self.client_id:x}")
+        self._cond = threading.Condition()
+        self._singles: dict[int, tuple[ContactArray, Future]] = {}
+        self._batches: dict[int, tuple[ContactArrayBatch, Future]] = {}
+        self._next_request = 1
+        self._max_in_flight = max_in_flight
+        self.resubmitted = 0
+        self.diagnostics: dict[str, str] = {}
+        self._contacts_pub = self.node.create_publisher(ContactArray, f"{prefix}/contacts",
+                                                        QUERY_QOS)
+        self._batch_pub = self.node.create_publisher(ContactArrayBatch,
+                                                     f"{prefix}/contacts_batch", QUERY_QOS)
+        self.node.create_subscription(ForceClosureVerdict, f"{prefix}/verdicts",
+                                      self._on_verdict, QUERY_QOS)
+        self.node.create_subscription(ForceClosureVerdictArray, f"{prefix}/verdicts_batch",
+                                      self._on_batch, QUERY_QOS)
+        self._diag_name = f"{prefix}/{base}:"  # the node's diagnostics status name starts so
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
+        self._service = self.node.create_client(CheckForceClosure,
+                                                f"{prefix}/check_force_closure")
+        self._matched = 0
+        self._closed = False
+        self.node.create_timer(WATCH_PERIOD_S, self._watch_node)
+        self._executor = SingleThreadedExecutor(context=self.node.context)
+        self._executor.add_node(self.node)
+        self._spinner = threading.Thread(target=self._spin, daemon=True, name="grasp_client")
+        self._spinner.start()
+
+    # --- connection -------------------------------------------------------------------
+
+    def wait_for_node(self, timeout: float = DEFAULT_TIMEOUT_S) -> bool:
+        """Wait until the node's service and both directions of its topics are matched."""
+        deadline = time.monotonic() + timeout
+        if not self._service.wait_for_service(timeout_sec=timeout):
+            return False
+        while time.monotonic() < deadline:
+            if (self._contacts_pub.get_subscription_count()
+                    and self._batch_pub.get_subscription_count()
+                    and self.node.count_publishers(self._verdict_topic("verdicts"))
+                    and self.node.count_publishers(self._verdict_topic("verdicts_batch"))):
+                time.sleep(MATCH_GRACE_S)
+                return True
+            time.sleep(0.02)
+        return False
+
+    def _verdict_topic(self, name: str) -> str:
+        return self._contacts_pub.topic_name.rsplit("/", 1)[0] + "/" + name
+
+    def _watch_node(self):
+        """Publish unanswered queries again when a node newly subscribes to them.
+
+        A restarted node has not seen what was sent to its predecessor; a duplicate
+        answer (both saw it) is ignored by id.
+        """
+        matched = self._contacts_pub.get_subscription_count()
+        grew, self._matched = matched > self._matched, matched
+        if not grew:
+            return
+        with self._cond:
+            singles = [msg for msg, _ in self._singles.values()]
+            batches = [msg for msg, _ in self._batches.values()]
+        if singles or batches:
+            time.sleep(MATCH_GRACE_S)
+        for msg in singles:
+            self._contacts_pub.publish(msg)
+        for msg in batches:
+            self._batch_pub.publish(msg)
+        with self._cond:
+            self.resubmitted += len(singles) + sum(len(m.ids) for m in batches)
+
+    # --- single queries -----------------------------------------------------------------
+
+    def submit(self, positions, normals, mu=0.0, query_id: int | None = None,
+               frame_id: str = "", timeout: float = DEFAULT_TIMEOUT_S) -> Future:
+        """Send one grasp on ``contacts``; return a Future of its ForceClosureVerdict.
+
+        Parameters
+        ----------
+        positions, normals : (n, 3) float
+            Contact positions (m) and inward normals.
+        mu : scalar or (n,) float
+            Friction per contact; a finite value <= 0 means the node's default.
+        query_id : int, optional
+            Default: a number counting up from 1 in this client.
+        frame_id : str
+            Frame of the contacts; the verdict's header carries it back.
+        timeout : float
+            How long to wait for room when ``max_in_flight`` queries are unanswered.
+
+        Raises
+        ------
+        TimeoutError
+            If no room was made within ``timeout``.
+        ValueError
+            If ``query_id`` is already in flight.
+        """
+        with self._cond:
+            if query_id is None:
+                query_id, self._next_request = self._next_request, self._next_request + 1
+            if query_id in self._singles:
+                raise ValueError(f"query id {query_id} is already in flight")
+            if not self._cond.wait_for(lambda: len(self._singles) < self._max_in_flight,
+                                       timeout):
+                raise TimeoutError(f"{len(self._singles)} queries unanswered for {timeout} s")
+            msg = grasp_to_contact_array(query_id, positions, normals, mu,
+                                         client_id=self.client_id)
+            msg.header.frame_id = frame_id
+            msg.header.stamp = self.node.get_clock().now().to_msg()
+            future: Future = Future()
+            self._singles[query_id] = (msg, future)
+        self._contacts_pub.publish(msg)
+        return future
+
+    def _on_verdict(self, msg: ForceClosureVerdict):
+        if msg.client_id != self.client_id:
+            return  # another client's verdict
+        with self._cond:
+            entry = self._singles.pop(msg.id, None)
+            self._cond.notify_all()
+        if entry is not None:
+            entry[1].set_result(msg)
+
+    @property
+    def in_flight(self) -> int:
+        """Single queries and batches sent but not answered yet."""
+        with self._cond:
+            return len(self._singles) + len(self._batches)
+
+    # --- batches ------------------------------------------------------------------------
+
+    def submit_batch(self, positions, normals, mu=None, counts=None, ids=None,
+                     frame_id: str = "") -> Future:
+        """Send grasps as one ContactArrayBatch; return a Future of their :class:`Verdicts`.
+
+        ``positions``, ``normals``: (N, n, 3), or stacked (K, 3) with ``counts`` (N,);
+        ``mu``: None (node default), a scalar or one value per contact; ``ids``: (N,),
+        default 0..N-1.
+        """
+        n_grasps = len(counts) if counts is not None else len(positions)
+        ids = np.arange(n_grasps) if ids is None else ids
+        with self._cond:
+            request_id, self._next_request = self._next_request, self._next_request + 1
+        msg = grasps_to_batch_msg(ids, positions, normals, mu, counts,
+                                  client_id=self.client_id, request_id=request_id)
+        msg.header.frame_id = frame_id
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        future: Future = Future()
+        with self._cond:
+            self._batches[request_id] = (msg, future)
+        self._batch_pub.publish(msg)
+        return future
+
+    def check_batch(self, positions, normals, mu=None, counts=None, ids=None,
+                    timeout: float = DEFAULT_TIMEOUT_S) -> Verdicts:
+        """:meth:`submit_batch` and wait for its verdicts (TimeoutError after ``timeout``)."""
+        return self.submit_batch(positions, normals, mu, counts, ids).result(timeout)
+
+    def _on_batch(self, msg: ForceClosureVerdictArray):
+        if msg.client_id != self.client_id:
+            return
+        with self._cond:
+            entry = self._batches.pop(msg.request_id, None)
+            self._cond.notify_all()
+        if entry is not None:
+            entry[1].set_result(verdict_array_to_numpy(msg))
+
+    # --- the service --------------------------------------------------------------------
+
+    def call(self, positions, normals, mu=0.0, ids=None,
+             timeout: float = DEFAULT_TIMEOUT_S) -> Verdicts:
+        """Decide grasps (N, n, 3) through the service; their :class:`Verdicts` in order.
+
+        Raises
+        ------
+        TimeoutError
+            If no response came within ``timeout``.
+        """
+        positions = np.asarray(positions, dtype=np.float64)
+        normals = np.asarray(normals, dtype=np.float64)
+        ids = np.arange(len(positions)) if ids is None else np.asarray(ids)
+        mu = np.broadcast_to(np.asarray(mu, dtype=np.float64), positions.shape[:2])
+        request = CheckForceClosure.Request(grasps=[
+            grasp_to_contact_array(i, p, n, m) for i, p, n, m in zip(ids, positions, normals, mu)])
+        return self.call_request(request, timeout)
+
+    def call_request(self, request, timeout: float = DEFAULT_TIMEOUT_S) -> Verdicts:
+        """Send a prepared CheckForceClosure request; its :class:`Verdicts` in order."""
+        done = threading.Event()
+        future = self._service.call_async(request)
+        future.add_done_callback(lambda _: done.set())
+        if not done.wait(timeout):
+            self._service.remove_pending_request(future)
+            raise TimeoutError(f"no service response within {timeout} s")
+        replies = future.result().verdicts
+        return Verdicts(
+            ids=np.array([v.id for v in replies], dtype=np.uint64),
+            force_closure=np.array([v.force_closure for v in replies], dtype=bool),
+            status=np.array([v.status for v in replies], dtype=np.uint8),
+            margin=np.array([v.margin for v in replies], dtype=np.float64),
+            messages=[v.message for v in replies])
+
+    # --- diagnostics --------------------------------------------------------------------
+
+    def _on_diagnostics(self, msg: DiagnosticArray):
+        for status in msg.status:
+            if status.name.startswith(self._diag_name):
+                with self._cond:
+                    self.diagnostics = {kv.key: kv.value for kv in status.values}
+                    self._cond.notify_all()
+
+    def next_diagnostics(self, timeout: float = 5.0) -> dict[str, str]:
+        """The node's next /diagnostics key values (it publishes about once a second)."""
+        with self._cond:
+            self.diagnostics = {}
+            if not self._cond.wait_for(lambda: self.diagnostics, timeout):
+                raise TimeoutError(f"no diagnostics within {timeout} s")
+            return dict(self.diagnostics)
+
+    # --- lifetime -----------------------------------------------------------------------
+
+    def _spin(self):
+        try:
+            self._executor.spin()
+        except Exception:  # noqa: BLE001 - rclpy shut down while spinning: end quietly
+            pass
+
+    def close(self):
+        """Stop spinning and destroy the client's node; unanswered futures are cancelled.
+
+        A second call does nothing.
+        """
+        if self._closed:
+            return
+        self._closed = True
+        self._executor.shutdown()
+        self._spinner.join(timeout=5.0)
+        self.node.destroy_node()
+        with self._cond:
+            pending = [f for _, f in self._singles.values()] + [
+                f for _, f in self._batches.values()]
+            self._singles.clear()
+            self._batches.clear()
+        for future in pending:
+            future.cancel()
+
+    def __enter__(self) -> GraspClient:
+        return self
+
+    def __exit__(self, *exc_info):
+        self.close()
+

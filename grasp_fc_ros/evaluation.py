@@ -1,0 +1,293 @@
+"""Packed grasps in, verdicts out: the node's evaluation, without ROS.
+
+The node (and its worker processes) work on a *packed* representation of many grasps,
+:class:`PackedGrasps`: all contacts of all grasps stacked grasp after grasp, plus one
+contact count per grasp, the layout of ``ContactArrayBatch``. :func:`evaluate` decides
+every grasp of it with :func:`grasp_fc_ros.core.check_force_closure`, one batched core
+call per contact count, applies the default friction and says what is wrong with each
+bad grasp as an :class:`InvalidGrasp` (grasp, contact, reason).
+
+This module imports numpy and the core only, so worker processes can import it fast
+and tests can call it without DDS.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from grasp_fc_ros.core import Status, check_force_closure, validate_grasps
+
+# A grasp needs at least two contacts (the core's own minimum, restated for messages).
+MIN_CONTACTS = 2
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The parameters that decide queries; one snapshot decides a whole message.
+
+    Attributes
+    ----------
+    friction_coefficient : float
+        Used for contacts whose own coefficient is finite and <= 0.
+    use_filter : bool
+        Run the torque-space filter before the exact test.
+    filter_origins : str
+        Torque origins of the filter (``grasp_fc_ros.core.ORIGIN_CHOICES``).
+    max_contacts : int
+        Largest accepted number of contacts in one grasp.
+    max_batch : int
+        Largest accepted number of grasps in one message.
+    """
+
+    friction_coefficient: float = 0.5
+    use_filter: bool = True
+    filter_origins: str = "seed"
+    max_contacts: int = 64
+    max_batch: int = 100_000
+
+
+@dataclass
+class PackedGrasps:
+    """Many grasp queries, stacked contact after contact.
+
+    Attributes
+    ----------
+    ids : (N,) uint64
+        Query id of each grasp.
+    counts : (N,) int64
+        Number of contacts of each grasp.
+    positions : (K, 3) float64
+        Contact positions (m), grasp after grasp; K = counts.sum().
+    normals : (K, 3) float64
+        Inward contact normals, any length (validated by :func:`evaluate`).
+    mu : (K,) float64
+        Friction coefficient per contact; finite values <= 0 mean "node default"
+        (NaN and +-inf are invalid).
+    name_by_id : bool
+        True when the grasps are separate single-grasp topic queries: messages then
+        name a grasp by its query id only ("query id 12"), since its place among the
+        queued queries means nothing to the client; otherwise "grasp 3 (id 1003)".
+    first_index : int
+        Index of grasp 0 of this object in the message it came from (a chunk of a
+        batch names its grasps by their index in the whole batch).
+    """
+
+    ids: np.ndarray
+    counts: np.ndarray
+    positions: np.ndarray
+    normals: np.ndarray
+    mu: np.ndarray
+    name_by_id: bool = False
+    first_index: int = 0
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    @property
+    def starts(self) -> np.ndarray:
+        """(N,) int64 index of each grasp's first contact in the stacked arrays."""
+        return np.concatenate(([0], np.cumsum(self.counts)[:-1])).astype(np.int64)
+
+    def label(self, index: int) -> str:
+        """How messages name grasp ``index`` of this object."""
+        if self.name_by_id:
+            return f"query id {self.ids[index]}"
+        return f"grasp {self.first_index + index} (id {self.ids[index]})"
+
+    def chunks(self, max_contacts: int) -> list[PackedGrasps]:
+        """Split into consecutive pieces of at most ``max_contacts`` contacts each.
+
+        A grasp is never split; a single grasp larger than the bound is a chunk alone.
+        """
+        ends = np.cumsum(self.counts)
+        pieces, first = [], 0
+        while first < len(self):
+            base = ends[first - 1] if first else 0
+            last = int(np.searchsorted(ends, base + max_contacts, side="right"))
+            last = max(last, first + 1)
+            pieces.append(self.slice(first, last))
+            first = last
+        return pieces
+
+    def slice(self, first: int, last: int) -> PackedGrasps:
+        """Grasps ``first:last`` as a PackedGrasps of their own (arrays are views)."""
+        starts = self.starts
+        lo = int(starts[first]) if first < len(self) else 0
+        hi = lo + int(self.counts[first:last].sum())
+        return PackedGrasps(ids=self.ids[first:last], counts=self.counts[first:last],
+                            positions=self.positions[lo:hi], normals=self.normals[lo:hi],
+                            mu=self.mu[lo:hi], name_by_id=self.name_by_id,
+                            first_index=self.first_index + first)
+
+
+@dataclass
+class Verdicts:
+    """One verdict per grasp, as parallel arrays (the ForceClosureVerdictArray layout).
+
+    Attributes
+    ----------
+    ids : (N,) uint64
+    force_closure : (N,) bool
+    status : (N,) uint8
+        ``grasp_fc_ros.core.Status`` codes.
+    margin : (N,) float64
+        NaN where the exact test was not run.
+    messages : list[str]
+        Length N; empty where there is nothing to say.
+    """
+
+    ids: np.ndarray
+    force_closure: np.ndarray
+    status: np.ndarray
+    margin: np.ndarray
+    messages: list[str]
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    @classmethod
+    def failed(cls, ids, status: Status, message: str) -> Verdicts:
+        """Every grasp ``ids`` answered with ``status`` and the same ``message``."""
+        ids = np.asarray(ids, dtype=np.uint64)
+        n = len(ids)
+        return cls(ids=ids, force_closure=np.zeros(n, bool),
+                   status=np.full(n, status, dtype=np.uint8), margin=np.full(n, np.nan),
+                   messages=[message] * n)
+
+    @classmethod
+    def concatenate(cls, parts: list[Verdicts]) -> Verdicts:
+        """The verdicts of ``parts``, one after the other."""
+        if not parts:
+            return cls.failed([], Status.INVALID_INPUT, "")
+        return cls(ids=np.concatenate([p.ids for p in parts]),
+                   force_closure=np.concatenate([p.force_closure for p in parts]),
+                   status=np.concatenate([p.status for p in parts]),
+                   margin=np.concatenate([p.margin for p in parts]),
+                   messages=[m for p in parts for m in p.messages])
+
+
+@dataclass(frozen=True)
+class InvalidGrasp:
+    """Why one grasp cannot be evaluated.
+
+    Attributes
+    ----------
+    grasp : int
+        Index of the grasp in its :class:`PackedGrasps`.
+    contact : int or None
+        Index of the first bad contact within the grasp, None for grasp-level problems.
+    reason : str
+        What is wrong, e.g. "normal has zero length".
+    """
+
+    grasp: int
+    contact: int | None
+    reason: str
+
+    def describe(self, packed: PackedGrasps) -> str:
+        """The verdict message: 'grasp 3 (id 1003), contact 2: normal has zero length'."""
+        where = packed.label(self.grasp)
+        if self.contact is not None:
+            where += f", contact {self.contact}"
+        return f"{where}: {self.reason}"
+
+
+def effective_friction(mu: np.ndarray, default: float) -> np.ndarray:
+    """Contact friction with finite values <= 0 replaced by ``default``; shape kept.
+
+    NaN and +-inf stay, so that validation rejects them as not finite.
+    """
+    return np.where(np.isfinite(mu) & (mu <= 0), default, mu)
+
+
+def find_invalid(packed: PackedGrasps, mu: np.ndarray, settings: Settings
+                 ) -> list[InvalidGrasp]:
+    """Every grasp of ``packed`` that cannot be evaluated, with its first problem.
+
+    ``mu`` is the effective friction per contact, (K,). Contacts are checked one by one
+    through the core's :func:`validate_grasps` in one vectorised call: each contact,
+    doubled, is a two-contact grasp of its own, so the core names the bad contact's
+    problem and this function knows its index without reading any message text.
+    """
+    problems = []
+    counts = packed.counts
+    wrong_size = (counts < MIN_CONTACTS) | (counts > settings.max_contacts)
+    for g in np.flatnonzero(wrong_size):
+        problems.append(InvalidGrasp(int(g), None, (
+            f"{counts[g]} contacts; a grasp needs {MIN_CONTACTS} to "
+            f"max_contacts={settings.max_contacts}")))
+    if not len(mu):
+        return problems
+    doubled = validate_grasps(np.repeat(packed.positions[:, None], 2, axis=1),
+                              np.repeat(packed.normals[:, None], 2, axis=1),
+                              np.repeat(mu[:, None], 2, axis=1))
+    bad_contacts = np.flatnonzero(~doubled.valid)
+    if not len(bad_contacts):
+        return problems
+    owner = np.searchsorted(np.cumsum(counts), bad_contacts, side="right")
+    starts = packed.starts
+    seen = set(np.flatnonzero(wrong_size).tolist())
+    for k, g in zip(bad_contacts.tolist(), owner.tolist()):
+        if g in seen:
+            continue  # report the first problem of a grasp only
+        seen.add(g)
+        # The core's reason reads "grasp k, contact 0: <what>"; keep <what>.
+        what = doubled.reasons[k].split(": ", 1)[-1]
+        problems.append(InvalidGrasp(g, k - int(starts[g]), what))
+    return sorted(problems, key=lambda p: p.grasp)
+
+
+def evaluate(packed: PackedGrasps, settings: Settings) -> tuple[Verdicts, dict]:
+    """Decide every grasp of ``packed``; one verdict per grasp, in order.
+
+    Parameters
+    ----------
+    packed : PackedGrasps
+        N grasps, any mix of contact counts.
+    settings : Settings
+        Read once: every grasp is decided with the same values.
+
+    Returns
+    -------
+    verdicts : Verdicts
+        Length N. Invalid grasps get ``INVALID_INPUT`` and a message naming grasp and
+        contact; a core failure in one contact-count group gets ``SOLVER_FAILURE`` for
+        that group only.
+    seconds : dict
+        Time spent: ``validation_s``, ``filter_s`` and ``exact_s`` (s).
+    """
+    n_grasps = len(packed)
+    verdicts = Verdicts.failed(packed.ids, Status.INVALID_INPUT, "")
+    if n_grasps > settings.max_batch:
+        verdicts.messages = [f"{n_grasps} grasps exceed max_batch={settings.max_batch}"
+                             ] * n_grasps
+        return verdicts, {}
+    start = time.perf_counter()
+    mu = effective_friction(packed.mu, settings.friction_coefficient)
+    eligible = np.ones(n_grasps, bool)
+    for problem in find_invalid(packed, mu, settings):
+        eligible[problem.grasp] = False
+        verdicts.messages[problem.grasp] = problem.describe(packed)
+    seconds = {"validation_s": time.perf_counter() - start, "filter_s": 0.0, "exact_s": 0.0}
+    starts, counts = packed.starts, packed.counts
+    for n in np.unique(counts[eligible]):
+        group = np.flatnonzero(eligible & (counts == n))
+        rows = starts[group, None] + np.arange(n)
+        try:
+            result = check_force_closure(packed.positions[rows], packed.normals[rows],
+                                         mu[rows], use_filter=settings.use_filter,
+                                         origins=settings.filter_origins)
+        except Exception as exc:  # noqa: BLE001 - one group must not spoil the others
+            verdicts.status[group] = Status.SOLVER_FAILURE
+            for i in group:
+                verdicts.messages[i] = f"internal error: {exc}"
+            continue
+        verdicts.status[group] = result.status
+        verdicts.force_closure[group] = result.force_closure
+        verdicts.margin[group] = result.margin
+        for key in ("filter_s", "exact_s"):
+            seconds[key] += result.timing.get(key, 0.0)
+    return verdicts, seconds

@@ -1,0 +1,50 @@
+"""Fixtures shared by the ROS tests (test_node*.py, test_client*.py).
+
+rclpy is imported inside the fixtures only, so the core tests stay free of ROS.
+"""
+
+from __future__ import annotations
+
+import atexit
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def ros():
+    """rclpy initialised once for the whole run, on this run's own ROS_DOMAIN_ID."""
+    import ros_fixtures  # noqa: F401 - sets ROS_DOMAIN_ID before rclpy starts
+    import rclpy
+
+    if not rclpy.ok():
+        rclpy.init()
+        atexit.register(rclpy.try_shutdown)
+
+
+@pytest.fixture
+def own_node(ros):
+    """Factory: make_node(namespace, **parameters) -> (node, spinner, client).
+
+    A ForceClosureNode of its own in ``namespace`` (so no other node answers), spun on
+    its own thread, with a connected raw-protocol client; both torn down after the test.
+    """
+    from ros_fixtures import Client, SpinThread
+    from rclpy.parameter import Parameter
+
+    from grasp_fc_ros.node import ForceClosureNode
+
+    made = []
+
+    def make_node(namespace, **parameters):
+        node = ForceClosureNode(namespace=namespace, parameter_overrides=[
+            Parameter(name, value=value) for name, value in parameters.items()])
+        spinner = SpinThread(node)
+        client = Client(f"{namespace.strip('/')}_client", namespace=namespace)
+        made.append((spinner, client))
+        client.wait_connected()
+        return node, spinner, client
+
+    yield make_node
+    for spinner, client in made:
+        client.close()
+        spinner.stop()

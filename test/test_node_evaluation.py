@@ -1,0 +1,190 @@
+"""grasp_fc_ros.evaluation and grasp_fc_ros.workers without ROS: packed grasps in,
+verdicts out, structured validation errors, chunks on worker processes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from grasp_fc_ros.core import Status, check_force_closure
+from grasp_fc_ros.evaluation import (
+    InvalidGrasp,
+    PackedGrasps,
+    Settings,
+    Verdicts,
+    evaluate,
+    find_invalid,
+)
+from grasp_fc_ros.objects import make_object, sample_grasps
+from grasp_fc_ros.workers import EvaluationPool
+
+# The exact test's margin depends on which grasps share a solver call, to solver accuracy.
+MARGIN_ABS_TOL = 1e-6
+MARGIN_REL_TOL = 1e-4
+
+
+def pack(grasp_list, mu=None, **kwargs) -> PackedGrasps:
+    """PackedGrasps of [(positions (n, 3), normals (n, 3)), ...]; mu per contact or 0."""
+    counts = np.array([len(p) for p, _ in grasp_list], dtype=np.int64)
+    positions = np.concatenate([p for p, _ in grasp_list]).reshape(-1, 3)
+    normals = np.concatenate([n for _, n in grasp_list]).reshape(-1, 3)
+    mu = np.zeros(len(positions)) if mu is None else np.asarray(mu, dtype=float)
+    ids = kwargs.pop("ids", np.arange(len(counts), dtype=np.uint64) + 100)
+    return PackedGrasps(ids=np.asarray(ids, np.uint64), counts=counts, positions=positions,
+                        normals=normals, mu=mu, **kwargs)
+
+
+@pytest.fixture(scope="module")
+def mixed():
+    """40 grasps of 3 to 8 contacts on the torus, and their sizes."""
+    rng = np.random.default_rng(11)
+    sizes = rng.choice([3, 4, 6, 8], size=40)
+    torus = make_object("torus")
+    return [tuple(a[0] for a in sample_grasps(torus, 1, int(n), rng)) for n in sizes]
+
+
+def assert_same_as_core(verdicts: Verdicts, grasp_list, mu):
+    for i, (p, n) in enumerate(grasp_list):
+        expected = check_force_closure(p, n, mu)
+        assert verdicts.status[i] == expected.status, f"grasp {i}"
+        assert verdicts.force_closure[i] == expected.force_closure
+        assert verdicts.margin[i] == pytest.approx(float(expected.margin), rel=MARGIN_REL_TOL,
+                                                  abs=MARGIN_ABS_TOL, nan_ok=True)
+
+
+def test_mixed_contact_counts_match_the_core_in_order(mixed):
+    verdicts, seconds = evaluate(pack(mixed), Settings(friction_coefficient=0.7))
+    np.testing.assert_array_equal(verdicts.ids, np.arange(40) + 100)
+    assert_same_as_core(verdicts, mixed, 0.7)
+    assert set(seconds) >= {"validation_s", "filter_s", "exact_s"}
+    assert {Status.FORCE_CLOSURE, Status.FILTERED_OUT} <= set(verdicts.status.tolist())
+
+
+def test_invalid_grasps_are_structured_and_spare_the_others(mixed):
+    grasps = [(p.copy(), n.copy()) for p, n in mixed[:6]]
+    grasps[1][0][2, 0] = np.nan
+    grasps[3][1][1] = 0.0
+    grasps[4] = (grasps[4][0][:1], grasps[4][1][:1])
+    mu = np.zeros(sum(len(p) for p, _ in grasps))
+    mu[sum(len(p) for p, _ in grasps[:5]) + 2] = np.inf  # grasp 5, contact 2
+    packed = pack(grasps, mu)
+    settings_ = Settings()
+    friction = np.where(mu == 0, settings_.friction_coefficient, mu)
+    problems = find_invalid(packed, friction, settings_)
+    assert problems == [
+        InvalidGrasp(1, 2, "position is not finite"),
+        InvalidGrasp(3, 1, "normal has zero length"),
+        InvalidGrasp(4, None, "1 contacts; a grasp needs 2 to max_contacts=64"),
+        InvalidGrasp(5, 2, "friction coefficient is not finite"),
+    ]
+    verdicts, _ = evaluate(packed, settings_)
+    assert verdicts.messages[1] == "grasp 1 (id 101), contact 2: position is not finite"
+    assert verdicts.messages[4] == "grasp 4 (id 104): 1 contacts; a grasp needs 2 to max_contacts=64"
+    assert (verdicts.status[[1, 3, 4, 5]] == Status.INVALID_INPUT).all()
+    good = [0, 2]
+    assert all(verdicts.messages[i] == "" for i in good)
+    assert_same_as_core(Verdicts(*(a[good] for a in (verdicts.ids, verdicts.force_closure,
+                                                     verdicts.status, verdicts.margin)),
+                                 messages=[]), [grasps[i] for i in good], 0.5)
+
+
+def test_single_queries_are_named_by_id_and_chunks_by_batch_index(mixed):
+    grasps = [(p.copy(), n.copy()) for p, n in mixed[:3]]
+    grasps[2][1][0] = 0.0
+    by_id = evaluate(pack(grasps, name_by_id=True, ids=[7, 8, 9]), Settings())[0]
+    assert by_id.messages[2] == "query id 9, contact 0: normal has zero length"
+    chunk = evaluate(pack(grasps, first_index=50), Settings())[0]
+    assert chunk.messages[2] == "grasp 52 (id 102), contact 0: normal has zero length"
+
+
+def test_max_contacts_and_max_batch_are_applied(mixed):
+    sizes = [len(p) for p, _ in mixed[:10]]
+    tight = Settings(max_contacts=4)
+    verdicts, _ = evaluate(pack(mixed[:10]), tight)
+    for i, n in enumerate(sizes):
+        assert (verdicts.status[i] == Status.INVALID_INPUT) == (n > 4)
+    whole, _ = evaluate(pack(mixed[:10]), Settings(max_batch=9))
+    assert (whole.status == Status.INVALID_INPUT).all()
+    assert whole.messages[0] == "10 grasps exceed max_batch=9"
+
+
+def test_a_failing_core_group_fails_only_that_group(mixed, monkeypatch):
+    from grasp_fc_ros import evaluation
+
+    real = evaluation.check_force_closure
+
+    def fails_on_four(positions, *args, **kwargs):
+        if positions.shape[1] == 4:
+            raise RuntimeError("solver exploded")
+        return real(positions, *args, **kwargs)
+
+    monkeypatch.setattr(evaluation, "check_force_closure", fails_on_four)
+    verdicts, _ = evaluate(pack(mixed), Settings())
+    for i, (p, _) in enumerate(mixed):
+        failed = verdicts.status[i] == Status.SOLVER_FAILURE
+        assert failed == (len(p) == 4)
+        assert ("solver exploded" in verdicts.messages[i]) == failed
+
+
+@settings(max_examples=30, deadline=None)
+@given(sizes=st.lists(st.integers(1, 9), min_size=0, max_size=30),
+       bound=st.integers(1, 40))
+def test_chunks_partition_the_grasps_in_order(sizes, bound):
+    counts = np.array(sizes, dtype=np.int64)
+    total = int(counts.sum())
+    packed = PackedGrasps(ids=np.arange(len(sizes), dtype=np.uint64), counts=counts,
+                          positions=np.arange(3 * total, dtype=float).reshape(total, 3),
+                          normals=np.zeros((total, 3)), mu=np.arange(total, dtype=float))
+    chunks = packed.chunks(bound)
+    assert [c.first_index for c in chunks] == list(np.cumsum([0] + [len(c) for c in chunks])[:-1])
+    np.testing.assert_array_equal(np.concatenate([c.ids for c in chunks] or [[]]), packed.ids)
+    np.testing.assert_array_equal(np.concatenate([c.mu for c in chunks] or [[]]), packed.mu)
+    for c in chunks:
+        # A chunk holds at most `bound` contacts, unless it is a single larger grasp.
+        assert c.counts.sum() <= bound or len(c) == 1
+        assert len(c.positions) == c.counts.sum()
+
+
+def test_worker_pool_gives_the_inline_verdicts_in_order():
+    rng = np.random.default_rng(12)
+    positions, normals = sample_grasps(make_object("box"), 300, 6, rng)
+    packed = pack(list(zip(positions, normals)))
+    inline, _ = evaluate(packed, Settings())
+    pool = EvaluationPool(2, chunk_contacts=200)  # 9 chunks of 33 grasps or fewer
+    try:
+        pooled, seconds = pool.decide(packed, Settings())
+    finally:
+        pool.close()
+    np.testing.assert_array_equal(pooled.ids, inline.ids)
+    np.testing.assert_array_equal(pooled.status, inline.status)
+    np.testing.assert_allclose(pooled.margin, inline.margin, rtol=MARGIN_REL_TOL,
+                               atol=MARGIN_ABS_TOL, equal_nan=True)
+    assert pooled.messages == inline.messages
+    assert seconds["exact_s"] > 0
+
+
+def test_a_killed_worker_fails_its_chunk_and_is_replaced():
+    rng = np.random.default_rng(13)
+    positions, normals = sample_grasps(make_object("box"), 400, 6, rng)
+    packed = pack(list(zip(positions, normals)))
+    pool = EvaluationPool(1, chunk_contacts=60)  # 40 chunks, one worker
+    try:
+        victim = pool._workers[0].process
+        killed = []
+
+        def kill_once():
+            if not killed:
+                killed.append(True)
+                victim.kill()
+            return False
+
+        with pytest.raises(RuntimeError, match="worker process failed"):
+            pool.decide(packed, Settings(), cancelled=kill_once)
+        # The replacement answers the next request, with the inline verdicts.
+        first = packed.slice(0, 20)
+        again, _ = pool.decide(first, Settings())
+        np.testing.assert_array_equal(again.status, evaluate(first, Settings())[0].status)
+        assert pool._workers[0].process is not victim
+    finally:
+        pool.close()

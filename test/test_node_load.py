@@ -1,0 +1,140 @@
+"""Load tests of the node in-process with its worker processes: bursts, floods, a large
+batch beside the service. Bounds are generous (a shared 2-core machine): they check
+that nothing is lost and nothing waits for a batch, not speed."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from ros_fixtures import REPLY_TIMEOUT_S
+
+from grasp_fc_ros.client import GraspClient
+from grasp_fc_ros.conversions import grasp_to_contact_array, grasps_to_batch_msg
+from grasp_fc_ros.core import Status, check_force_closure
+from grasp_fc_ros.objects import make_object, sample_grasps
+
+pytestmark = pytest.mark.timeout(180)
+
+BURST = 10_000
+# Every REAL_EVERY-th query of the burst is a real 6-finger grasp; the others have one
+# contact (INVALID_INPUT without core work), so the burst tests flow control and
+# bookkeeping in seconds rather than the core's speed.
+REAL_EVERY = 20
+LOAD_TIMEOUT_S = 120.0
+
+
+@pytest.fixture(scope="module")
+def grasps():
+    return sample_grasps(make_object("box"), 3000, 6, np.random.default_rng(21))
+
+
+def test_burst_of_single_queries_is_answered_exactly_once(own_node, grasps):
+    _, _, raw = own_node("/burst_test")
+    positions, normals = grasps
+    real = np.arange(0, BURST, REAL_EVERY)
+    client = GraspClient("/burst_test/force_closure")
+    try:
+        assert client.wait_for_node(REPLY_TIMEOUT_S)
+        futures = []
+        for i in range(BURST):  # back to back: submit() waits only for the window
+            k = i % len(positions)
+            contacts = slice(None) if i % REAL_EVERY == 0 else slice(0, 1)
+            futures.append(client.submit(positions[k][contacts], normals[k][contacts],
+                                         query_id=i, timeout=LOAD_TIMEOUT_S))
+        verdicts = [f.result(LOAD_TIMEOUT_S) for f in futures]
+        # The raw client hears every verdict on the topic: each id exactly once.
+        time.sleep(0.5)
+        heard = raw.wait_for("verdicts", BURST)
+    finally:
+        client.close()
+    assert [v.id for v in verdicts] == list(range(BURST))
+    ids = [v.id for v in heard]
+    assert len(ids) == BURST and sorted(ids) == list(range(BURST)), "lost or doubled"
+    assert ids == list(range(BURST)), "single-topic verdicts must come in arrival order"
+    status = np.array([v.status for v in verdicts])
+    expected = check_force_closure(positions[real % len(positions)],
+                                   normals[real % len(positions)], 0.5).status
+    np.testing.assert_array_equal(status[real], expected)
+    assert (np.delete(status, real) == Status.INVALID_INPUT).all()
+    after = raw.diagnostics_after(time.time(), "/burst_test/force_closure")
+    assert int(after["received"]) == int(after["answered"]) == BURST
+    assert after["overloaded"] == "0"
+
+
+def test_service_answers_while_a_large_batch_is_decided(own_node, grasps):
+    node, _, raw = own_node("/latency_test")
+    positions, normals = grasps
+    client = GraspClient("/latency_test/force_closure")
+    try:
+        assert client.wait_for_node(REPLY_TIMEOUT_S)
+        batch = client.submit_batch(positions, normals)
+        deadline = time.monotonic() + LOAD_TIMEOUT_S
+        while int(client.next_diagnostics()["received"]) < len(positions):
+            assert time.monotonic() < deadline, "the node never received the batch"
+        latencies = []
+        while not batch.done() and len(latencies) < 20:
+            start = time.perf_counter()
+            verdict = client.call(positions[:1], normals[:1], timeout=REPLY_TIMEOUT_S)
+            latencies.append(time.perf_counter() - start)
+            assert verdict.status[0] == check_force_closure(positions[0], normals[0], 0.5).status
+        assert latencies and not batch.done(), "the batch ended before the service was tried"
+        # Generous: the batch takes seconds; a service call waits at most for a chunk.
+        assert np.median(latencies) < 1.0, latencies
+        verdicts = batch.result(LOAD_TIMEOUT_S)
+        np.testing.assert_array_equal(verdicts.ids, np.arange(len(positions)))
+        np.testing.assert_array_equal(verdicts.status[:200],
+                                      check_force_closure(positions[:200], normals[:200],
+                                                          0.5).status)
+    finally:
+        client.close()
+
+
+def test_malformed_message_flood_is_answered_and_harmless(own_node, grasps):
+    node, _, client = own_node("/flood_test")
+    positions, normals = (a[:4] for a in grasps)
+    n_flood = 300
+    for k in range(n_flood):
+        msg = grasps_to_batch_msg([k, k + 1], positions[:2], normals[:2])
+        if k % 3 == 0:
+            msg.contact_counts = msg.contact_counts[:1]
+        elif k % 3 == 1:
+            msg.positions = msg.positions[:-1]
+        else:
+            msg.friction_coefficients = [np.nan] * 12
+        msg.request_id = 10_000 + k
+        client.batch_pub.publish(msg)
+        client.contacts_pub.publish(grasp_to_contact_array(k, positions[0][:0], normals[0][:0]))
+    batches = client.wait_for("batches", n_flood, timeout=LOAD_TIMEOUT_S)
+    singles = client.wait_for("verdicts", n_flood, timeout=LOAD_TIMEOUT_S)
+    assert sorted(b.request_id for b in batches) == list(range(10_000, 10_000 + n_flood))
+    assert all(set(b.status) == {Status.INVALID_INPUT} for b in batches)
+    assert all(v.status == Status.INVALID_INPUT for v in singles)
+    # Still fully working afterwards.
+    got = client.request_batch(grasps_to_batch_msg([7, 8], positions[:2], normals[:2]))
+    np.testing.assert_array_equal(
+        got.status, check_force_closure(positions[:2], normals[:2], 0.5).status)
+
+
+def test_two_clients_with_the_same_ids_get_only_their_own_verdicts(own_node, grasps):
+    own_node("/two_clients")
+    positions, normals = grasps
+    first = GraspClient("/two_clients/force_closure")
+    second = GraspClient("/two_clients/force_closure")
+    try:
+        assert first.wait_for_node(REPLY_TIMEOUT_S) and second.wait_for_node(REPLY_TIMEOUT_S)
+        # Same ids 0..29 from both; the second sends one-contact (invalid) grasps.
+        a = [first.submit(positions[i], normals[i], query_id=i) for i in range(30)]
+        b = [second.submit(positions[i][:1], normals[i][:1], query_id=i) for i in range(30)]
+        batch_a = first.submit_batch(positions[:5], normals[:5])
+        batch_b = second.submit_batch(positions[:5, :1], normals[:5, :1])
+        expected = check_force_closure(positions[:30], normals[:30], 0.5).status
+        assert [f.result(LOAD_TIMEOUT_S).status for f in a] == expected.tolist()
+        assert all(f.result(LOAD_TIMEOUT_S).status == Status.INVALID_INPUT for f in b)
+        np.testing.assert_array_equal(batch_a.result(LOAD_TIMEOUT_S).status, expected[:5])
+        assert set(batch_b.result(LOAD_TIMEOUT_S).status) == {Status.INVALID_INPUT}
+    finally:
+        first.close()
+        second.close()
