@@ -33,7 +33,8 @@ class Settings:
     friction_coefficient : float
         Used for contacts whose own coefficient is finite and <= 0.
     use_filter : bool
-        Run the torque-space filter before the exact test.
+        Run the torque-space filter before the exact test where it pays for the grasp's
+        contact count (the core's ``use_filter="auto"``); False: never.
     filter_origins : str
         Torque origins of the filter (``grasp_fc_ros.core.ORIGIN_CHOICES``).
     max_contacts : int
@@ -277,9 +278,10 @@ def evaluate(packed: PackedGrasps, settings: Settings) -> tuple[Verdicts, dict]:
         group = np.flatnonzero(eligible & (counts == n))
         rows = starts[group, None] + np.arange(n)
         try:
-            result = check_force_closure(packed.positions[rows], packed.normals[rows],
-                                         mu[rows], use_filter=settings.use_filter,
-                                         origins=settings.filter_origins)
+            result = check_force_closure(
+                packed.positions[rows], packed.normals[rows], mu[rows],
+                use_filter="auto" if settings.use_filter else False,
+                origins=settings.filter_origins)
         except Exception as exc:  # noqa: BLE001 - one group must not spoil the others
             verdicts.status[group] = Status.SOLVER_FAILURE
             for i in group:

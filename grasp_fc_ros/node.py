@@ -65,7 +65,8 @@ from grasp_fc_ros.conversions import (
     verdicts_to_array_msg,
     verdicts_to_msgs,
 )
-from grasp_fc_ros.core import ORIGIN_CHOICES, Status
+from grasp_fc_ros.core import ORIGIN_CHOICES, Status, warm_up
+from grasp_fc_ros.core.tolerances import MAX_FRICTION_COEFFICIENT
 from grasp_fc_ros.evaluation import MIN_CONTACTS, Settings, Verdicts
 from grasp_fc_ros.workers import (
     PRIORITY_BATCH,
@@ -84,6 +85,9 @@ TIMING_WINDOW = 2000
 MAX_CONTACTS_LIMIT = 10_000
 MAX_BATCH_LIMIT = 10_000_000
 MAX_WORKERS = 64
+# Worker processes by default: the 2 cores of the machines this was measured on. A fixed
+# number, so that a params file and the docs say the same on every machine.
+DEFAULT_WORKERS = 2
 # Verdict message of queries still queued when the node is destroyed.
 SHUTDOWN_MESSAGE = "node shutting down: query not evaluated"
 
@@ -114,10 +118,12 @@ PARAMETERS = {
     "friction_coefficient": (0.5, ParameterDescriptor(
         type=ParameterType.PARAMETER_DOUBLE,
         description="Coulomb friction coefficient for contacts that give none (finite <= 0)",
-        additional_constraints="finite and > 0")),
+        additional_constraints=f"finite, > 0 and <= {MAX_FRICTION_COEFFICIENT:g}")),
     "use_filter": (True, ParameterDescriptor(
         type=ParameterType.PARAMETER_BOOL,
-        description="Run the torque-space filter before the exact test")),
+        description="Run the torque-space filter before the exact test where it pays "
+                    "for the grasp's contact count (the core's use_filter='auto'); false: "
+                    "never. Verdicts are the same either way")),
     "filter_origins": ("seed", ParameterDescriptor(
         type=ParameterType.PARAMETER_STRING,
         description="Torque origins of the filter: 'seed' (the paper's) or 'all'",
@@ -129,7 +135,7 @@ PARAMETERS = {
         "single-grasp topic queries waiting to be decided, and of batch grasps waiting; "
         "beyond that a query is answered at once with SOLVER_FAILURE 'node overloaded'",
         1, MAX_BATCH_LIMIT)),
-    "workers": (min(2, os.cpu_count() or 1), _int_descriptor(
+    "workers": (DEFAULT_WORKERS, _int_descriptor(
         "Worker processes deciding large batches and service requests (0: none, decide "
         "in the node's threads); set at start-up", 0, MAX_WORKERS, read_only=True)),
 }
@@ -140,8 +146,9 @@ _SETTING_NAMES = frozenset(f.name for f in fields(Settings))
 def check_parameter(name: str, value) -> str:
     """Return why ``value`` is not acceptable for parameter ``name`` ('' if it is)."""
     if name == "friction_coefficient":
-        if not (math.isfinite(value) and value > 0):
-            return f"friction_coefficient must be finite and > 0, got {value}"
+        if not (math.isfinite(value) and 0 < value <= MAX_FRICTION_COEFFICIENT):
+            return (f"friction_coefficient must be finite, > 0 and <= "
+                    f"{MAX_FRICTION_COEFFICIENT:g}, got {value}")
     elif name == "filter_origins" and value not in ORIGIN_CHOICES:
         return f"filter_origins must be one of {ORIGIN_CHOICES}, got {value!r}"
     return ""
@@ -292,6 +299,9 @@ class ForceClosureNode(Node):
             raise
 
     def _start_interfaces(self):
+        # Compile (or load from numba's cache) the fast exact stage before any query can
+        # arrive, so that none pays for it.
+        warm_up()
         self._verdict_pub = self.create_publisher(ForceClosureVerdict, "verdicts",
                                                   VERDICT_QOS)
         self._batch_pub = self.create_publisher(ForceClosureVerdictArray, "verdicts_batch",

@@ -31,6 +31,7 @@ from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
 from typing import Callable
 
+from grasp_fc_ros.core import warm_up
 from grasp_fc_ros.evaluation import PackedGrasps, Settings, Verdicts, evaluate
 
 # Contacts per chunk: ~170 6-finger grasps. Measured CPU per grasp (6 fingers, one
@@ -200,6 +201,7 @@ def _serve():
     stdin, stdout = sys.stdin.buffer, sys.stdout.buffer
     # Anything else printing to stdout would corrupt the stream: send it to stderr.
     sys.stdout = sys.stderr
+    warm_up()  # the compiled exact stage, before the pool counts this worker as ready
     _write(stdout, "ready")
     while True:
         try:

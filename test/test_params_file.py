@@ -99,7 +99,7 @@ def test_node_starts_with_the_file_and_stops_on_ctrl_c():
 
 @pytest.mark.timeout(90)
 @pytest.mark.parametrize("line, reason", [
-    ("friction_coefficient: -1.0", "friction_coefficient must be finite and > 0"),
+    ("friction_coefficient: -1.0", "friction_coefficient must be finite, > 0 and <= 1000"),
     # The trap docs/params.md warns about: a double given without a decimal point.
     ("friction_coefficient: 1", "expecting type 'DOUBLE'"),
 ])
