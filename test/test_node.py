@@ -99,8 +99,11 @@ def raise_once(monkeypatch, target, name, message):
 
 @pytest.fixture(scope="module")
 def grasps():
-    """200 random 6-finger grasps on the box: positions, normals (200, 6, 3)."""
-    return sample_grasps(make_object("box"), 200, 6, np.random.default_rng(1))
+    """200 random 4-finger grasps on the box: positions, normals (200, 4, 3).
+
+    Four fingers: few enough that the node's use_filter (the core's "auto") runs the
+    filter, so every decision path shows up."""
+    return sample_grasps(make_object("box"), 200, 4, np.random.default_rng(1))
 
 
 def assert_matches_core(verdicts, positions, normals, mu):
@@ -157,9 +160,9 @@ def test_batch_with_mixed_contact_counts(client):
 
 def test_bad_grasps_get_invalid_input_and_spare_the_others(client, grasps):
     positions, normals = (a[:8].copy() for a in grasps)
-    mu = np.full((8, 6), DEFAULT_MU)
+    mu = np.full((8, 4), DEFAULT_MU)
     positions[1, 2, 0] = np.nan
-    normals[3, 4] = 0.0
+    normals[3, 3] = 0.0
     positions[5, 0, 1] = np.inf
     mu[6, 1] = np.nan
     got = send_batch(client, grasps_to_batch_msg(np.arange(8) + 1000, positions, normals,
@@ -168,7 +171,7 @@ def test_bad_grasps_get_invalid_input_and_spare_the_others(client, grasps):
     assert (got.status[bad] == Status.INVALID_INPUT).all()
     assert not got.force_closure[bad].any()
     assert got.messages[1] == "grasp 1 (id 1001), contact 2: position is not finite"
-    assert got.messages[3] == "grasp 3 (id 1003), contact 4: normal has zero length"
+    assert got.messages[3] == "grasp 3 (id 1003), contact 3: normal has zero length"
     assert got.messages[6].startswith("grasp 6 (id 1006), contact 1: ")
     good = [0, 2, 4, 7]
     assert all(got.messages[i] == "" for i in good)
@@ -291,7 +294,7 @@ def test_contact_friction_le_zero_uses_parameter(client, fc_node, grasps):
     positions, normals = (a[:50] for a in grasps)
     fc_node.set_parameters([Parameter("friction_coefficient", value=0.9)])
     try:
-        msg = grasps_to_batch_msg(np.arange(50), positions, normals, mu=np.zeros((50, 6)))
+        msg = grasps_to_batch_msg(np.arange(50), positions, normals, mu=np.zeros((50, 4)))
         got = send_batch(client, msg)
     finally:
         fc_node.set_parameters([Parameter("friction_coefficient", value=DEFAULT_MU)])
@@ -420,7 +423,7 @@ def test_single_query_message_names_its_id_and_contact(client, grasps):
 @pytest.mark.parametrize("bad_mu", [-math.inf, math.inf, math.nan])
 def test_non_finite_contact_friction_is_invalid_not_default(client, grasps, bad_mu):
     positions, normals = (a[:2] for a in grasps)
-    mu = np.full(6, 0.0)  # 0: the node's friction_coefficient
+    mu = np.full(4, 0.0)  # 0: the node's friction_coefficient
     mu[3] = bad_mu
     verdicts = client.call([grasp_to_contact_array(1, positions[0], normals[0], mu=mu),
                             grasp_to_contact_array(2, positions[1], normals[1], mu=0.0)])
@@ -555,7 +558,7 @@ def test_parameters_are_read_once_per_message(client, fc_node, grasps, monkeypat
                                                counts=sizes))
     finally:
         fc_node.set_parameters([Parameter("use_filter", value=True)])
-    assert calls == [True, True]  # one core call per contact count, same settings
+    assert calls == ["auto", "auto"]  # one core call per contact count, same settings
 
 
 def test_queued_single_queries_are_answered_at_shutdown(own_node, grasps, monkeypatch):

@@ -25,8 +25,13 @@ PYTHON_KEYS = {
     "matplotlib": "python3-matplotlib",
     "mpl_toolkits": "python3-matplotlib",
     "tqdm": "python3-tqdm",
+    "yaml": "python3-yaml",
     "clarabel": None,
+    "numba": None,
     "trimesh": None,
+    "dask": None,
+    "distributed": None,
+    "pyarrow": None,
 }
 # Interfaces the node needs before its code lands here (the action's goal
 # status and cancel services).

@@ -20,6 +20,9 @@ from grasp_fc_ros.objects import DEFAULT_N_POINTS, OBJECT_NAMES
 
 from .runner import DEFAULT_CHUNK_SIZE
 
+#: --filter's choices, as check_force_closure's use_filter.
+FILTER_CHOICES = {"auto": "auto", "on": True, "off": False}
+
 PROG = "grasp-fc-label"
 # The experiment's friction coefficient: tan 10 degrees.
 DEFAULT_MU = 0.17632698070846498
@@ -77,8 +80,11 @@ def build_parser() -> argparse.ArgumentParser:
                          help="worker processes of the local cluster (default: the cores)")
     cluster.add_argument("--chunk-size", type=_positive_int, default=DEFAULT_CHUNK_SIZE,
                          help=f"grasps per chunk and output part (default {DEFAULT_CHUNK_SIZE:,})")
-    cluster.add_argument("--no-filter", action="store_true",
-                         help="skip the torque filter (same verdicts, slower)")
+    cluster.add_argument("--filter", choices=sorted(FILTER_CHOICES), default="auto",
+                         help="run the torque filter before the exact test: where it pays "
+                              "for the contact count (auto, the default), always (on: "
+                              "rejected grasps are labelled FILTERED_OUT) or never (off); "
+                              "the verdicts are the same")
     cluster.add_argument("--origins", choices=("seed", "all"), default="seed",
                          help="torque origins of the filter (default seed)")
     cluster.add_argument("--no-progress", action="store_true", help="no progress line")
@@ -96,7 +102,7 @@ def make_plan(args):
     from .runner import Plan
     from .sources import object_sources
 
-    settings = {"chunk_size": args.chunk_size, "use_filter": not args.no_filter,
+    settings = {"chunk_size": args.chunk_size, "use_filter": FILTER_CHOICES[args.filter],
                 "origins": args.origins}
     if args.inputs:
         return Plan.from_files(args.inputs, **settings)

@@ -61,15 +61,16 @@ class Plan:
         :mod:`~grasp_fc_ros.labelling.sources` objects, in output order.
     chunk_size : int
         Grasps per chunk (the last chunk of a source may be smaller).
-    use_filter : bool
-        Run the torque filter before the exact test (same verdicts, faster).
+    use_filter : bool or "auto"
+        Run the torque filter before the exact test: as ``check_force_closure`` takes it
+        (same verdicts either way; "auto" runs it where it pays).
     origins : {"seed", "all"}
         The filter's torque origins.
     """
 
     sources: list
     chunk_size: int = DEFAULT_CHUNK_SIZE
-    use_filter: bool = True
+    use_filter: bool | str = "auto"
     origins: str = "seed"
 
     def __post_init__(self):

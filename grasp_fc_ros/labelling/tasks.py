@@ -48,7 +48,7 @@ def _grasp_names(path, chunk):
     return lambda g: f"{path}: grasp {int(chunk.rows[g])} (id {int(chunk.ids[g])})"
 
 
-def label_chunk(source, start: int, stop: int, use_filter: bool, origins: str):
+def label_chunk(source, start: int, stop: int, use_filter: bool | str, origins: str):
     """Labels of rows ``start:stop`` of ``source``, as a ``pyarrow.Table``.
 
     See :mod:`grasp_fc_ros.labelling.schema` for the columns.
