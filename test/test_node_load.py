@@ -65,8 +65,9 @@ def test_burst_of_single_queries_is_answered_exactly_once(own_node, grasps):
 
 
 def test_service_answers_while_a_large_batch_is_decided(own_node, grasps):
-    node, _, raw = own_node("/latency_test")
-    positions, normals = grasps
+    # One worker and 99,000 grasps (max_batch is 100,000): seconds of work.
+    node, _, raw = own_node("/latency_test", workers=1)
+    positions, normals = (np.tile(a, (33, 1, 1)) for a in grasps)
     client = GraspClient("/latency_test/force_closure")
     try:
         assert client.wait_for_node(REPLY_TIMEOUT_S)

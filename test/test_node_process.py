@@ -178,12 +178,17 @@ def test_start_logs_settings_and_warns_about_unknown_parameters(tmp_path):
         assert_clean_exit(process, signal.SIGTERM)
 
 
+# One worker: a full batch of max_batch (100,000) grasps then takes seconds, so that a
+# signal lands while it is decided.
+ONE_WORKER = ["--ros-args", "-p", "workers:=1"]
+
+
 def test_sigterm_during_a_large_batch_exits_within_a_second(client, grasps):
-    process = NodeProcess(node_command())
+    process = NodeProcess(node_command() + ONE_WORKER)
     try:
         client.wait_connected()
         positions, normals = grasps
-        big = 50  # 5,000 grasps: seconds of work on two workers
+        big = 1000  # 100,000 grasps: seconds of work on one worker
         msg = grasps_to_batch_msg(np.arange(big * len(positions)), np.tile(positions, (big, 1, 1)),
                                   np.tile(normals, (big, 1, 1)))
         client.batch_pub.publish(msg)
@@ -232,12 +237,12 @@ def test_ctrl_c_right_after_start_exits_cleanly():
 def test_client_resubmits_after_the_node_is_killed_and_restarted(ros, grasps):
     positions, normals = grasps
     namespace = f"/restart_{os.getpid()}"
-    command = node_command() + ["--ros-args", "-r", f"__ns:={namespace}"]
+    command = node_command() + ONE_WORKER + ["-r", f"__ns:={namespace}"]
     process = NodeProcess(command)
     client = GraspClient(f"{namespace}/force_closure")
     try:
         assert client.wait_for_node(30.0)
-        big = 50  # 5,000 grasps: seconds of work, so the kill lands mid-batch
+        big = 1000  # 100,000 grasps: seconds of work, so the kill lands mid-batch
         batch = client.submit_batch(np.tile(positions, (big, 1, 1)), np.tile(normals, (big, 1, 1)))
         deadline = time.monotonic() + 60.0
         while int(client.next_diagnostics()["received"]) < big * len(positions):
