@@ -225,9 +225,12 @@ def main(argv=None) -> int:
               f"{core_before:.0f}, {core_after:.0f}) -> {ratio:.2f}x"
               f"{'' if complete else ' (INCOMPLETE replies)'}  "
               f"[target >= {TARGET_BATCH_RATIO}x: {verdict(complete and ratio >= TARGET_BATCH_RATIO)}]")
-        print(f"    CPU per grasp: node and workers {1e3 * node_cpu:.3f} ms, core alone "
-              f"{1e3 * core_cpu:.3f} ms -> on {os.cpu_count()} idle cores at most "
-              f"{os.cpu_count() * core_cpu / node_cpu:.2f}x the core alone")
+        if node_cpu > 0:
+            print(f"    CPU per grasp: node and workers {1e3 * node_cpu:.3f} ms, core alone "
+                  f"{1e3 * core_cpu:.3f} ms -> on {os.cpu_count()} idle cores at most "
+                  f"{os.cpu_count() * core_cpu / node_cpu:.2f}x the core alone")
+        else:  # below the kernel's CPU-time resolution (a tick, ~10 ms)
+            print("    CPU per grasp: too few grasps to measure")
 
         idle = bench_service(client, positions, normals, args.service_calls)
         print(f"service round trip (one grasp): {percentiles(idle)}  [target p50 <= "

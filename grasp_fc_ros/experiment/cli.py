@@ -156,7 +156,7 @@ def pick_example(surfaces, n_fingers, mu, seed):
     for surface in preferred:
         positions, normals = sample_grasps(surface, EXAMPLE_GRASPS, n_fingers,
                                            _stream(seed, 3))
-        result = check_force_closure(positions, normals, mu)
+        result = check_force_closure(positions, normals, mu, use_filter=True)
         fc = np.flatnonzero(result.force_closure)
         rejected = np.flatnonzero(result.filtered_out)
         if fc.size and rejected.size:
