@@ -36,6 +36,13 @@ class Status(IntEnum):
     SOLVER_FAILURE = 4     #: the solver could not decide, even after a retry
 
 
+# Plain integers for the per-call path: each IntEnum attribute lookup costs a few
+# microseconds, a measurable part of a one-grasp call.
+_FORCE_CLOSURE, _NOT_FORCE_CLOSURE, _FILTERED_OUT, _SOLVER_FAILURE = (
+    int(Status.FORCE_CLOSURE), int(Status.NOT_FORCE_CLOSURE), int(Status.FILTERED_OUT),
+    int(Status.SOLVER_FAILURE))
+
+
 @dataclass(frozen=True)
 class ForceClosureResult:
     """Verdicts of :func:`check_force_closure`: 0-d arrays for one grasp, (N,) for a batch.
@@ -147,10 +154,10 @@ def run_pipeline(grasps: GraspBatch, use_filter: bool | str = True, origins: str
     force_closure[survivors] = exact.force_closure
     lower, upper = np.full(n_grasps, np.nan), np.full(n_grasps, np.nan)
     lower[survivors], upper[survivors] = exact.margin, exact.margin_upper
-    status = np.full(n_grasps, Status.FILTERED_OUT, dtype=np.uint8)
+    status = np.full(n_grasps, _FILTERED_OUT, dtype=np.uint8)
     status[survivors] = np.where(
-        exact.solver_failure, Status.SOLVER_FAILURE,
-        np.where(exact.force_closure, Status.FORCE_CLOSURE, Status.NOT_FORCE_CLOSURE))
+        exact.solver_failure, _SOLVER_FAILURE,
+        np.where(exact.force_closure, _FORCE_CLOSURE, _NOT_FORCE_CLOSURE))
     extra = {}
     if certificates:
         extra = _certificates(grasps, survivors, exact, filter_wrench, status)
