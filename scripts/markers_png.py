@@ -33,10 +33,10 @@ def main(argv: list[str] | None = None) -> int:
     surface = make_object(args.object, n_points=2000)
     positions, normals = sample_grasps(surface, 2000, args.fingers,
                                        np.random.default_rng(args.seed))
-    result = check_force_closure(positions, normals, MU)
+    result = check_force_closure(positions, normals, MU, certificates=True)
     chosen = render_verdict_examples(
         args.out, positions, normals, MU, result.status, result.margin,
-        separating_wrench=getattr(result, "separating_wrench", None),  # issue 9
+        separating_wrench=result.separating_wrench,
         frame_id=args.object, cloud=surface.points[::4])
     if len(chosen) < len(EXAMPLE_STATUSES):
         print("not every verdict occurs among 2000 grasps; try another --seed",
