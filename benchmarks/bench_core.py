@@ -18,7 +18,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import statistics  # noqa: E402
-import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -27,19 +26,9 @@ from grasp_fc_ros.core.grasp_input import prepare_grasps  # noqa: E402
 from grasp_fc_ros.core.pipeline import run_pipeline  # noqa: E402
 from grasp_fc_ros.core.torque_space_filter import passes_torque_filter  # noqa: E402
 from grasp_fc_ros.objects import OBJECT_NAMES, make_object, sample_grasps  # noqa: E402
+from timing import MU_PAPER, median_seconds  # noqa: E402
 
-MU = float(np.tan(np.radians(10.0)))
-
-
-def median_seconds(function, repeats):
-    """Median wall time of ``repeats`` calls, after one untimed warm-up call."""
-    function()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        function()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
+MU = MU_PAPER
 
 
 def measure(surface, n_fingers, n_grasps, exact_grasps, repeats, rng):

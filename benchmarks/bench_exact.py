@@ -30,19 +30,9 @@ from grasp_fc_ros.core.exact_test import solve_exact  # noqa: E402
 from grasp_fc_ros.core.grasp_input import prepare_grasps  # noqa: E402
 from grasp_fc_ros.core.interior_point import UNDECIDED, solve_fast  # noqa: E402
 from grasp_fc_ros.objects import make_object, sample_grasps  # noqa: E402
+from timing import MU_PAPER, median_seconds  # noqa: E402
 
-MUS = (float(np.tan(np.radians(10.0))), 0.5)
-
-
-def median_seconds(function, repeats):
-    """Median wall time of ``repeats`` calls, after one untimed warm-up call."""
-    function()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        function()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
+MUS = (MU_PAPER, 0.5)
 
 
 def measure_cell(surface, n_fingers, mu, n_grasps, repeats, rng):

@@ -24,8 +24,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
-import statistics  # noqa: E402
-import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -34,21 +32,11 @@ from grasp_fc_ros.core.grasp_input import prepare_grasps  # noqa: E402
 from grasp_fc_ros.core.pipeline import run_pipeline  # noqa: E402
 from grasp_fc_ros.core.torque_space_filter import passes_torque_filter  # noqa: E402
 from grasp_fc_ros.objects import OBJECT_NAMES, make_object, sample_grasps  # noqa: E402
+from timing import MU_PAPER, median_seconds  # noqa: E402
 
-MUS = (0.01, float(np.tan(np.radians(10.0))), 0.5)
+MUS = (0.01, MU_PAPER, 0.5)
 CONTACTS = (3, 4, 5, 6, 8, 10, 12, 14, 16, 20, 24, 32, 48, 64)
 QUICK_CONTACTS = (4, 6, 8, 12, 16, 32)
-
-
-def median_seconds(function, repeats):
-    """Median wall time of ``repeats`` calls, after one untimed warm-up call."""
-    function()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        function()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
 
 
 def grasp_counts(n_contacts, scale):
