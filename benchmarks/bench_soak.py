@@ -25,7 +25,7 @@ import numpy as np
 import rclpy
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_ros import REPLY_TIMEOUT_S, start_node, stop_node  # noqa: E402
+from bench_ros import REPLY_TIMEOUT_S, process_tree, start_node, stop_node  # noqa: E402
 
 from grasp_fc_ros.objects import make_object, sample_grasps  # noqa: E402
 
@@ -36,21 +36,10 @@ TARGET_RSS_GROWTH = 0.05
 
 def tree_rss_mib(pid: int) -> float:
     """Resident memory (MiB) of process ``pid`` and all its descendants (Linux /proc)."""
-    children: dict[int, list[int]] = {}
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                stat = Path(f"/proc/{entry}/stat").read_text()
-            except OSError:
-                continue
-            ppid = int(stat.rsplit(")", 1)[1].split()[1])
-            children.setdefault(ppid, []).append(int(entry))
-    total_kib, todo = 0, [pid]
-    while todo:
-        current = todo.pop()
-        todo.extend(children.get(current, []))
+    total_kib = 0
+    for member in process_tree(pid):
         try:
-            for line in Path(f"/proc/{current}/status").read_text().splitlines():
+            for line in Path(f"/proc/{member}/status").read_text().splitlines():
                 if line.startswith("VmRSS:"):
                     total_kib += int(line.split()[1])
         except OSError:
