@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from grasp_fc_ros.cli_arguments import positive_float, positive_int
 from grasp_fc_ros.objects import OBJECT_NAMES, load_surface, make_object
 
 DEFAULT_OBJECTS = ("box", "ellipsoid", "torus", "l_block", "star_prism", "mug")
@@ -34,24 +35,10 @@ QUICK = {"grasps": 300, "points": 1000, "peer_grasps": 20, "sides_grasps": 4,
          "sides_pool": 100, "sweep_grasps": 30}
 
 
-def _positive_int(text):
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
-
-
 def _finger_count(text):
     value = int(text)
     if value < 2:
         raise argparse.ArgumentTypeError(f"a grasp needs at least 2 fingers, got {value}")
-    return value
-
-
-def _positive_float(text):
-    value = float(text)
-    if not value > 0.0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
     return value
 
 
@@ -79,36 +66,36 @@ def build_parser():
                              "(.npz/.ply) to add as an object; repeatable")
     parser.add_argument("--fingers", type=_finger_count, default=6,
                         help="contacts per grasp (default 6, as in the paper)")
-    parser.add_argument("--mu", type=_positive_float, default=DEFAULT_MU,
+    parser.add_argument("--mu", type=positive_float, default=DEFAULT_MU,
                         help="friction coefficient (default tan 10 deg = 0.1763)")
-    parser.add_argument("--grasps", type=_positive_int,
+    parser.add_argument("--grasps", type=positive_int,
                         help=f"grasps per object (default {FULL['grasps']:,}; "
                              f"quick {QUICK['grasps']})")
-    parser.add_argument("--points", type=_positive_int,
+    parser.add_argument("--points", type=positive_int,
                         help=f"surface points per object (default {FULL['points']})")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--out", type=Path, default=Path("bench_out"),
                         help="output folder (default ./bench_out)")
     parser.add_argument("--quick", action="store_true",
                         help="small, fast version (smoke test; numbers are not meaningful)")
-    parser.add_argument("--peer-grasps", type=_positive_int,
+    parser.add_argument("--peer-grasps", type=positive_int,
                         help="grasps per object given to the slow linearized peer "
                              f"(default {FULL['peer_grasps']}; about 11 ms per grasp with 8 sides here)")
-    parser.add_argument("--peer-sides", type=_positive_int, default=8,
+    parser.add_argument("--peer-sides", type=positive_int, default=8,
                         help="pyramid sides of the peer in the main comparison (default 8)")
     parser.add_argument("--sides-sweep", type=_int_list, default=list(DEFAULT_SIDES_SWEEP),
                         help="pyramid sides for the peer sweep (default 4,6,8,12,16)")
-    parser.add_argument("--sides-grasps", type=_positive_int,
+    parser.add_argument("--sides-grasps", type=positive_int,
                         help="force-closure grasps per object in the pyramid-sides sweep, "
                              "plus a fifth as many others "
                              f"(default {FULL['sides_grasps']})")
-    parser.add_argument("--sides-pool", type=_positive_int,
+    parser.add_argument("--sides-pool", type=positive_int,
                         help="random grasps per object the sides sweep picks them from "
                              f"(default {FULL['sides_pool']})")
-    parser.add_argument("--jobs", type=_positive_int, default=1,
+    parser.add_argument("--jobs", type=positive_int, default=1,
                         help="objects measured in parallel processes (default 1; each timed "
                              "call stays single-threaded, so use at most one job per free core)")
-    parser.add_argument("--sweep-grasps", type=_positive_int,
+    parser.add_argument("--sweep-grasps", type=positive_int,
                         help="grasps per object and finger count in the throughput sweep "
                              f"over n = {FINGER_RANGE[0]}..{FINGER_RANGE[1]} "
                              f"(default {FULL['sweep_grasps']})")

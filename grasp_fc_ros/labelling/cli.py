@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from grasp_fc_ros.cli_arguments import positive_float, positive_int
 from grasp_fc_ros.objects import DEFAULT_N_POINTS, OBJECT_NAMES
 
 from .runner import DEFAULT_CHUNK_SIZE
@@ -27,20 +28,6 @@ PROG = "grasp-fc-label"
 # The experiment's friction coefficient: tan 10 degrees.
 DEFAULT_MU = 0.17632698070846498
 DEFAULT_FINGERS = 6
-
-
-def _positive_int(text):
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
-
-
-def _positive_float(text):
-    value = float(text)
-    if not value > 0.0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"must be finite and > 0, got {text}")
-    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -62,13 +49,13 @@ def build_parser() -> argparse.ArgumentParser:
                               "(.npz/.ply)")
     objects.add_argument("--objects", nargs="+", default=[], choices=OBJECT_NAMES,
                          metavar="NAME", help=f"built-in objects: {', '.join(OBJECT_NAMES)}")
-    objects.add_argument("--grasps-per-object", type=_positive_int, metavar="K")
-    objects.add_argument("--fingers", type=_positive_int, default=DEFAULT_FINGERS,
+    objects.add_argument("--grasps-per-object", type=positive_int, metavar="K")
+    objects.add_argument("--fingers", type=positive_int, default=DEFAULT_FINGERS,
                          help=f"contacts per grasp (default {DEFAULT_FINGERS})")
-    objects.add_argument("--mu", type=_positive_float, default=DEFAULT_MU,
+    objects.add_argument("--mu", type=positive_float, default=DEFAULT_MU,
                          help=f"friction coefficient (default tan 10 deg = {DEFAULT_MU:.4f})")
     objects.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    objects.add_argument("--points", type=_positive_int, default=DEFAULT_N_POINTS,
+    objects.add_argument("--points", type=positive_int, default=DEFAULT_N_POINTS,
                          help=f"surface points sampled per object (default {DEFAULT_N_POINTS})")
     cluster = parser.add_argument_group("cluster and chunks")
     cluster.add_argument("--scheduler", metavar="tcp://HOST:PORT",
@@ -76,9 +63,9 @@ def build_parser() -> argparse.ArgumentParser:
     cluster.add_argument("--scheduler-file", metavar="FILE",
                          help="an existing Dask scheduler, by the file that `dask scheduler "
                               "--scheduler-file FILE` wrote")
-    cluster.add_argument("--workers", type=_positive_int,
+    cluster.add_argument("--workers", type=positive_int,
                          help="worker processes of the local cluster (default: the cores)")
-    cluster.add_argument("--chunk-size", type=_positive_int, default=DEFAULT_CHUNK_SIZE,
+    cluster.add_argument("--chunk-size", type=positive_int, default=DEFAULT_CHUNK_SIZE,
                          help=f"grasps per chunk and output part (default {DEFAULT_CHUNK_SIZE:,})")
     cluster.add_argument("--filter", choices=sorted(FILTER_CHOICES), default="auto",
                          help="run the torque filter before the exact test: where it pays "
