@@ -28,29 +28,8 @@ def pyramid_margin(positions, normals, mu, sides=8, inscribed=True):
 
     positions, normals: (n, 3); normals unit. Returns s (> 0 iff force closure).
     """
-    centred = positions - positions.mean(axis=0)
-    centred /= np.abs(centred).max()
-    columns = []
-    for p, n in zip(centred, normals):
-        for f in pyramid_edges(n, mu, sides, inscribed):
-            columns.append(np.concatenate([f, np.cross(p, f)]))
-    wrenches = np.array(columns).T                                     # (6, n*sides)
-    if np.linalg.matrix_rank(wrenches, tol=1e-9) < 6:
-        return 0.0
-    k = wrenches.shape[1]
-    # Variables (lam_1..lam_k, s): maximise s.
-    cost = np.zeros(k + 1)
-    cost[-1] = -1.0
-    a_eq = np.vstack([np.hstack([wrenches, np.zeros((6, 1))]),
-                      np.hstack([np.ones(k), [0.0]])])
-    b_eq = np.concatenate([np.zeros(6), [1.0]])
-    a_ub = np.hstack([-np.eye(k), np.ones((k, 1))])                    # s - lam <= 0
-    result = linprog(cost, A_ub=a_ub, b_ub=np.zeros(k), A_eq=a_eq, b_eq=b_eq,
-                     bounds=[(0, None)] * k + [(None, None)], method="highs")
-    if result.status == 2:        # infeasible: no equilibrium with sum(lam) = 1 at all
-        return 0.0
-    assert result.status == 0, result.message
-    return max(result.x[-1], 0.0)
+    frictions = np.broadcast_to(np.asarray(mu, float), (len(positions),))
+    return _lp_margin(_pyramid_wrench_columns(positions, normals, frictions, sides, inscribed))
 
 
 def _pyramid_wrench_columns(positions, normals, frictions, sides, inscribed):
@@ -66,28 +45,33 @@ def _pyramid_wrench_columns(positions, normals, frictions, sides, inscribed):
     return np.array(columns).T
 
 
-def pyramid_is_force_closure(positions, normals, frictions, sides=8, inscribed=True,
-                             tol=1e-9):
-    """Polyhedral force closure with per-contact friction: rank 6 and an LP margin > tol.
-
-    Same LP as :func:`pyramid_margin` (lam >= s, sum(lam) = 1, W lam = 0, maximise s).
-    """
-    wrenches = _pyramid_wrench_columns(positions, normals, np.asarray(frictions, float),
-                                       sides, inscribed)
+def _lp_margin(wrenches):
+    """max s with W lam = 0, lam >= s, sum(lam) = 1 for wrenches W (6, k); 0 if W has
+    rank < 6 or no such lam exists."""
     if np.linalg.matrix_rank(wrenches, tol=1e-9) < 6:
-        return False
+        return 0.0
     k = wrenches.shape[1]
+    # Variables (lam_1..lam_k, s): maximise s.
     cost = np.zeros(k + 1)
     cost[-1] = -1.0
     a_eq = np.vstack([np.hstack([wrenches, np.zeros((6, 1))]),
                       np.hstack([np.ones(k), [0.0]])])
     b_eq = np.concatenate([np.zeros(6), [1.0]])
-    a_ub = np.hstack([-np.eye(k), np.ones((k, 1))])
+    a_ub = np.hstack([-np.eye(k), np.ones((k, 1))])                    # s - lam <= 0
     result = _linprog_robust(cost, A_ub=a_ub, b_ub=np.zeros(k), A_eq=a_eq, b_eq=b_eq,
                              bounds=[(0, None)] * k + [(None, None)])
-    if result.status == 2:
-        return False
-    return result.x[-1] > tol
+    if result.status == 2:        # infeasible: no equilibrium with sum(lam) = 1 at all
+        return 0.0
+    return max(result.x[-1], 0.0)
+
+
+def pyramid_is_force_closure(positions, normals, frictions, sides=8, inscribed=True,
+                             tol=1e-9):
+    """Polyhedral force closure with per-contact friction: rank 6 and an LP margin > tol
+    (the LP of :func:`pyramid_margin`)."""
+    wrenches = _pyramid_wrench_columns(positions, normals, np.asarray(frictions, float),
+                                       sides, inscribed)
+    return _lp_margin(wrenches) > tol
 
 
 def _linprog_robust(*args, **kwargs):
