@@ -49,6 +49,7 @@ from grasp_fc_msgs.msg import (
 )
 from grasp_fc_msgs.srv import CheckForceClosure
 from rcl_interfaces.msg import IntegerRange, ParameterDescriptor, ParameterType, SetParametersResult
+from rclpy.duration import Duration
 from rclpy.exceptions import ParameterException
 from rclpy.executors import (
     ExternalShutdownException,
@@ -56,6 +57,7 @@ from rclpy.executors import (
 )
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 
 from grasp_fc_ros.conversions import (
     MalformedBatch,
@@ -88,6 +90,11 @@ MAX_WORKERS = 64
 # Worker processes by default: the 2 cores of the machines this was measured on. A fixed
 # number, so that a params file and the docs say the same on every machine.
 DEFAULT_WORKERS = 2
+# How often the spin loop of grasp-fc-node looks for a Ctrl-C or SIGTERM (s): the
+# signal handler only sets a flag, so this bounds the time to start shutting down.
+SIGNAL_POLL_S = 0.05
+# How long shutdown waits for readers to acknowledge the answers it publishes (s).
+SHUTDOWN_ACK_TIMEOUT_S = 0.5
 # Verdict message of queries still queued when the node is destroyed.
 SHUTDOWN_MESSAGE = "node shutting down: query not evaluated"
 
@@ -595,12 +602,13 @@ class ForceClosureNode(Node):
     def destroy_node(self):
         """Stop the threads and workers, answer what is still queued, destroy the node.
 
-        Queued queries get SOLVER_FAILURE with :data:`SHUTDOWN_MESSAGE` when rclpy's
-        context is still up (the node destroyed by its owner: the demo, tests, an
-        embedding program); so do the queries being decided (their work is abandoned, so
-        that the node stops within a fraction of a second). After Ctrl-C or SIGTERM the
-        context is already shut down and nothing can be published any more: the log
-        says how many queries stay unanswered.
+        Queued queries get SOLVER_FAILURE with :data:`SHUTDOWN_MESSAGE` while rclpy's
+        context is up (grasp-fc-node after Ctrl-C or SIGTERM, which it handles itself;
+        the demo, tests, an embedding program); so do the queries being decided (their
+        work is abandoned, so that the node stops within a fraction of a second). If the
+        context is already shut down (rclpy's own signal handler in an embedding
+        program), nothing can be published any more: the log says how many queries stay
+        unanswered.
         """
         with self._lock:
             self._stopping = True
@@ -628,6 +636,11 @@ class ForceClosureNode(Node):
                                                        SHUTDOWN_MESSAGE))
                 self._stats.record_failures(len(batch.ids))
                 unanswered -= len(batch.ids)
+            if singles or batches:
+                # Publishing only queues the answers: let DDS deliver them before the
+                # process can exit, for a bounded time.
+                for publisher in (self._verdict_pub, self._batch_pub):
+                    publisher.wait_for_all_acked(Duration(seconds=SHUTDOWN_ACK_TIMEOUT_S))
         except Exception as exc:  # noqa: BLE001 - shutdown must go on
             self.get_logger().warning(f"cannot answer queued queries at shutdown: {exc}")
         if unanswered:
@@ -759,31 +772,35 @@ def main(args=None) -> int:
     except UsageError as exc:
         print(f"{NODE_NAME}: {exc}", file=sys.stderr)
         return 2
-    rclpy.init(args=argv)
+    # The node handles SIGINT and SIGTERM itself: rclpy's own handler shuts the context
+    # down at once, while the service thread and the worker threads may still be inside
+    # rcl calls, which crashed the process (SIGSEGV) now and then. Here a signal only
+    # ends the spin loop; the node then stops its threads before the context goes.
+    stop = threading.Event()
+
+    def on_signal(*_):
+        stop.set()
+        # A second Ctrl-C while shutting down ends the process at once, quietly (the
+        # workers notice their parent is gone and exit too).
+        signal.signal(signal.SIGINT, lambda *_: os._exit(130))
+
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, on_signal)
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:
-        # The executor exists before the node logs "ready": a Ctrl-C right after that
-        # line must not land inside the executor's constructor (which then leaves a
-        # half-built executor whose __del__ prints a traceback).
         executor = SingleThreadedExecutor()
         node = ForceClosureNode()
         _warn_params_file_keys(argv, node)
         executor.add_node(node)
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=SIGNAL_POLL_S)
+    except ExternalShutdownException:
+        pass  # rclpy shut down by other code in this process
     except ParameterException as exc:
         print(f"{NODE_NAME}: bad parameter: {exc}", file=sys.stderr)
         return 1
-    except Exception:
-        # A signal can shut the context down while the executor builds its next wait
-        # set; rclpy then raises an RCLError instead of ExternalShutdownException.
-        if rclpy.ok():
-            raise
     finally:
-        # A second Ctrl-C while shutting down ends the process at once, quietly (the
-        # workers notice their parent is gone and exit too).
-        signal.signal(signal.SIGINT, lambda *_: os._exit(130))
         if node is not None:
             node.destroy_node()
         shutdown_rclpy()
