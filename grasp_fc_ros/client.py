@@ -32,7 +32,7 @@ from grasp_fc_msgs.msg import (
     ForceClosureVerdict,
     ForceClosureVerdictArray,
 )
-from grasp_fc_msgs.srv import CheckForceClosure
+from grasp_fc_msgs.srv import CheckForceClosure, ComputeContactForces
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
@@ -40,8 +40,9 @@ from grasp_fc_ros.conversions import (
     grasp_to_contact_array,
     grasps_to_batch_msg,
     verdict_array_to_numpy,
+    verdict_msgs_to_numpy,
 )
-from grasp_fc_ros.evaluation import Verdicts
+from grasp_fc_ros.evaluation import ContactForces, Verdicts
 from grasp_fc_ros.node import NODE_NAME, QUERY_QOS
 
 # Single queries unanswered at most (more submit() calls wait): well inside what the
@@ -95,6 +96,8 @@ class GraspClient:
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
         self._service = self.node.create_client(CheckForceClosure,
                                                 f"{prefix}/check_force_closure")
+        self._forces_service = self.node.create_client(ComputeContactForces,
+                                                       f"{prefix}/compute_contact_forces")
         self._matched = 0
         self._closed = False
         self.node.create_timer(WATCH_PERIOD_S, self._watch_node)
@@ -229,7 +232,14 @@ class GraspClient:
 
     def check_batch(self, positions, normals, mu=None, counts=None, ids=None,
                     timeout: float = DEFAULT_TIMEOUT_S) -> Verdicts:
-        """:meth:`submit_batch` and wait for its verdicts (TimeoutError after ``timeout``)."""
+        """:meth:`submit_batch` and wait for its verdicts (TimeoutError after ``timeout``).
+
+        With the node's ``certificates`` parameter on, the verdicts carry
+        ``contact_forces`` (K, 3), grasp after grasp in the order sent (reshape to
+        (N, n, 3) for equal sizes; NaN rows unless FORCE_CLOSURE) and
+        ``separating_wrench`` (N, 6); with ``compute_min_friction``, ``min_friction``
+        (N,); each is None when the node sent none.
+        """
         return self.submit_batch(positions, normals, mu, counts, ids).result(timeout)
 
     def _on_batch(self, msg: ForceClosureVerdictArray):
@@ -246,6 +256,10 @@ class GraspClient:
     def call(self, positions, normals, mu=0.0, ids=None,
              timeout: float = DEFAULT_TIMEOUT_S) -> Verdicts:
         """Decide grasps (N, n, 3) through the service; their :class:`Verdicts` in order.
+
+        The verdicts always carry ``contact_forces`` (N * n, 3), ``separating_wrench``
+        (N, 6) and ``min_friction`` (N,): NaN where the node sent none (parameters
+        ``certificates``, ``compute_min_friction`` off, or no certificate).
 
         Raises
         ------
@@ -269,12 +283,69 @@ class GraspClient:
             self._service.remove_pending_request(future)
             raise TimeoutError(f"no service response within {timeout} s")
         replies = future.result().verdicts
-        return Verdicts(
-            ids=np.array([v.id for v in replies], dtype=np.uint64),
-            force_closure=np.array([v.force_closure for v in replies], dtype=bool),
-            status=np.array([v.status for v in replies], dtype=np.uint8),
-            margin=np.array([v.margin for v in replies], dtype=np.float64),
-            messages=[v.message for v in replies])
+        return verdict_msgs_to_numpy(replies, [len(g.contacts) for g in request.grasps])
+
+    def compute_contact_forces(self, positions, normals, wrench, mu=0.0,
+                               max_normal_forces=None, frame_id: str = "",
+                               timeout: float = DEFAULT_TIMEOUT_S) -> ContactForces:
+        """The least-largest-normal-force contact forces that hold a load (the node's
+        ``compute_contact_forces`` service).
+
+        Parameters
+        ----------
+        positions, normals : (n, 3) float
+            One grasp: contact positions (m) and inward normals.
+        wrench : (6,) float
+            External load on the object: force (N) then torque (N m) about the frame's
+            origin; the contact forces cancel it.
+        mu : scalar or (n,) float
+            Friction per contact; a finite value <= 0 means the node's default.
+        max_normal_forces : None or (n,) float
+            Per-contact normal-force limits (N); None: no limits.
+        frame_id : str
+            Frame of the contacts and the wrench.
+
+        Returns
+        -------
+        ContactForces
+            ``feasible``, ``max_normal_force`` s* (inf: infeasible, NaN: invalid
+            request), ``contact_forces`` (n, 3) (shape (0, 3) unless feasible) and
+            ``message`` (why the request was refused, naming the contact).
+
+        Raises
+        ------
+        TimeoutError
+            If no response came within ``timeout``.
+        """
+        request = ComputeContactForces.Request(
+            grasp=grasp_to_contact_array(0, positions, normals, mu))
+        request.grasp.header.frame_id = frame_id
+        w = np.asarray(wrench, dtype=np.float64).reshape(6).tolist()
+        force, torque = request.wrench.force, request.wrench.torque
+        force.x, force.y, force.z, torque.x, torque.y, torque.z = w
+        if max_normal_forces is not None:
+            request.max_normal_forces = np.asarray(max_normal_forces,
+                                                   dtype=np.float64).reshape(-1).tolist()
+        # wait_for_node waits for check_force_closure only; this service may be
+        # discovered a moment later, and a request sent before would go unanswered.
+        if not self._forces_service.wait_for_service(timeout_sec=timeout):
+            raise TimeoutError(f"service compute_contact_forces not found within {timeout} s")
+        response = self._wait(self._forces_service, request, timeout)
+        forces = np.array([(v.x, v.y, v.z) for v in response.contact_forces],
+                          dtype=np.float64).reshape(-1, 3)
+        return ContactForces(bool(response.feasible), float(response.max_normal_force),
+                             forces, response.message)
+
+    @staticmethod
+    def _wait(service, request, timeout: float):
+        """Call ``service`` and wait for its response (TimeoutError after ``timeout``)."""
+        done = threading.Event()
+        future = service.call_async(request)
+        future.add_done_callback(lambda _: done.set())
+        if not done.wait(timeout):
+            service.remove_pending_request(future)
+            raise TimeoutError(f"no service response within {timeout} s")
+        return future.result()
 
     # --- diagnostics --------------------------------------------------------------------
 

@@ -11,8 +11,11 @@ This module only moves data; it holds no force-closure mathematics.
 from __future__ import annotations
 
 import array
+import math
+
 import numpy as np
 
+from geometry_msgs.msg import Vector3, Wrench
 from grasp_fc_msgs.msg import (
     Contact,
     ContactArray,
@@ -25,7 +28,8 @@ from grasp_fc_ros.evaluation import PackedGrasps, Verdicts
 __all__ = [
     "MalformedBatch", "PackedGrasps", "Verdicts", "batch_size", "batch_to_packed",
     "contact_arrays_to_packed", "grasp_to_contact_array", "grasps_to_batch_msg",
-    "verdict_array_to_numpy", "verdicts_to_array_msg", "verdicts_to_msgs",
+    "nan_wrench", "verdict_array_to_numpy", "verdict_msgs_to_numpy", "verdicts_to_array_msg",
+    "verdicts_to_msgs",
 ]
 
 # array.array type codes of the generated message fields.
@@ -128,7 +132,42 @@ def verdicts_to_array_msg(verdicts: Verdicts, query: ContactArrayBatch | None = 
     msg.status = _to_field(_TYPECODE_UINT8, verdicts.status)
     msg.margin = _to_field(_TYPECODE_FLOAT64, verdicts.margin)
     msg.messages = list(verdicts.messages)
+    if verdicts.contact_forces is not None:
+        msg.contact_forces = _to_field(_TYPECODE_FLOAT64, verdicts.contact_forces.reshape(-1))
+    if verdicts.separating_wrench is not None:
+        msg.separating_wrenches = _to_field(_TYPECODE_FLOAT64,
+                                            verdicts.separating_wrench.reshape(-1))
+    if verdicts.min_friction is not None:
+        msg.min_friction = _to_field(_TYPECODE_FLOAT64, verdicts.min_friction)
     return msg
+
+
+def nan_wrench() -> Wrench:
+    """A Wrench of NaNs: the verdict messages' "no separating wrench"."""
+    return Wrench(force=Vector3(x=math.nan, y=math.nan, z=math.nan),
+                  torque=Vector3(x=math.nan, y=math.nan, z=math.nan))
+
+
+def _vectors(rows: np.ndarray) -> list[Vector3]:
+    return [Vector3(x=x, y=y, z=z) for x, y, z in rows.tolist()]
+
+
+def _set_certificates(reply: ForceClosureVerdict, forces: np.ndarray | None,
+                      wrench: np.ndarray | None, min_friction: float):
+    """Fill the certificate fields of one verdict message.
+
+    ``forces`` (n, 3) are sent only for a FORCE_CLOSURE verdict (empty otherwise);
+    ``wrench`` (6,) or None (NaN); ``min_friction`` as it is (NaN: not computed).
+    """
+    if forces is not None and reply.status == ForceClosureVerdict.FORCE_CLOSURE:
+        reply.contact_forces = _vectors(forces)
+    if wrench is None or np.isnan(wrench).any():
+        reply.separating_wrench = nan_wrench()
+    else:
+        fx, fy, fz, tx, ty, tz = wrench.tolist()
+        reply.separating_wrench = Wrench(force=Vector3(x=fx, y=fy, z=fz),
+                                         torque=Vector3(x=tx, y=ty, z=tz))
+    reply.min_friction = min_friction
 
 
 def verdicts_to_msgs(verdicts: Verdicts, queries: list[ContactArray] | None = None
@@ -136,7 +175,15 @@ def verdicts_to_msgs(verdicts: Verdicts, queries: list[ContactArray] | None = No
     """One ForceClosureVerdict message per grasp, in order.
 
     ``queries`` (one per verdict) are the single-grasp queries answered: their header
-    and client_id are copied into the verdicts.
+    and client_id are copied into the verdicts. The certificate fields follow
+    ForceClosureVerdict's conventions: ``contact_forces`` (split by the queries' contact
+    counts, so ``queries`` are needed with them) only for FORCE_CLOSURE verdicts,
+    ``separating_wrench`` and ``min_friction`` NaN where there is none.
+
+    Raises
+    ------
+    ValueError
+        If ``verdicts`` carry contact forces but no ``queries`` are given.
     """
     out = [
         ForceClosureVerdict(id=int(i), force_closure=bool(fc), status=int(st),
@@ -149,18 +196,99 @@ def verdicts_to_msgs(verdicts: Verdicts, queries: list[ContactArray] | None = No
         for reply, query in zip(out, queries, strict=True):
             reply.header = query.header
             reply.client_id = query.client_id
+    _certificates_to_msgs(verdicts, queries, out)
     return out
 
 
+def _certificates_to_msgs(verdicts: Verdicts, queries: list[ContactArray] | None,
+                          out: list[ForceClosureVerdict]):
+    forces = [None] * len(out)
+    if verdicts.contact_forces is not None:
+        if queries is None:
+            raise ValueError("contact forces need the queries (their contact counts) to be "
+                             "split into verdict messages")
+        ends = np.cumsum([len(q.contacts) for q in queries])
+        forces = np.split(verdicts.contact_forces, ends[:-1])
+    wrenches = (verdicts.separating_wrench if verdicts.separating_wrench is not None
+                else [None] * len(out))
+    min_friction = (verdicts.min_friction.tolist() if verdicts.min_friction is not None
+                    else [math.nan] * len(out))
+    for reply, f, w, m in zip(out, forces, wrenches, min_friction):
+        _set_certificates(reply, f, w, m)
+
+
 def verdict_array_to_numpy(msg: ForceClosureVerdictArray) -> Verdicts:
-    """Read a ForceClosureVerdictArray back into numpy arrays (client side)."""
+    """Read a ForceClosureVerdictArray back into numpy arrays (client side).
+
+    The certificate fields become ``contact_forces`` (K, 3), ``separating_wrench``
+    (N, 6) and ``min_friction`` (N,), or None where the message carries none (empty).
+    """
+    def optional(values, width):
+        if not len(values):
+            return None
+        flat = _as_numpy(values, np.float64).copy()
+        return flat.reshape(-1, width) if width else flat
+
     return Verdicts(
         ids=_as_numpy(msg.ids, np.uint64).copy(),
         force_closure=np.asarray(msg.force_closure, dtype=bool),
         status=_as_numpy(msg.status, np.uint8).copy(),
         margin=_as_numpy(msg.margin, np.float64).copy(),
         messages=list(msg.messages),
+        contact_forces=optional(msg.contact_forces, 3),
+        separating_wrench=optional(msg.separating_wrenches, 6),
+        min_friction=optional(msg.min_friction, 0),
     )
+
+
+def verdict_msgs_to_numpy(replies: list[ForceClosureVerdict], counts) -> Verdicts:
+    """Read single verdict messages (e.g. a service response) into numpy arrays.
+
+    Parameters
+    ----------
+    replies : list of ForceClosureVerdict
+        N verdicts.
+    counts : (N,) int
+        Contacts of each answered grasp (a verdict carries contact forces only when it
+        is FORCE_CLOSURE, so the counts come from the queries).
+
+    Returns
+    -------
+    Verdicts
+        With ``contact_forces`` (K, 3) (NaN rows for grasps without forces),
+        ``separating_wrench`` (N, 6) and ``min_friction`` (N,) always set: single
+        verdicts carry NaN, not "absent", where there is none.
+
+    Raises
+    ------
+    ValueError
+        If a verdict's contact forces do not match its grasp's contact count.
+    """
+    counts = np.asarray(counts, dtype=np.int64).reshape(-1)
+    if len(counts) != len(replies):
+        raise ValueError(f"{len(counts)} contact counts for {len(replies)} verdicts")
+    forces = np.full((int(counts.sum()), 3), np.nan)
+    start = 0
+    for k, (reply, count) in enumerate(zip(replies, counts.tolist())):
+        if reply.contact_forces:
+            if len(reply.contact_forces) != count:
+                raise ValueError(f"verdict {k} (id {reply.id}) has "
+                                 f"{len(reply.contact_forces)} contact forces for "
+                                 f"{count} contacts")
+            forces[start:start + count] = [(v.x, v.y, v.z) for v in reply.contact_forces]
+        start += count
+    wrench = np.array([(r.separating_wrench.force.x, r.separating_wrench.force.y,
+                        r.separating_wrench.force.z, r.separating_wrench.torque.x,
+                        r.separating_wrench.torque.y, r.separating_wrench.torque.z)
+                       for r in replies], dtype=np.float64).reshape(-1, 6)
+    return Verdicts(
+        ids=np.array([r.id for r in replies], dtype=np.uint64),
+        force_closure=np.array([r.force_closure for r in replies], dtype=bool),
+        status=np.array([r.status for r in replies], dtype=np.uint8),
+        margin=np.array([r.margin for r in replies], dtype=np.float64),
+        messages=[r.message for r in replies],
+        contact_forces=forces, separating_wrench=wrench,
+        min_friction=np.array([r.min_friction for r in replies], dtype=np.float64))
 
 
 def grasps_to_batch_msg(ids, positions, normals, mu=None, counts=None, *, client_id=0,

@@ -13,12 +13,19 @@ and tests can call it without DDS.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from grasp_fc_ros.core import Status, check_force_closure, validate_grasps
+from grasp_fc_ros.core import (
+    Status,
+    check_force_closure,
+    minimum_friction,
+    optimal_contact_forces,
+    validate_grasps,
+)
 
 # A grasp needs at least two contacts (the core's own minimum, restated for messages).
 MIN_CONTACTS = 2
@@ -41,6 +48,11 @@ class Settings:
         Largest accepted number of contacts in one grasp.
     max_batch : int
         Largest accepted number of grasps in one message.
+    certificates : bool
+        Also return each verdict's certificate: contact forces of FORCE_CLOSURE grasps,
+        separating wrenches of rejected ones (the core's ``certificates=True``).
+    compute_min_friction : bool
+        Also return each grasp's minimum friction coefficient (see :func:`evaluate`).
     """
 
     friction_coefficient: float = 0.5
@@ -48,6 +60,8 @@ class Settings:
     filter_origins: str = "seed"
     max_contacts: int = 64
     max_batch: int = 100_000
+    certificates: bool = False
+    compute_min_friction: bool = False
 
 
 @dataclass
@@ -138,6 +152,17 @@ class Verdicts:
         NaN where the exact test was not run.
     messages : list[str]
         Length N; empty where there is nothing to say.
+    contact_forces : (K, 3) float64 or None
+        Certificates of FORCE_CLOSURE grasps: one internal force per contact (N per N of
+        total grip), grasp after grasp in the query's contact order (K contacts in all);
+        NaN rows for the contacts of other grasps. None: not computed.
+    separating_wrench : (N, 6) float64 or None
+        Unit wrench (force N, torque N m about the origin) that FILTERED_OUT and
+        NOT_FORCE_CLOSURE grasps cannot resist; NaN rows where there is none. None: not
+        computed.
+    min_friction : (N,) float64 or None
+        Minimum friction coefficient mu* of each grasp; NaN where not computed (invalid
+        input, or not certified). None: not computed for any grasp.
     """
 
     ids: np.ndarray
@@ -145,6 +170,9 @@ class Verdicts:
     status: np.ndarray
     margin: np.ndarray
     messages: list[str]
+    contact_forces: np.ndarray | None = None
+    separating_wrench: np.ndarray | None = None
+    min_friction: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -167,7 +195,21 @@ class Verdicts:
                    force_closure=np.concatenate([p.force_closure for p in parts]),
                    status=np.concatenate([p.status for p in parts]),
                    margin=np.concatenate([p.margin for p in parts]),
-                   messages=[m for p in parts for m in p.messages])
+                   messages=[m for p in parts for m in p.messages],
+                   **{name: _concatenate_optional([getattr(p, name) for p in parts])
+                      for name in OPTIONAL_FIELDS})
+
+
+# The optional per-grasp results of Verdicts, computed only when the settings ask.
+OPTIONAL_FIELDS = ("contact_forces", "separating_wrench", "min_friction")
+
+
+def _concatenate_optional(arrays: list) -> np.ndarray | None:
+    """Concatenate an optional field of every part; None if any part lacks it (all
+    parts of one message are decided with the same settings)."""
+    if any(a is None for a in arrays):
+        return None
+    return np.concatenate(arrays)
 
 
 @dataclass(frozen=True)
@@ -256,9 +298,15 @@ def evaluate(packed: PackedGrasps, settings: Settings) -> tuple[Verdicts, dict]:
     verdicts : Verdicts
         Length N. Invalid grasps get ``INVALID_INPUT`` and a message naming grasp and
         contact; a core failure in one contact-count group gets ``SOLVER_FAILURE`` for
-        that group only.
+        that group only. With ``settings.certificates`` it carries ``contact_forces``
+        and ``separating_wrench`` (verified by the core in the query's frame, on exactly
+        these arrays); with ``settings.compute_min_friction`` ``min_friction``: the
+        core's :func:`minimum_friction` with ratios = each contact's effective friction
+        over the grasp's largest, so the grasp is force closure when its largest
+        coefficient exceeds mu* (the others scaled along) and not below it.
     seconds : dict
-        Time spent: ``validation_s``, ``filter_s`` and ``exact_s`` (s).
+        Time spent: ``validation_s``, ``filter_s``, ``exact_s`` (certificates
+        included) and, if computed, ``min_friction_s`` (s).
     """
     n_grasps = len(packed)
     verdicts = Verdicts.failed(packed.ids, Status.INVALID_INPUT, "")
@@ -273,6 +321,12 @@ def evaluate(packed: PackedGrasps, settings: Settings) -> tuple[Verdicts, dict]:
         eligible[problem.grasp] = False
         verdicts.messages[problem.grasp] = problem.describe(packed)
     seconds = {"validation_s": time.perf_counter() - start, "filter_s": 0.0, "exact_s": 0.0}
+    if settings.certificates:
+        verdicts.contact_forces = np.full((len(packed.positions), 3), np.nan)
+        verdicts.separating_wrench = np.full((n_grasps, 6), np.nan)
+    if settings.compute_min_friction:
+        verdicts.min_friction = np.full(n_grasps, np.nan)
+        seconds["min_friction_s"] = 0.0
     starts, counts = packed.starts, packed.counts
     for n in np.unique(counts[eligible]):
         group = np.flatnonzero(eligible & (counts == n))
@@ -281,7 +335,7 @@ def evaluate(packed: PackedGrasps, settings: Settings) -> tuple[Verdicts, dict]:
             result = check_force_closure(
                 packed.positions[rows], packed.normals[rows], mu[rows],
                 use_filter="auto" if settings.use_filter else False,
-                origins=settings.filter_origins)
+                origins=settings.filter_origins, certificates=settings.certificates)
         except Exception as exc:  # noqa: BLE001 - one group must not spoil the others
             verdicts.status[group] = Status.SOLVER_FAILURE
             for i in group:
@@ -292,4 +346,122 @@ def evaluate(packed: PackedGrasps, settings: Settings) -> tuple[Verdicts, dict]:
         verdicts.margin[group] = result.margin
         for key in ("filter_s", "exact_s"):
             seconds[key] += result.timing.get(key, 0.0)
+        if settings.certificates:
+            verdicts.contact_forces[rows] = result.contact_forces
+            verdicts.separating_wrench[group] = result.separating_wrench
+        if settings.compute_min_friction:
+            began = time.perf_counter()
+            try:
+                verdicts.min_friction[group] = group_min_friction(
+                    packed.positions[rows], packed.normals[rows], mu[rows])
+            except Exception as exc:  # noqa: BLE001 - an optional extra: verdicts stand
+                for i in group:
+                    verdicts.messages[i] = f"min_friction not computed: {exc}"
+            seconds["min_friction_s"] += time.perf_counter() - began
     return verdicts, seconds
+
+
+def group_min_friction(positions: np.ndarray, normals: np.ndarray, mu: np.ndarray
+                       ) -> np.ndarray:
+    """mu* of validated same-size grasps, in units of each grasp's largest friction.
+
+    Parameters
+    ----------
+    positions, normals : (G, n, 3) float64
+    mu : (G, n) float64
+        Effective friction per contact (> 0); the query's proportions between contacts
+        are kept (ratios = mu / max mu of the grasp).
+
+    Returns
+    -------
+    (G,) float64
+        :func:`grasp_fc_ros.core.minimum_friction` (0: any positive friction, inf:
+        none, NaN: not certified).
+    """
+    return minimum_friction(positions, normals, mu / mu.max(axis=1, keepdims=True))
+
+
+# --- contact forces for a load (the compute_contact_forces service) ----------------------
+
+#: Names of the wrench's six components, for messages.
+WRENCH_COMPONENTS = ("force.x", "force.y", "force.z", "torque.x", "torque.y", "torque.z")
+
+
+@dataclass(frozen=True)
+class ContactForces:
+    """The answer to one grasp-force optimisation request.
+
+    Attributes
+    ----------
+    feasible : bool
+        Forces inside the cones (and under the limits) balance the load.
+    max_normal_force : float
+        The least largest normal force s* (N); inf when infeasible, NaN when the request
+        is invalid or the solver could not decide.
+    contact_forces : (n, 3) float64
+        The optimal force per contact (N); shape (0, 3) unless feasible.
+    message : str
+        Empty, or why there is no answer (naming the query and contact).
+    """
+
+    feasible: bool
+    max_normal_force: float
+    contact_forces: np.ndarray
+    message: str = ""
+
+    @classmethod
+    def refused(cls, message: str) -> ContactForces:
+        """No answer: ``message`` says why."""
+        return cls(False, float("nan"), np.empty((0, 3)), message)
+
+
+def contact_forces_for_load(packed: PackedGrasps, wrench, max_normal_forces,
+                            settings: Settings) -> ContactForces:
+    """Least-largest-normal-force contact forces of one grasp holding a load.
+
+    Parameters
+    ----------
+    packed : PackedGrasps
+        Exactly one grasp of n contacts (friction <= 0: the default of ``settings``).
+    wrench : (6,) float
+        External load: force (N) then torque (N m) about the frame's origin.
+    max_normal_forces : (0,) or (n,) float
+        Per-contact normal-force limits (N, >= 0, inf: none); empty for no limits.
+    settings : Settings
+
+    Returns
+    -------
+    ContactForces
+        From :func:`grasp_fc_ros.core.optimal_contact_forces`; an invalid request is
+        refused with a message naming the query, and the contact where one is at fault.
+    """
+    if len(packed) != 1:
+        raise ValueError(f"one grasp expected, got {len(packed)}")
+    mu = effective_friction(packed.mu, settings.friction_coefficient)
+    problems = find_invalid(packed, mu, settings)
+    if problems:
+        return ContactForces.refused(problems[0].describe(packed))
+    label = packed.label(0)
+    wrench = np.asarray(wrench, dtype=np.float64).reshape(6)
+    bad = np.flatnonzero(~np.isfinite(wrench))
+    if bad.size:
+        return ContactForces.refused(
+            f"{label}: wrench {WRENCH_COMPONENTS[bad[0]]} is not finite ({wrench[bad[0]]})")
+    limits = np.asarray(max_normal_forces, dtype=np.float64).reshape(-1)
+    n_contacts = int(packed.counts[0])
+    if len(limits) not in (0, n_contacts):
+        return ContactForces.refused(f"{label}: {len(limits)} max_normal_forces for "
+                                     f"{n_contacts} contacts (need one per contact or none)")
+    bad = np.flatnonzero(np.isnan(limits) | (limits < 0))
+    if bad.size:
+        return ContactForces.refused(
+            f"{label}, contact {bad[0]}: max_normal_force must be >= 0 (inf: no limit), "
+            f"got {limits[bad[0]]}")
+    s_star, forces = optimal_contact_forces(packed.positions, packed.normals, mu, wrench,
+                                            limits if len(limits) else None)
+    s_star = float(s_star)
+    if math.isnan(s_star):
+        return ContactForces.refused(f"{label}: the solver could not decide")
+    if math.isinf(s_star):
+        return ContactForces(False, s_star, np.empty((0, 3)))
+    return ContactForces(True, s_star, forces)

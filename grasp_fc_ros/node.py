@@ -6,7 +6,8 @@ Interfaces (package ``grasp_fc_msgs``):
   query on ``verdicts``;
 - subscribes ``contacts_batch`` (ContactArrayBatch), publishes one
   ForceClosureVerdictArray per batch on ``verdicts_batch``;
-- serves ``check_force_closure`` (CheckForceClosure);
+- serves ``check_force_closure`` (CheckForceClosure) and ``compute_contact_forces``
+  (ComputeContactForces);
 - publishes ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) once a second.
 
 The node is wiring only: messages are converted by :mod:`grasp_fc_ros.conversions`
@@ -41,13 +42,14 @@ from dataclasses import fields, replace
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Vector3
 from grasp_fc_msgs.msg import (
     ContactArray,
     ContactArrayBatch,
     ForceClosureVerdict,
     ForceClosureVerdictArray,
 )
-from grasp_fc_msgs.srv import CheckForceClosure
+from grasp_fc_msgs.srv import CheckForceClosure, ComputeContactForces
 from rcl_interfaces.msg import IntegerRange, ParameterDescriptor, ParameterType, SetParametersResult
 from rclpy.duration import Duration
 from rclpy.exceptions import ParameterException
@@ -64,12 +66,19 @@ from grasp_fc_ros.conversions import (
     batch_size,
     batch_to_packed,
     contact_arrays_to_packed,
+    nan_wrench,
     verdicts_to_array_msg,
     verdicts_to_msgs,
 )
 from grasp_fc_ros.core import ORIGIN_CHOICES, Status, warm_up
 from grasp_fc_ros.core.tolerances import MAX_FRICTION_COEFFICIENT
-from grasp_fc_ros.evaluation import MIN_CONTACTS, Settings, Verdicts
+from grasp_fc_ros.evaluation import (
+    MIN_CONTACTS,
+    ContactForces,
+    Settings,
+    Verdicts,
+    contact_forces_for_load,
+)
 from grasp_fc_ros.workers import (
     PRIORITY_BATCH,
     PRIORITY_INTERACTIVE,
@@ -142,6 +151,15 @@ PARAMETERS = {
         "single-grasp topic queries waiting to be decided, and of batch grasps waiting; "
         "beyond that a query is answered at once with SOLVER_FAILURE 'node overloaded'",
         1, MAX_BATCH_LIMIT)),
+    "certificates": (False, ParameterDescriptor(
+        type=ParameterType.PARAMETER_BOOL,
+        description="Every verdict carries its certificate: contact forces of a "
+                    "force-closure grasp, the separating wrench of a rejected one "
+                    "(larger verdict messages, more time per grasp)")),
+    "compute_min_friction": (False, ParameterDescriptor(
+        type=ParameterType.PARAMETER_BOOL,
+        description="Every verdict carries the grasp's minimum friction coefficient "
+                    "(several exact tests' worth of time per grasp)")),
     "workers": (DEFAULT_WORKERS, _int_descriptor(
         "Worker processes deciding large batches and service requests (0: none, decide "
         "in the node's threads); set at start-up", 0, MAX_WORKERS, read_only=True)),
@@ -265,7 +283,8 @@ def _failure_replies(queries, status: Status, message: str) -> list[ForceClosure
     """Verdict messages of ``status`` for ContactArray ``queries``, without the core."""
     return [ForceClosureVerdict(header=q.header, client_id=q.client_id, id=q.id,
                                 force_closure=False, status=int(status), margin=math.nan,
-                                message=message) for q in queries]
+                                message=message, separating_wrench=nan_wrench(),
+                                min_friction=math.nan) for q in queries]
 
 
 def _batch_failure(msg: ContactArrayBatch, status: Status, message: str
@@ -327,7 +346,8 @@ class ForceClosureNode(Node):
             thread.start()
             self._threads.append(thread)
         self.get_logger().info(
-            f"ready: topics contacts, contacts_batch; service check_force_closure; "
+            f"ready: topics contacts, contacts_batch; services check_force_closure, "
+            f"compute_contact_forces; "
             f"settings {self._settings}; workers {self._pool.workers}")
 
     def _start_service(self):
@@ -347,6 +367,8 @@ class ForceClosureNode(Node):
                                   start_parameter_services=False)
         self._service_node.create_service(CheckForceClosure, "check_force_closure",
                                           self._on_service)
+        self._service_node.create_service(ComputeContactForces, "compute_contact_forces",
+                                          self._on_contact_forces)
         self._service_executor = SingleThreadedExecutor(context=self.context)
         self._service_executor.add_node(self._service_node)
         thread = threading.Thread(target=self._spin_service, daemon=True, name="service")
@@ -472,6 +494,31 @@ class ForceClosureNode(Node):
             self._internal_error(f"a service request of {len(grasps)} grasps", exc)
             self._stats.record_failures(len(grasps))
             return _failure_replies(grasps, Status.SOLVER_FAILURE, f"internal error: {exc}")
+
+    def _on_contact_forces(self, request, response):
+        """compute_contact_forces: decided in the service thread (one small SOCP)."""
+        try:
+            answer = self._contact_forces_reply(request)
+        except Exception as exc:  # noqa: BLE001 - the response must still be sent
+            self._internal_error("a compute_contact_forces request", exc)
+            answer = ContactForces.refused(f"internal error: {exc}")
+        response.feasible = answer.feasible
+        response.max_normal_force = answer.max_normal_force
+        response.contact_forces = [Vector3(x=x, y=y, z=z)
+                                   for x, y, z in answer.contact_forces.tolist()]
+        response.message = answer.message
+        return response
+
+    def _contact_forces_reply(self, request) -> ContactForces:
+        packed = contact_arrays_to_packed([request.grasp], name_by_id=True)
+        force, torque = request.wrench.force, request.wrench.torque
+        wrench = (force.x, force.y, force.z, torque.x, torque.y, torque.z)
+        answer = contact_forces_for_load(packed, wrench, np.asarray(request.max_normal_forces,
+                                                                    dtype=np.float64),
+                                         self._settings)
+        if answer.message and self._may_log("contact forces"):
+            self.get_logger().warning(f"compute_contact_forces: {answer.message}")
+        return answer
 
     def _on_timer(self):
         self._publish_diagnostics()
@@ -684,7 +731,8 @@ class ForceClosureNode(Node):
 USAGE = f"""usage: grasp-fc-node [-h] [--ros-args ROS_ARGUMENTS...]
 
 The {NODE_NAME} node: force-closure verdicts for grasp queries on the topics
-contacts and contacts_batch and the service check_force_closure (see the README).
+contacts and contacts_batch and the service check_force_closure, and contact
+forces for a load from the service compute_contact_forces (see the README).
 
 ROS arguments (after --ros-args):
   -p NAME:=VALUE           set a parameter (doubles need a decimal point: 1.0)

@@ -107,3 +107,129 @@ def test_single_verdicts_copy_each_query_header_and_client_id():
     assert replies[1].message == "bad" and math.isnan(replies[1].margin)
     with pytest.raises(ValueError):
         verdicts_to_msgs(make_verdicts(), queries[:1])
+
+
+# --- certificates and minimum friction in the verdict messages ---------------------------
+
+def mixed_batch(seed=5):
+    """A batch of 3-, 4- and 6-finger box grasps with one invalid grasp: its message and
+    the stacked arrays (positions, normals (K, 3), mu (K,), counts (N,))."""
+    from grasp_fc_ros.objects import make_object, sample_grasps
+
+    rng = np.random.default_rng(seed)
+    box = make_object("box")
+    counts = rng.choice([3, 4, 6], size=40)
+    pieces = [sample_grasps(box, 1, int(n), rng) for n in counts]
+    positions = np.concatenate([p[0] for p, _ in pieces])
+    normals = np.concatenate([q[0] for _, q in pieces])
+    mu = rng.uniform(0.3, 1.0, size=len(positions))
+    normals[counts[:5].sum() + 1] = 0.0  # grasp 5, contact 1: invalid
+    msg = grasps_to_batch_msg(np.arange(40) + 500, positions, normals, mu, counts=counts)
+    return msg, positions, normals, mu, counts
+
+
+def decide(msg, **settings):
+    from grasp_fc_ros.evaluation import Settings, evaluate
+
+    verdicts, _ = evaluate(batch_to_packed(msg), Settings(**settings))
+    return verdicts
+
+
+def test_batch_certificates_are_packed_per_contact_and_verify():
+    from grasp_fc_ros.core import verify_certificates
+
+    msg, positions, normals, mu, counts = mixed_batch()
+    reply = verdicts_to_array_msg(decide(msg, certificates=True), msg)
+    total = int(counts.sum())
+    assert (len(reply.contact_forces), len(reply.separating_wrenches)) == (3 * total, 6 * 40)
+    assert len(reply.min_friction) == 0  # compute_min_friction off
+    got = verdict_array_to_numpy(reply)
+    assert got.min_friction is None
+    assert got.status[5] == Status.INVALID_INPUT
+    ends = np.cumsum(counts)
+    for g, (lo, hi) in enumerate(zip(ends - counts, ends)):
+        if g == 5:  # invalid: nothing to verify
+            assert np.isnan(got.contact_forces[lo:hi]).all()
+            assert np.isnan(got.separating_wrench[g]).all()
+            continue
+        forces_ok, wrench_ok = verify_certificates(
+            positions[lo:hi], normals[lo:hi], mu[lo:hi],
+            got.contact_forces[lo:hi], got.separating_wrench[g])
+        status = got.status[g]
+        assert forces_ok == (status == Status.FORCE_CLOSURE), f"grasp {g}"
+        if status != Status.FORCE_CLOSURE:
+            assert np.isnan(got.contact_forces[lo:hi]).all(), f"grasp {g}"
+        if status == Status.FORCE_CLOSURE:
+            assert np.isnan(got.separating_wrench[g]).all(), f"grasp {g}"
+        else:  # rejected: a separating wrench unless marginal (none in this sample)
+            assert wrench_ok, f"grasp {g}"
+    # Every kind of certificate must occur, or the loop above proves little.
+    assert {Status.FORCE_CLOSURE, Status.NOT_FORCE_CLOSURE} <= set(got.status.tolist())
+
+
+def test_certificates_off_leave_the_fields_empty():
+    msg = mixed_batch()[0]
+    reply = verdicts_to_array_msg(decide(msg), msg)
+    assert (len(reply.contact_forces), len(reply.separating_wrenches),
+            len(reply.min_friction)) == (0, 0, 0)
+    got = verdict_array_to_numpy(reply)
+    assert got.contact_forces is None and got.separating_wrench is None
+    assert got.min_friction is None
+
+
+def test_single_verdicts_carry_forces_only_for_force_closure_and_round_trip():
+    from grasp_fc_ros.conversions import verdict_msgs_to_numpy
+
+    msg, positions, normals, mu, counts = mixed_batch()
+    verdicts = decide(msg, certificates=True)
+    ends = np.cumsum(counts)
+    queries = [grasp_to_contact_array(500 + g, positions[lo:hi], normals[lo:hi], mu[lo:hi])
+               for g, (lo, hi) in enumerate(zip(ends - counts, ends))]
+    replies = verdicts_to_msgs(verdicts, queries)
+    for reply, count in zip(replies, counts):
+        fc = reply.status == Status.FORCE_CLOSURE
+        assert len(reply.contact_forces) == (count if fc else 0)
+        assert math.isnan(reply.min_friction)
+    back = verdict_msgs_to_numpy(replies, counts)
+    np.testing.assert_array_equal(back.contact_forces, verdicts.contact_forces)
+    np.testing.assert_array_equal(back.separating_wrench, verdicts.separating_wrench)
+    assert np.isnan(back.min_friction).all()
+    fc = next(g for g, r in enumerate(replies) if r.contact_forces)
+    with pytest.raises(ValueError, match=f"verdict 0 \\(id {500 + fc}\\) has"):
+        verdict_msgs_to_numpy(replies[fc:fc + 1], [counts[fc] + 1])
+    with pytest.raises(ValueError, match="need the queries"):
+        verdicts_to_msgs(verdicts)
+
+
+def test_single_verdicts_without_certificates_say_none_with_nan():
+    replies = verdicts_to_msgs(make_verdicts())
+    for reply in replies:
+        assert reply.contact_forces == []
+        w = reply.separating_wrench
+        assert all(math.isnan(v) for v in (w.force.x, w.force.y, w.force.z,
+                                           w.torque.x, w.torque.y, w.torque.z))
+        assert math.isnan(reply.min_friction)
+
+
+def test_min_friction_follows_the_query_proportions_and_is_nan_for_invalid():
+    from grasp_fc_ros.core import check_force_closure
+
+    msg, positions, normals, mu, counts = mixed_batch()
+    got = verdict_array_to_numpy(verdicts_to_array_msg(
+        decide(msg, compute_min_friction=True), msg))
+    assert got.contact_forces is None and len(got.min_friction) == 40
+    assert math.isnan(got.min_friction[5])
+    ends = np.cumsum(counts)
+    finite = 0
+    for g, (lo, hi) in enumerate(zip(ends - counts, ends)):
+        mu_star = got.min_friction[g]
+        if g == 5 or not np.isfinite(mu_star) or mu_star == 0:
+            continue
+        finite += 1
+        ratios = mu[lo:hi] / mu[lo:hi].max()
+        above = check_force_closure(positions[lo:hi], normals[lo:hi],
+                                    mu_star * (1 + 1e-3) * ratios)
+        below = check_force_closure(positions[lo:hi], normals[lo:hi],
+                                    mu_star * (1 - 1e-3) * ratios)
+        assert above.force_closure and not below.force_closure, f"grasp {g}: mu* {mu_star}"
+    assert finite >= 20
