@@ -23,7 +23,7 @@ from grasp_fc_msgs.msg import (
     ForceClosureVerdict,
     ForceClosureVerdictArray,
 )
-from grasp_fc_ros.evaluation import PackedGrasps, Verdicts
+from grasp_fc_ros.evaluation import OPTIONAL_FIELDS, PackedGrasps, Verdicts
 
 __all__ = [
     "MalformedBatch", "PackedGrasps", "Verdicts", "batch_size", "batch_to_packed",
@@ -152,6 +152,17 @@ def _vectors(rows: np.ndarray) -> list[Vector3]:
     return [Vector3(x=x, y=y, z=z) for x, y, z in rows.tolist()]
 
 
+def _set_wrench(reply: ForceClosureVerdict, values):
+    """Write 6 values into the message's own separating_wrench: in place, since a new
+    Wrench per verdict costs ~2x as much on the single-query path (measured ~5 vs 2.4
+    us per verdict, over a ~12 us message)."""
+    force, torque = reply.separating_wrench.force, reply.separating_wrench.torque
+    force.x, force.y, force.z, torque.x, torque.y, torque.z = values
+
+
+_NAN6 = (math.nan,) * 6
+
+
 def _set_certificates(reply: ForceClosureVerdict, forces: np.ndarray | None,
                       wrench: np.ndarray | None, min_friction: float):
     """Fill the certificate fields of one verdict message.
@@ -162,11 +173,9 @@ def _set_certificates(reply: ForceClosureVerdict, forces: np.ndarray | None,
     if forces is not None and reply.status == ForceClosureVerdict.FORCE_CLOSURE:
         reply.contact_forces = _vectors(forces)
     if wrench is None or np.isnan(wrench).any():
-        reply.separating_wrench = nan_wrench()
+        _set_wrench(reply, _NAN6)
     else:
-        fx, fy, fz, tx, ty, tz = wrench.tolist()
-        reply.separating_wrench = Wrench(force=Vector3(x=fx, y=fy, z=fz),
-                                         torque=Vector3(x=tx, y=ty, z=tz))
+        _set_wrench(reply, wrench.tolist())
     reply.min_friction = min_friction
 
 
@@ -202,6 +211,11 @@ def verdicts_to_msgs(verdicts: Verdicts, queries: list[ContactArray] | None = No
 
 def _certificates_to_msgs(verdicts: Verdicts, queries: list[ContactArray] | None,
                           out: list[ForceClosureVerdict]):
+    if all(getattr(verdicts, name) is None for name in OPTIONAL_FIELDS):
+        for reply in out:  # the common case, on the single-query hot path
+            _set_wrench(reply, _NAN6)
+            reply.min_friction = math.nan
+        return
     forces = [None] * len(out)
     if verdicts.contact_forces is not None:
         if queries is None:
