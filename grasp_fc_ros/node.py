@@ -159,7 +159,7 @@ PARAMETERS = {
     "compute_min_friction": (False, ParameterDescriptor(
         type=ParameterType.PARAMETER_BOOL,
         description="Every verdict carries the grasp's minimum friction coefficient "
-                    "(several exact tests' worth of time per grasp)")),
+                    "(about a hundred exact tests' worth of time per grasp)")),
     "workers": (DEFAULT_WORKERS, _int_descriptor(
         "Worker processes deciding large batches and service requests (0: none, decide "
         "in the node's threads); set at start-up", 0, MAX_WORKERS, read_only=True)),
