@@ -5,10 +5,19 @@ the cone: if its grasp is force closure, so is the true one) or circumscribed (a
 the cone: if its grasp is not force closure, neither is the true one). A polyhedral
 grasp is force closure iff its primitive wrenches W have rank 6 and some strictly
 positive combination of them sums to zero, decided here with scipy's LP solver.
+
+Soft-finger contacts (torsional friction gamma): in the scaled coordinates
+(f_t / mu, tau / gamma) per unit normal force the elliptic soft cone's cross-section is
+the unit ball, so a polytope with vertices on the unit sphere gives an inscribed
+polyhedral cone, and the same polytope scaled by one over its inradius a circumscribed
+one (:func:`ball_polytope`); each vertex is a primitive wrench (f, p x f + tau n).
 """
+
+from functools import lru_cache
 
 import numpy as np
 from scipy.optimize import linprog
+from scipy.spatial import ConvexHull
 
 
 def pyramid_edges(normal, mu, sides, inscribed):
@@ -144,3 +153,54 @@ def pyramid_min_max_force(positions, normals, mu, wrench, sides=8, inscribed=Tru
     if result.status == 2:
         return np.inf
     return result.x[-1]
+
+
+@lru_cache(maxsize=8)
+def ball_polytope(points=64, inscribed=True):
+    """Vertices (points, 3) of a polytope inside (on the unit sphere, a Fibonacci
+    lattice) or around (the same divided by its inradius) the unit ball."""
+    k = np.arange(points) + 0.5
+    z = 1.0 - 2.0 * k / points
+    azimuth = np.pi * (1.0 + 5.0 ** 0.5) * k
+    radius = np.sqrt(1.0 - z * z)
+    vertices = np.stack([radius * np.cos(azimuth), radius * np.sin(azimuth), z], axis=1)
+    if inscribed:
+        return vertices
+    inradius = -ConvexHull(vertices).equations[:, -1].max()     # facets n.x + d <= 0
+    return vertices / inradius
+
+
+def _soft_wrench_columns(positions, normals, frictions, torsional, points, inscribed):
+    """Primitive wrenches (6, k) of per-contact polyhedral soft cones, grasp at unit size
+    (gamma scaled along). A hard contact (gamma = 0) gets its pyramid of ``points`` sides."""
+    centred = positions - positions.mean(axis=0)
+    scale = np.abs(centred).max()
+    centred = centred / scale
+    columns = []
+    for p, n, mu, gamma in zip(centred, normals, frictions, torsional / scale):
+        if gamma == 0:
+            edges, twists = pyramid_edges(n, mu, points, inscribed), np.zeros(points)
+        else:
+            helper = np.eye(3)[np.abs(n).argmin()]
+            t1 = np.cross(n, helper)
+            t1 /= np.linalg.norm(t1)
+            t2 = np.cross(n, t1)
+            ball = ball_polytope(points, inscribed)
+            edges = n + mu * (ball[:, :1] * t1 + ball[:, 1:2] * t2)
+            twists = gamma * ball[:, 2]
+        columns += [np.concatenate([f, np.cross(p, f) + tau * n])
+                    for f, tau in zip(edges, twists)]
+    return np.array(columns).T
+
+
+def soft_pyramid_is_force_closure(positions, normals, frictions, torsional, points=64,
+                                  inscribed=True, tol=1e-9):
+    """Polyhedral force closure of soft contacts (hard where gamma = 0): rank 6 and an
+    LP margin > tol. Inscribed: FC implies the true grasp is FC; circumscribed: not FC
+    implies the true grasp is not FC."""
+    n = len(positions)
+    wrenches = _soft_wrench_columns(positions, normals,
+                                    np.broadcast_to(np.asarray(frictions, float), (n,)),
+                                    np.broadcast_to(np.asarray(torsional, float), (n,)),
+                                    points, inscribed)
+    return _lp_margin(wrenches) > tol
