@@ -204,3 +204,47 @@ def soft_pyramid_is_force_closure(positions, normals, frictions, torsional, poin
                                     np.broadcast_to(np.asarray(torsional, float), (n,)),
                                     points, inscribed)
     return _lp_margin(wrenches) > tol
+
+
+def soft_pyramid_min_max_force(positions, normals, mu, torsional, wrench, points=64,
+                               inscribed=True):
+    """Least largest normal force of polyhedral soft-cone contact wrenches holding
+    ``wrench`` (LP), or inf. Torque about the origin of ``positions`` (no normalising).
+
+    Each contact's wrench is sum_j lam_ij (e_ij, p_i x e_ij + tau_ij n_i) over the
+    vertices of :func:`ball_polytope` (pyramid edges where gamma = 0), lam >= 0;
+    minimise s subject to equilibrium and n_i . f_i <= s. Inscribed cones give an upper
+    bound on the true s*, circumscribed ones a lower bound.
+    """
+    n_contacts = len(positions)
+    frictions = np.broadcast_to(np.asarray(mu, float), (n_contacts,))
+    gammas = np.broadcast_to(np.asarray(torsional, float), (n_contacts,))
+    columns, normal_parts, owner = [], [], []
+    for i, (p, n, m, gamma) in enumerate(zip(positions, normals, frictions, gammas)):
+        helper = np.eye(3)[np.abs(n).argmin()]
+        t1 = np.cross(n, helper)
+        t1 /= np.linalg.norm(t1)
+        t2 = np.cross(n, t1)
+        if gamma == 0:
+            edges, twists = pyramid_edges(n, m, points, inscribed), np.zeros(points)
+        else:
+            ball = ball_polytope(points, inscribed)
+            edges = n + m * (ball[:, :1] * t1 + ball[:, 1:2] * t2)
+            twists = gamma * ball[:, 2]
+        for f, tau in zip(edges, twists):
+            columns.append(np.concatenate([f, np.cross(p, f) + tau * n]))
+            normal_parts.append(f @ n)
+            owner.append(i)
+    wrenches, normal_parts, owner = np.array(columns).T, np.array(normal_parts), np.array(owner)
+    k = wrenches.shape[1]
+    cost = np.zeros(k + 1)
+    cost[-1] = 1.0
+    per_contact = np.zeros((n_contacts, k))
+    per_contact[owner, np.arange(k)] = normal_parts
+    result = _linprog_robust(cost, A_ub=np.hstack([per_contact, -np.ones((n_contacts, 1))]),
+                             b_ub=np.zeros(n_contacts),
+                             A_eq=np.hstack([wrenches, np.zeros((6, 1))]),
+                             b_eq=-np.asarray(wrench, float), bounds=[(0, None)] * (k + 1))
+    if result.status == 2:
+        return np.inf
+    return result.x[-1]

@@ -6,10 +6,11 @@ from hypothesis import given, settings, strategies as st
 
 from grasp_cases import ellipsoid_grasps, random_rotation
 from grasp_fc_ros.core import (Status, check_force_closure, exact_force_closure,
+                               optimal_contact_forces,
                                torque_filter, validate_grasps, verify_certificates)
 from grasp_fc_ros.core.contact_model import HARD, SOFT, model_of
 from grasp_fc_ros.core.grasp_input import prepare_grasps
-from reference_pyramids import soft_pyramid_is_force_closure
+from reference_pyramids import soft_pyramid_is_force_closure, soft_pyramid_min_max_force
 
 
 def antipodal_pairs(rng, n_grasps):
@@ -194,3 +195,47 @@ def test_soft_contact_at_the_origin_contributes_its_line():
     for origins in ("seed", "all"):
         assert torque_filter(positions, normals, 0.5, origins=origins,
                              torsional_friction=gamma)
+
+
+def test_soft_antipodal_pair_holds_a_twist_with_the_analytic_force():
+    """Torque T about the line of two soft fingers: each gives at most gamma f_n, so
+    s* = T / (2 gamma); hard fingers cannot hold it at all."""
+    positions = np.array([[1.0, 0, 0], [-1, 0, 0]])
+    twist = np.array([0, 0, 0, 0.3, 0, 0])
+    assert np.isinf(optimal_contact_forces(positions, -positions, 0.5, twist)[0])
+    s_star, forces, torques = optimal_contact_forces(positions, -positions, 0.5, twist,
+                                                     torsional_friction=0.1)
+    assert s_star == pytest.approx(1.5, rel=1e-6)
+    assert torques == pytest.approx([0.15, -0.15], rel=1e-6)
+    net = forces.sum(axis=0), (np.cross(positions, forces)
+                               + torques[:, None] * -positions).sum(axis=0)
+    assert np.allclose(np.concatenate(net) + twist, 0, atol=1e-9)
+    hard = optimal_contact_forces(positions, -positions, 0.5, twist, torsional_friction=0.0)
+    assert np.isinf(hard[0]) and np.isnan(hard[2]).all()
+
+
+def test_soft_optimal_forces_are_bracketed_by_polyhedral_soft_cones():
+    rng = np.random.default_rng(7)
+    positions, normals, gamma = soft_grasps(rng, 25, 3, soft_share=0.7)
+    wrench = rng.normal(size=(25, 6))
+    s_star, forces, torques = optimal_contact_forces(positions, normals, 0.5, wrench,
+                                                     torsional_friction=gamma)
+    inner = [soft_pyramid_min_max_force(p, n, 0.5, g, w, inscribed=True)
+             for p, n, g, w in zip(positions, normals, gamma, wrench)]
+    outer = [soft_pyramid_min_max_force(p, n, 0.5, g, w, inscribed=False)
+             for p, n, g, w in zip(positions, normals, gamma, wrench)]
+    finite = np.isfinite(s_star)
+    assert finite.any() and (~finite).any()
+    assert np.all(np.asarray(outer) <= s_star * (1 + 1e-6) + 1e-9)
+    assert np.all(s_star <= np.asarray(inner) * (1 + 1e-6) + 1e-9)
+    # Finite answers are real equilibria inside the soft cones.
+    f, tau, n = forces[finite], torques[finite], normals[finite]
+    f_n = (f * n).sum(axis=-1)
+    f_t = np.linalg.norm(f - f_n[..., None] * n, axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        twist = np.where(gamma[finite] > 0, 0.5 * tau / gamma[finite], 0.0)
+    assert np.all(np.hypot(f_t, twist) <= 0.5 * f_n * (1 + 1e-6) + 1e-9)
+    assert np.all(tau[gamma[finite] == 0] == 0)
+    torque = (np.cross(positions[finite], f) + tau[..., None] * n).sum(axis=1)
+    assert np.allclose(f.sum(axis=1) + wrench[finite, :3], 0, atol=1e-8)
+    assert np.allclose(torque + wrench[finite, 3:], 0, atol=1e-8)
