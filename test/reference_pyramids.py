@@ -248,3 +248,23 @@ def soft_pyramid_min_max_force(positions, normals, mu, torsional, wrench, points
     if result.status == 2:
         return np.inf
     return result.x[-1]
+
+
+def soft_pyramid_minimum_friction(positions, normals, torsional, points=32, inscribed=True,
+                                  high=1e2, steps=30):
+    """Least friction at which polyhedral soft cones make the grasp FC: (low, high) as
+    :func:`pyramid_minimum_friction` (inscribed: an upper bound on the true mu*,
+    circumscribed: a lower bound); gamma stays fixed."""
+    def fc(mu):
+        return soft_pyramid_is_force_closure(positions, normals, mu, torsional, points,
+                                             inscribed)
+    if not fc(high):
+        return np.inf, np.inf
+    low = 0.0
+    for _ in range(steps):
+        middle = np.sqrt(max(low, 1e-9) * high) if high > 4 * max(low, 1e-9) else 0.5 * (low + high)
+        if fc(middle):
+            high = middle
+        else:
+            low = middle
+    return low, high

@@ -6,11 +6,12 @@ from hypothesis import given, settings, strategies as st
 
 from grasp_cases import ellipsoid_grasps, random_rotation
 from grasp_fc_ros.core import (Status, check_force_closure, exact_force_closure,
-                               optimal_contact_forces,
+                               minimum_friction, optimal_contact_forces,
                                torque_filter, validate_grasps, verify_certificates)
 from grasp_fc_ros.core.contact_model import HARD, SOFT, model_of
 from grasp_fc_ros.core.grasp_input import prepare_grasps
-from reference_pyramids import soft_pyramid_is_force_closure, soft_pyramid_min_max_force
+from reference_pyramids import (soft_pyramid_is_force_closure, soft_pyramid_min_max_force,
+                               soft_pyramid_minimum_friction)
 
 
 def antipodal_pairs(rng, n_grasps):
@@ -239,3 +240,36 @@ def test_soft_optimal_forces_are_bracketed_by_polyhedral_soft_cones():
     torque = (np.cross(positions[finite], f) + tau[..., None] * n).sum(axis=1)
     assert np.allclose(f.sum(axis=1) + wrench[finite, :3], 0, atol=1e-8)
     assert np.allclose(torque + wrench[finite, 3:], 0, atol=1e-8)
+
+
+def test_minimum_friction_of_soft_grasps():
+    positions = np.array([[1.0, 0, 0], [-1, 0, 0]])
+    assert minimum_friction(positions, -positions) == np.inf
+    assert minimum_friction(positions, -positions, torsional_friction=0.1) == 0.0
+    rng = np.random.default_rng(8)
+    positions, normals, gamma = soft_grasps(rng, 60, 3, soft_share=0.7)
+    soft = minimum_friction(positions, normals, torsional_friction=gamma)
+    hard = minimum_friction(positions, normals)
+    assert not np.isnan(soft).any()
+    assert np.all(soft <= hard * (1 + 1e-6))
+    assert (soft < hard * 0.99).sum() > 0
+    finite = np.isfinite(soft) & (soft > 0)
+    for factor, expected in ((1.01, True), (0.99, False)):
+        verdict = check_force_closure(positions[finite], normals[finite],
+                                      soft[finite, None] * factor,
+                                      torsional_friction=gamma[finite]).force_closure
+        assert (verdict == expected).all()
+    # Uniform scaling with gamma scaled along leaves mu* unchanged.
+    scaled = minimum_friction(positions * 7.0, normals, torsional_friction=gamma * 7.0)
+    assert np.allclose(scaled, soft, rtol=1e-5)
+
+
+def test_soft_minimum_friction_is_bracketed_by_polyhedral_soft_cones():
+    rng = np.random.default_rng(9)
+    positions, normals, gamma = soft_grasps(rng, 6, 3, soft_share=1.0)
+    soft = minimum_friction(positions, normals, torsional_friction=gamma)
+    for p, n, g, value in zip(positions, normals, gamma, soft):
+        outer_low, _ = soft_pyramid_minimum_friction(p, n, g, inscribed=False)
+        _, inner_high = soft_pyramid_minimum_friction(p, n, g, inscribed=True)
+        assert outer_low <= value * (1 + 1e-6) + 1e-9
+        assert value <= inner_high * (1 + 1e-6) + 1e-9
