@@ -74,6 +74,10 @@ class PackedGrasps:
     first_index : int
         Index of grasp 0 of this object in the message it came from (a chunk of a
         batch names its grasps by their index in the whole batch).
+    torsional : (K,) float64 or None
+        Torsional friction coefficient gamma per contact (m; 0: a hard contact; soft
+        fingers, see ``grasp_fc_ros.core.contact_model``); None: every contact hard.
+        Negative, NaN and inf are invalid.
     """
 
     ids: np.ndarray
@@ -83,6 +87,7 @@ class PackedGrasps:
     mu: np.ndarray
     name_by_id: bool = False
     first_index: int = 0
+    torsional: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -121,7 +126,8 @@ class PackedGrasps:
         return PackedGrasps(ids=self.ids[first:last], counts=self.counts[first:last],
                             positions=self.positions[lo:hi], normals=self.normals[lo:hi],
                             mu=self.mu[lo:hi], name_by_id=self.name_by_id,
-                            first_index=self.first_index + first)
+                            first_index=self.first_index + first,
+                            torsional=None if self.torsional is None else self.torsional[lo:hi])
 
 
 @dataclass
@@ -222,9 +228,11 @@ def find_invalid(packed: PackedGrasps, mu: np.ndarray, settings: Settings
             f"max_contacts={settings.max_contacts}")))
     if not len(mu):
         return problems
+    torsional = 0.0 if packed.torsional is None else np.repeat(
+        packed.torsional[:, None], 2, axis=1)
     doubled = validate_grasps(np.repeat(packed.positions[:, None], 2, axis=1),
                               np.repeat(packed.normals[:, None], 2, axis=1),
-                              np.repeat(mu[:, None], 2, axis=1))
+                              np.repeat(mu[:, None], 2, axis=1), torsional)
     bad_contacts = np.flatnonzero(~doubled.valid)
     if not len(bad_contacts):
         return problems
@@ -281,7 +289,8 @@ def evaluate(packed: PackedGrasps, settings: Settings) -> tuple[Verdicts, dict]:
             result = check_force_closure(
                 packed.positions[rows], packed.normals[rows], mu[rows],
                 use_filter="auto" if settings.use_filter else False,
-                origins=settings.filter_origins)
+                origins=settings.filter_origins,
+                torsional_friction=0.0 if packed.torsional is None else packed.torsional[rows])
         except Exception as exc:  # noqa: BLE001 - one group must not spoil the others
             verdicts.status[group] = Status.SOLVER_FAILURE
             for i in group:
