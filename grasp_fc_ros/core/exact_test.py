@@ -14,6 +14,11 @@ f = 0, t = 0 is always feasible and t is bounded, so the optimum t* >= 0 exists,
 t* > 0 iff a strictly internal force exists. t* (the *margin*) is unchanged by
 translation, rotation and uniform scaling of the grasp.
 
+Soft fingers (:mod:`.contact_model`): each contact also has sigma = tau / gamma, the
+cone becomes (mu n_i . f_i - t, f_i tangential, mu_i sigma_i) in Q^4 and G gets the
+columns (0, gamma_i n_i) (gamma scaled with the grasp, so t* stays invariant under
+uniform scaling with gamma scaled along). Soft batches skip the fast stage.
+
 Each grasp goes first to the fast stage (:mod:`.interior_point`), which decides it only
 from a certificate: a verified internal force (force closure) or a wrench bounding t*
 below ``MARGIN_TOL`` (not force closure). What it cannot certify (near the threshold,
