@@ -231,6 +231,13 @@ def _all_valid(p: np.ndarray, nrm: np.ndarray, m: np.ndarray) -> bool:
                     and ((m > 0) & (m <= MAX_FRICTION_COEFFICIENT)).all())
 
 
+def _all_hard(torsional_friction) -> bool:
+    """None or a plain zero: every contact hard, known without building an array (the
+    default of every entry point, so a one-grasp call pays nothing for soft contacts)."""
+    return torsional_friction is None or (
+        isinstance(torsional_friction, (int, float)) and torsional_friction == 0)
+
+
 def prepare_grasps(positions, normals, mu, torsional_friction=None) -> GraspBatch:
     """Validate input and return it as a normalised batch.
 
@@ -243,7 +250,7 @@ def prepare_grasps(positions, normals, mu, torsional_friction=None) -> GraspBatc
         On wrong shapes or any bad value, naming the first bad grasps and contacts.
     """
     p, nrm, m, single = _as_batch_arrays(positions, normals, mu)
-    gamma = (None if torsional_friction is None else
+    gamma = (None if _all_hard(torsional_friction) else
              _per_contact(torsional_friction, "torsional_friction", single, m.shape))
     good = _all_valid(p, nrm, m) and (gamma is None or torsional_all_valid(gamma))
     validation = None if good else _validate(p, nrm, m, gamma)
