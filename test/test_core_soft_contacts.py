@@ -273,3 +273,26 @@ def test_soft_minimum_friction_is_bracketed_by_polyhedral_soft_cones():
         _, inner_high = soft_pyramid_minimum_friction(p, n, g, inscribed=True)
         assert outer_low <= value * (1 + 1e-6) + 1e-9
         assert value <= inner_high * (1 + 1e-6) + 1e-9
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n_contacts=st.integers(2, 6),
+       mu=st.floats(0.05, 1.5), soft_count=st.integers(1, 6), tilt=st.floats(0.0, 1e-6))
+def test_filter_stays_sound_where_soft_normals_share_a_plane(seed, n_contacts, mu,
+                                                             soft_count, tilt):
+    """Soft normals all (nearly, by ``tilt``) perpendicular to one direction: the only
+    case where the soft lines leave the filter a separating direction to find."""
+    rng = np.random.default_rng(seed)
+    positions, normals, _ = soft_grasps(rng, 200, n_contacts)
+    soft = np.arange(n_contacts) < min(soft_count, n_contacts)
+    flat = normals[:, soft].copy()
+    flat[..., 2] = tilt * rng.normal(size=flat.shape[:2])
+    normals[:, soft] = flat / np.linalg.norm(flat, axis=2, keepdims=True)
+    rotation = random_rotation(rng)
+    positions, normals = positions @ rotation.T, normals @ rotation.T
+    gamma = np.where(soft, rng.uniform(0.01, 0.5, (200, n_contacts)), 0.0)
+    exact = exact_force_closure(positions, normals, mu, torsional_friction=gamma)
+    for origins in ("seed", "all"):
+        passed = torque_filter(positions, normals, mu, origins=origins,
+                               torsional_friction=gamma)
+        assert not np.any(exact & ~passed)
