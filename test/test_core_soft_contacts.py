@@ -76,6 +76,13 @@ def test_torsional_friction_only_adds_force_closure():
     more = exact_force_closure(positions, normals, 0.3, torsional_friction=2 * gamma)
     assert not np.any(hard & ~soft) and not np.any(soft & ~more)
     assert (soft & ~hard).sum() > 0
+    # gamma far beyond the grasp's size: the torsion columns stay scaled, so the grasp
+    # map's rank test and the solver do not break down (a column of size gamma would).
+    huge = check_force_closure(positions, normals, 0.3, torsional_friction=1e9 * gamma,
+                               use_filter=False)
+    assert not np.any(more & ~huge.force_closure)
+    assert not (huge.status == Status.SOLVER_FAILURE).any()
+    assert huge.force_closure.sum() > more.sum()
 
 
 @pytest.mark.parametrize("bad, what", [
@@ -227,6 +234,9 @@ def test_soft_optimal_forces_are_bracketed_by_polyhedral_soft_cones():
              for p, n, g, w in zip(positions, normals, gamma, wrench)]
     finite = np.isfinite(s_star)
     assert finite.any() and (~finite).any()
+    larger = optimal_contact_forces(positions, normals, 0.5, wrench,
+                                    torsional_friction=gamma * 30)[0]
+    assert not np.isnan(larger).any() and np.all(larger <= s_star * (1 + 1e-6) + 1e-9)
     assert np.all(np.asarray(outer) <= s_star * (1 + 1e-6) + 1e-9)
     assert np.all(s_star <= np.asarray(inner) * (1 + 1e-6) + 1e-9)
     # Finite answers are real equilibria inside the soft cones.
@@ -259,6 +269,10 @@ def test_minimum_friction_of_soft_grasps():
                                       soft[finite, None] * factor,
                                       torsional_friction=gamma[finite]).force_closure
         assert (verdict == expected).all()
+    # Larger gamma, here beyond the grasp's size (the torsion's cone row gets small), only
+    # lowers mu*.
+    larger = minimum_friction(positions, normals, torsional_friction=gamma * 30)
+    assert not np.isnan(larger).any() and np.all(larger <= soft * (1 + 1e-6))
     # Uniform scaling with gamma scaled along leaves mu* unchanged.
     scaled = minimum_friction(positions * 7.0, normals, torsional_friction=gamma * 7.0)
     assert np.allclose(scaled, soft, rtol=1e-5)

@@ -87,14 +87,15 @@ def grasp_maps(unit: np.ndarray) -> np.ndarray:
 
 def certified_internal_force(forces: np.ndarray, grasp_map: np.ndarray,
                              row_space: np.ndarray, sigma_min: np.ndarray,
-                             normals: np.ndarray, mu: np.ndarray, model: ContactModel = HARD):
+                             normals: np.ndarray, mu: np.ndarray, model: ContactModel = HARD,
+                             weight: np.ndarray | None = None):
     """Project candidate forces onto equilibrium and certify how deep they are.
 
     Parameters
     ----------
     forces : ndarray, shape (N, n, d)
         Candidate generalised contact forces (any scale), global components: f (d = 3)
-        or (f, sigma) (d = 4, soft, see :mod:`.contact_model`).
+        or (f, rho) (d = 4, soft, see :mod:`.contact_model`).
     grasp_map : ndarray, shape (N, 6, d n)
         (Generalised) grasp maps of the unit-size grasps.
     row_space : ndarray, shape (N, 6, d n)
@@ -106,12 +107,14 @@ def certified_internal_force(forces: np.ndarray, grasp_map: np.ndarray,
     mu : ndarray, shape (N, n)
     model : ContactModel
         The batch's contact model (d = model.components).
+    weight : ndarray, shape (N, n), optional
+        Soft: the cone weight w of rho (:func:`.contact_model.torsion_scales`).
 
     Returns
     -------
     depth : ndarray, shape (N,)
         A lower bound, valid despite rounding, on min_i (mu_i f_n,i - |f_t,i|) / sum_i f_n,i
-        (soft: mu_i f_n,i - |(f_t,i, mu_i sigma_i)|) of an exactly equilibrated force
+        (soft: mu_i f_n,i - |(f_t,i, mu_i w_i rho_i)|) of an exactly equilibrated force
         within reach of the projection; -inf where the total normal force is not
         certainly positive.
     equilibrium : ndarray, shape (N, n, d)
@@ -128,7 +131,7 @@ def certified_internal_force(forces: np.ndarray, grasp_map: np.ndarray,
     rounding = ROUNDING_SLACK * _EPS * flat.shape[1] * np.linalg.norm(grasp_map, axis=(1, 2))
     reach = (residual + rounding * size) / sigma_min
     per_contact = projected.reshape(forces.shape)
-    depth, normal_part = cone_depth(per_contact, normals, mu)
+    depth, normal_part = cone_depth(per_contact, normals, mu, weight)
     depth = depth - depth_reach_factor(mu, model) * reach[:, None]
     total = normal_part.sum(axis=1)
     slack = np.sqrt(normal_part.shape[1]) * reach

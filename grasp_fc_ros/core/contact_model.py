@@ -9,14 +9,18 @@ Two models, chosen per batch:
   (f, p x f + tau n). gamma >= 0 is the torsional friction coefficient, a length in the
   positions' unit (the largest |tau| per unit normal force).
 
-The soft model is written with a dimensionless fourth component sigma = tau / gamma,
-so that every contact of a soft batch has the same four components
-x = (f_x, f_y, f_z, sigma), the same 4-D second-order cone
+The soft model is written with a fourth component rho scaled so that every contact of
+a soft batch has the same four components x = (f_x, f_y, f_z, rho), the same 4-D
+second-order cone and a bounded wrench column. With g = gamma in the unit-size grasp's
+length, c = min(g, 1) and w = c / g = min(1, 1 / g):
 
-    (mu n . f, f_t, mu sigma) in Q^4,
+    tau = c rho,  wrench column (0, c n),  cone (mu n . f, f_t, mu w rho) in Q^4,
 
-and the wrench column (0, gamma n) for sigma. A contact with gamma = 0 in a soft batch is
-then exactly a hard contact (its sigma moves nothing), with no infinite coefficient.
+which is f_n >= sqrt(|f_t|^2 / mu^2 + tau^2 / g^2). For g <= 1 rho is tau / g (w = 1);
+a larger g keeps the column at unit size and makes the cone row small instead, so the
+grasp map stays as well scaled as a hard one (a column of size g >> 1 would swamp its
+singular values). A contact with gamma = 0 in a soft batch is exactly a hard contact
+(its rho moves nothing), with no infinite coefficient.
 A batch is ``HARD`` when no contact has gamma > 0; the hard path is then unchanged.
 
 Everything that depends on the model reads it from here: the exact test's conic
@@ -91,8 +95,15 @@ def torsional_all_valid(torsional: np.ndarray) -> bool:
         return bool(((torsional >= 0) & (torsional <= MAX_ABS_COORDINATE)).all())
 
 
+def torsion_scales(torsional_unit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The column scale c = min(g, 1) and cone weight w = min(1, 1 / g) of rho, (N, n)
+    each, for gamma g in the unit grasp's length (see the module docstring)."""
+    return np.minimum(torsional_unit, 1.0), 1.0 / np.maximum(torsional_unit, 1.0)
+
+
 def cone_rows(normals: np.ndarray, tangent: np.ndarray, bitangent: np.ndarray,
-              mu: np.ndarray, model: ContactModel) -> np.ndarray:
+              mu: np.ndarray, model: ContactModel,
+              weight: np.ndarray | None = None) -> np.ndarray:
     """Each contact's cone coordinates as rows acting on its generalised force.
 
     Parameters
@@ -101,11 +112,13 @@ def cone_rows(normals: np.ndarray, tangent: np.ndarray, bitangent: np.ndarray,
         Unit normal and two unit tangents per contact.
     mu : ndarray, shape (N, n)
     model : ContactModel
+    weight : ndarray, shape (N, n), optional
+        w of :func:`torsion_scales` (soft only; 1 if None).
 
     Returns
     -------
     ndarray, shape (N, n, d, d)
-        Row 0 gives mu n . f, rows 1-2 the tangential force, and (soft) row 3 mu sigma:
+        Row 0 gives mu n . f, rows 1-2 the tangential force, and (soft) row 3 mu w rho:
         x is in the model's cone iff rows @ x is in Q^d.
     """
     hard = np.stack([mu[..., None] * normals, tangent, bitangent], axis=2)
@@ -113,13 +126,13 @@ def cone_rows(normals: np.ndarray, tangent: np.ndarray, bitangent: np.ndarray,
         return hard
     rows = np.zeros(mu.shape + (4, 4))
     rows[..., :3, :3] = hard
-    rows[..., 3, 3] = mu
+    rows[..., 3, 3] = mu if weight is None else mu * weight
     return rows
 
 
 def wrench_columns(grasp_map: np.ndarray, normals: np.ndarray,
                    torsional_unit: np.ndarray | None) -> np.ndarray:
-    """The generalised grasp map: hard grasp maps plus, when soft, sigma's columns.
+    """The generalised grasp map: hard grasp maps plus, when soft, the columns of rho.
 
     Parameters
     ----------
@@ -132,44 +145,50 @@ def wrench_columns(grasp_map: np.ndarray, normals: np.ndarray,
     Returns
     -------
     ndarray, shape (N, 6, d n)
-        Columns contact after contact, d per contact: (f, p x f), then (0, gamma n).
+        Columns contact after contact, d per contact: (f, p x f), then (0, c n) with
+        c of :func:`torsion_scales`.
     """
     if torsional_unit is None:
         return grasp_map
     n_grasps, n_contacts = normals.shape[:2]
     columns = np.zeros((n_grasps, 6, n_contacts, 4))
     columns[..., :3] = grasp_map.reshape(n_grasps, 6, n_contacts, 3)
-    columns[:, 3:, :, 3] = (torsional_unit[..., None] * normals).transpose(0, 2, 1)
+    column_scale = torsion_scales(torsional_unit)[0]
+    columns[:, 3:, :, 3] = (column_scale[..., None] * normals).transpose(0, 2, 1)
     return columns.reshape(n_grasps, 6, 4 * n_contacts)
 
 
-def cone_depth(generalised: np.ndarray, normals: np.ndarray, mu: np.ndarray):
+def cone_depth(generalised: np.ndarray, normals: np.ndarray, mu: np.ndarray,
+               weight: np.ndarray | None = None):
     """How deep generalised forces are in their cones, and their normal parts.
 
     Parameters
     ----------
     generalised : ndarray, shape (N, n, d)
-        (f, sigma) per contact (d = 4) or f alone (d = 3).
+        (f, rho) per contact (d = 4) or f alone (d = 3).
     normals : ndarray, shape (N, n, 3)
     mu : ndarray, shape (N, n)
+    weight : ndarray, shape (N, n), optional
+        w of :func:`torsion_scales` (soft; 1 if None).
 
     Returns
     -------
     depth : ndarray, shape (N, n)
-        mu f_n - |(f_t, mu sigma)| (mu f_n - |f_t| when hard).
+        mu f_n - |(f_t, mu w rho)| (mu f_n - |f_t| when hard).
     normal_part : ndarray, shape (N, n)
     """
     force = generalised[..., :3]
     normal_part = (force * normals).sum(axis=-1)
     tangential = np.linalg.norm(force - normal_part[..., None] * normals, axis=-1)
     if generalised.shape[-1] == 4:
-        tangential = np.hypot(tangential, mu * generalised[..., 3])
+        twist = mu * generalised[..., 3]
+        tangential = np.hypot(tangential, twist if weight is None else twist * weight)
     return mu * normal_part - tangential, normal_part
 
 
 def depth_reach_factor(mu: np.ndarray, model: ContactModel) -> np.ndarray:
     """How much a contact's depth can fall per unit 2-norm change of its generalised
-    force: mu + 1 (hard), mu + max(1, mu) (soft, for the mu sigma component)."""
+    force: mu + 1 (hard), mu + max(1, mu) (soft, for the mu w rho component, w <= 1)."""
     return mu + (1.0 if model is HARD else np.maximum(mu, 1.0))
 
 

@@ -14,9 +14,9 @@ f = 0, t = 0 is always feasible and t is bounded, so the optimum t* >= 0 exists,
 t* > 0 iff a strictly internal force exists. t* (the *margin*) is unchanged by
 translation, rotation and uniform scaling of the grasp.
 
-Soft fingers (:mod:`.contact_model`): each contact also has sigma = tau / gamma, the
-cone becomes (mu n_i . f_i - t, f_i tangential, mu_i sigma_i) in Q^4 and G gets the
-columns (0, gamma_i n_i) (gamma scaled with the grasp, so t* stays invariant under
+Soft fingers (:mod:`.contact_model`): each contact also has a torsion variable rho,
+the cone becomes (mu n_i . f_i - t, f_i tangential, mu_i w_i rho_i) in Q^4 and G gets
+the columns (0, c_i n_i) (gamma scaled with the grasp, so t* stays invariant under
 uniform scaling with gamma scaled along). Soft batches skip the fast stage.
 
 Each grasp goes first to the fast stage (:mod:`.interior_point`), which decides it only
@@ -52,7 +52,8 @@ from scipy import sparse  # clarabel's Python API takes scipy CSC matrices
 
 from .certificates import (certified_internal_force, grasp_maps, normalise_positions,
                            wrench_bound)
-from .contact_model import HARD, ContactModel, cone_rows, model_of, wrench_columns
+from .contact_model import (HARD, ContactModel, cone_rows, model_of, torsion_scales,
+                            wrench_columns)
 from .grasp_input import GraspBatch
 from .interior_point import FORCE_CLOSURE, UNDECIDED, solve_fast
 from .stacked_socp import tangent_bases
@@ -118,7 +119,7 @@ class ExactResult:
         :func:`.certificates.normalise_positions`) where not force closure; NaN where
         none.
     torques : ndarray, shape (N, n), or None
-        Soft batches: the torsional moments tau_i = gamma_i sigma_i of the internal force
+        Soft batches: the torsional moments tau_i about the normals of the internal force
         (caller's length unit, with ``forces``); None for hard batches.
     """
 
@@ -179,8 +180,9 @@ def solve_exact(grasps: GraspBatch, margin: str = "optimum", certificates: bool 
     wrench[force_closure] = np.nan
     torques = None
     if model is not HARD:
-        # sigma = tau / gamma is dimensionless: tau in the caller's unit is gamma sigma.
-        forces, torques = forces[..., :3], grasps.torsional * forces[..., 3]
+        # tau = c rho in the unit grasp, times its size in the caller's unit.
+        column_scale = torsion_scales(torsional_unit)[0]
+        forces, torques = forces[..., :3], column_scale * forces[..., 3] * size[:, None]
     return ExactResult(force_closure, np.maximum(t_lo, 0.0), t_hi, failure, forces, wrench,
                        torques)
 
@@ -286,6 +288,8 @@ def _solve_batch(grasps: GraspBatch, unit: np.ndarray, grasp_map: np.ndarray,
     normals, mu = grasps.normals[subset[chunk]], grasps.mu[subset[chunk]]
     n_grasps, n_contacts = mu.shape
     d = model.components
+    gamma = None if torsional_unit is None else torsional_unit[subset[chunk]]
+    weight = None if gamma is None else torsion_scales(gamma)[1]
     tangent, bitangent = tangent_bases(normals)
     bound = normals if d == 3 else np.concatenate(
         [normals, np.zeros((n_grasps, n_contacts, 1))], axis=2)
@@ -293,7 +297,7 @@ def _solve_batch(grasps: GraspBatch, unit: np.ndarray, grasp_map: np.ndarray,
     values = np.concatenate([
         grasp_map[chunk].ravel(),                                      # G f + s = 0, s = 0
         bound.reshape(n_grasps, -1).ravel(),                           # n.f + s = 1, s >= 0
-        -cone_rows(normals, tangent, bitangent, mu, model).ravel(),
+        -cone_rows(normals, tangent, bitangent, mu, model, weight).ravel(),
         np.ones(n_grasps * n_contacts),                                # -(mu n.f - t)
     ])
     indices, indptr, order, shape, cones, p = _socp_pattern(n_grasps, n_contacts, d)
@@ -308,13 +312,12 @@ def _solve_batch(grasps: GraspBatch, unit: np.ndarray, grasp_map: np.ndarray,
     x = np.asarray(solution.x).reshape(n_grasps, n_vars)
     witness, forces = certified_internal_force(
         x[:, :-1].reshape(n_grasps, n_contacts, d), grasp_map[chunk], row_space[chunk],
-        sigma_min[chunk], normals, mu, model)
+        sigma_min[chunk], normals, mu, model, weight)
     force_closure = witness >= MARGIN_TOL
     # The multipliers of the equilibrium rows are a wrench; either sign gives a valid
     # bound, so keep the better one.
     duals = np.asarray(solution.z)[:6 * n_grasps].reshape(n_grasps, 6)
     candidates = np.stack([duals, -duals])
-    gamma = None if torsional_unit is None else torsional_unit[subset[chunk]]
     bounds = np.stack([wrench_bound(c, unit[subset[chunk]], normals, mu, gamma)[0]
                        for c in candidates])
     better = np.argmin(bounds, axis=0)

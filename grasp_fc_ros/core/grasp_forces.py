@@ -36,7 +36,8 @@ from __future__ import annotations
 import numpy as np
 
 from .certificates import grasp_maps, normalise_positions
-from .contact_model import HARD, ContactModel, cone_rows, model_of, wrench_columns
+from .contact_model import (HARD, ContactModel, cone_rows, model_of, torsion_scales,
+                            wrench_columns)
 from .grasp_input import GraspBatch, prepare_grasps
 from .stacked_socp import SOLVE_BATCH, BlockShape, solve_stacked, split_normal, tangent_bases
 
@@ -192,8 +193,9 @@ def solve_contact_forces(grasps: GraspBatch, wrench: np.ndarray, limits: np.ndar
     direction = scaled / np.where(magnitude > 0, magnitude, 1.0)[:, None]
     relative_limits = limits / np.where(magnitude > 0, magnitude, 1.0)[:, None]
 
-    gmap = wrench_columns(grasp_maps(unit), grasps.normals,
-                          None if model is HARD else grasps.torsional / size[:, None])
+    torsional_unit = None if model is HARD else grasps.torsional / size[:, None]
+    gmap = wrench_columns(grasp_maps(unit), grasps.normals, torsional_unit)
+    column_scale, weight = (None, None) if model is HARD else torsion_scales(torsional_unit)
     s_star = np.zeros(n_grasps)
     forces = np.zeros((n_grasps, n_contacts, model.components))
     loaded = np.flatnonzero(magnitude > 0)
@@ -201,7 +203,8 @@ def solve_contact_forces(grasps: GraspBatch, wrench: np.ndarray, limits: np.ndar
     for start in range(0, loaded.size, SOLVE_BATCH):
         chunk = loaded[start:start + SOLVE_BATCH]
         args = (gmap[chunk], grasps.normals[chunk], grasps.mu[chunk], direction[chunk],
-                relative_limits[chunk], limited, model)
+                relative_limits[chunk], limited, model,
+                None if weight is None else weight[chunk])
         s, f, ok = _solve_and_check(*args, tol=None)
         for k in np.flatnonzero(~ok):
             lone = tuple(a[k:k + 1] if isinstance(a, np.ndarray) else a for a in args)
@@ -212,8 +215,8 @@ def solve_contact_forces(grasps: GraspBatch, wrench: np.ndarray, limits: np.ndar
         forces[chunk] = f * magnitude[chunk, None, None]
     if model is HARD:
         return s_star, forces, None
-    # sigma = tau / gamma: tau in the caller's units is gamma sigma.
-    return s_star, forces[..., :3], grasps.torsional * forces[..., 3]
+    # tau = c rho in the unit grasp, times its size in the caller's unit.
+    return s_star, forces[..., :3], column_scale * forces[..., 3] * size[:, None]
 
 
 def _block_shape(n_contacts: int, limited: bool, d: int = 3) -> BlockShape:
@@ -234,7 +237,7 @@ def _block_shape(n_contacts: int, limited: bool, d: int = 3) -> BlockShape:
 
 
 def _solve_and_check(gmap, normals, mu, direction, limits, limited,
-                     model: ContactModel = HARD, tol=None):
+                     model: ContactModel = HARD, weight=None, tol=None):
     """Solve the homogenised problem for K grasps and check each answer.
 
     Returns
@@ -257,7 +260,7 @@ def _solve_and_check(gmap, normals, mu, direction, limits, limited,
     b = np.zeros((n_grasps, shape.pattern.shape[0]))
     a[:, :6, :-1] = gmap
     a[:, :6, -1] = direction
-    cone = -cone_rows(normals, tangent, bitangent, mu, model)          # (K, n, d, d)
+    cone = -cone_rows(normals, tangent, bitangent, mu, model, weight)  # (K, n, d, d)
     for i in range(n_contacts):
         columns = slice(d * i, d * i + 3)                              # the force part
         a[:, 6 + i, columns] = normals[:, i]
@@ -273,14 +276,14 @@ def _solve_and_check(gmap, normals, mu, direction, limits, limited,
     q[:, -1] = -1.0
     solution = solve_stacked(shape, a, b, q, tol)
     beta = solution.x[:, -1]
-    lower = lower_bound(solution.z[:, :6], gmap, normals, mu, direction, limits)
+    lower = lower_bound(solution.z[:, :6], gmap, normals, mu, direction, limits, weight)
     infeasible = lower >= 1.0 / INFEASIBLE_BETA
     with np.errstate(divide="ignore", invalid="ignore"):
         forces = solution.x[:, :-1] / beta[:, None]
     forces = _project_to_equilibrium(forces, gmap, direction).reshape(n_grasps, n_contacts, d)
     normal_part, tangential = split_normal(forces[..., :3], normals)
-    if d == 4:  # the soft cone: |(f_t, mu sigma)| <= mu f_n
-        tangential = np.hypot(tangential, mu * forces[..., 3])
+    if d == 4:  # the soft cone: |(f_t, mu w rho)| <= mu f_n
+        tangential = np.hypot(tangential, mu * weight * forces[..., 3])
     s_star = normal_part.max(axis=1)
     slack = FORCE_TOL * np.abs(s_star)[:, None]
     residual = np.einsum("gkv,gv->gk", gmap, forces.reshape(n_grasps, -1)) + direction
@@ -294,7 +297,7 @@ def _solve_and_check(gmap, normals, mu, direction, limits, limited,
     return s_star, forces, ok
 
 
-def lower_bound(wrench, gmap, normals, mu, direction, limits):
+def lower_bound(wrench, gmap, normals, mu, direction, limits, weight=None):
     """Lower bound on s* (unit wrench, normalised grasp) proved by a dual wrench w.
 
     For any feasible (f, beta) of the homogenised problem, 0 = w . (G f + beta W) =
@@ -309,14 +312,17 @@ def lower_bound(wrench, gmap, normals, mu, direction, limits):
     wrench : ndarray, shape (K, 6)
         Candidate dual wrench (either sign is tried).
     gmap : ndarray, shape (K, 6, d n)
-        d = 4 for soft batches: each contact's sigma column adds work b_i = gamma_i
-        n_i . w_torque, and l_i = a_n,i + |(mu_i (|a_t,i| + slack), |b_i| + slack)|.
+        d = 4 for soft batches: each contact's rho column adds work b_i = c_i
+        n_i . w_torque, and l_i = a_n,i + |(mu_i (|a_t,i| + slack), |b_i| / w_i + slack)|
+        (|b_i| / w_i = gamma_i |n_i . w_torque|, the support of the soft cone).
     normals : ndarray, shape (K, n, 3)
     mu : ndarray, shape (K, n)
     direction : ndarray, shape (K, 6)
         The unit external wrench.
     limits : ndarray, shape (K, n)
         Normal-force limits for the unit wrench, inf where none.
+    weight : ndarray, shape (K, n), optional
+        Soft: the cone weight w of rho (:func:`.contact_model.torsion_scales`).
 
     Returns
     -------
@@ -329,7 +335,7 @@ def lower_bound(wrench, gmap, normals, mu, direction, limits):
     best = np.zeros(wrench.shape[0])
     friction_work = mu * (tangential + slack)
     if work.shape[-1] == 4:
-        friction_work = np.hypot(friction_work, np.abs(work[..., 3]) + slack)
+        friction_work = np.hypot(friction_work, np.abs(work[..., 3]) / weight + slack)
     for sign in (1.0, -1.0):
         excess = np.maximum(sign * normal_part + slack + friction_work, 0.0)
         along = -sign * (wrench * direction).sum(axis=1) - slack[:, 0]

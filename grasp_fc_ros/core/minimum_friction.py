@@ -51,7 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .certificates import grasp_maps, normalise_positions
-from .contact_model import HARD, SOFT, model_of, wrench_columns
+from .contact_model import HARD, SOFT, model_of, torsion_scales, wrench_columns
 from .grasp_input import GraspBatch, prepare_grasps
 from .stacked_socp import SOLVE_BATCH, BlockShape, solve_stacked, split_normal, tangent_bases
 from .tolerances import RANK_TOL
@@ -214,18 +214,19 @@ def solve_minimum_friction(grasps: GraspBatch, margin: float = 0.0):
     n_grasps = grasps.mu.shape[0]
     model = model_of(grasps.torsional)
     unit, _, size = normalise_positions(grasps.positions)
-    gmap = wrench_columns(grasp_maps(unit), grasps.normals,            # (N, 6, d n)
-                          None if model is HARD else grasps.torsional / size[:, None])
+    torsional_unit = None if model is HARD else grasps.torsional / size[:, None]
+    gmap = wrench_columns(grasp_maps(unit), grasps.normals, torsional_unit)   # (N, 6, d n)
+    weight = None if model is HARD else torsion_scales(torsional_unit)[1]
     singular = np.linalg.svd(gmap, compute_uv=False)
     full_rank = singular[:, -1] > RANK_TOL * singular[:, 0]
     state = _RootState.start(n_grasps, full_rank)
-    lifted = _lifts_off(gmap, grasps.normals, grasps.mu, full_rank)
+    lifted = _lifts_off(gmap, grasps.normals, grasps.mu, full_rank, weight)
     state.lower[lifted] = np.inf
     active = np.flatnonzero(full_rank & ~lifted)
     # Forces towards the centroid, f_i = c - p_i, are always in equilibrium (they pair
     # up along chords): where every one pushes into its contact, a free first bound.
     centroid_bound = upper_certificate(_generalised(-unit, model).reshape(n_grasps, -1), gmap,
-                                       grasps.normals, grasps.mu, margin)
+                                       grasps.normals, grasps.mu, margin, weight)
     state.upper = np.where(full_rank, centroid_bound, np.inf)
     state.lam = np.where(np.isfinite(state.upper), state.upper, MU_START)
     for _ in range(MAX_SOLVES):
@@ -238,20 +239,23 @@ def solve_minimum_friction(grasps: GraspBatch, margin: float = 0.0):
         chunks = [active[~stalled][start:start + SOLVE_BATCH]
                   for start in range(0, int((~stalled).sum()), SOLVE_BATCH)]
         for chunk in chunks + [active[k:k + 1] for k in np.flatnonzero(stalled)]:
-            _step(chunk, state, gmap, grasps, margin)
+            _step(chunk, state, gmap, grasps, margin, weight)
         done = _resolved(state.lower[active], state.upper[active])
         active = active[~done & (state.stalls[active] < MAX_STALLS)]
     return state.lower, state.upper, state.solves
 
 
-def _step(chunk, state, gmap, grasps, margin):
-    """One stacked solve for the grasps ``chunk``: certificates, then the next lam."""
+def _step(chunk, state, gmap, grasps, margin, weight=None):
+    """One stacked solve for the grasps ``chunk``: certificates, then the next lam.
+
+    ``weight`` (N, n): soft batches' cone weights of rho (:mod:`.contact_model`)."""
     lam = state.lam[chunk]
     normals, ratios = grasps.normals[chunk], grasps.mu[chunk]
-    forces, wrench, depth, slope = _solve_chunk(gmap[chunk], normals, ratios, lam)
-    upper = upper_certificate(forces, gmap[chunk], normals, ratios, margin)
+    weight = None if weight is None else weight[chunk]
+    forces, wrench, depth, slope = _solve_chunk(gmap[chunk], normals, ratios, lam, weight)
+    upper = upper_certificate(forces, gmap[chunk], normals, ratios, margin, weight)
     ceiling = np.where(np.isfinite(state.upper[chunk]), state.upper[chunk], MU_CAP)
-    lower = lower_certificate(wrench, gmap[chunk], normals, ratios, ceiling, margin)
+    lower = lower_certificate(wrench, gmap[chunk], normals, ratios, ceiling, margin, weight)
     state.update(chunk, lam, depth - margin, slope, lower, upper)
 
 
@@ -267,7 +271,7 @@ def _components(gmap, normals):
     return gmap.shape[2] // normals.shape[1]
 
 
-def _lifts_off(gmap, normals, ratios, full_rank):
+def _lifts_off(gmap, normals, ratios, full_rank, weight=None):
     """Grasps (N,) certified not force closure up to MU_CAP without a solve.
 
     Where the normals' work is a combination of the rows of G (G^T w = the normals: the
@@ -282,7 +286,8 @@ def _lifts_off(gmap, normals, ratios, full_rank):
                             _generalised(normals, model).reshape(len(gmap), -1))
     lift_wrench = np.linalg.solve(gram, normal_work[..., None])[..., 0]
     ceiling = np.full(len(gmap), MU_CAP)
-    return full_rank & (lower_certificate(lift_wrench, gmap, normals, ratios, ceiling)
+    return full_rank & (lower_certificate(lift_wrench, gmap, normals, ratios, ceiling,
+                                          weight=weight)
                         >= MU_CAP)
 
 
@@ -386,7 +391,7 @@ def _block_shape(n_contacts: int, d: int = 3) -> BlockShape:
     return BlockShape(pattern, zero_rows=7, nonneg_rows=0, soc_sizes=(d,) * n_contacts)
 
 
-def _solve_chunk(gmap, normals, ratios, lam):
+def _solve_chunk(gmap, normals, ratios, lam, weight=None):
     """The signed-margin SOCP at friction lam * ratios for each grasp of a chunk (K).
 
         maximise t  s.t.  G f = 0,  sum_i f_n,i = 1,  (lam r_i f_n,i - t, f_t,i) in Q^3
@@ -395,8 +400,8 @@ def _solve_chunk(gmap, normals, ratios, lam):
     under scaling) and the variable is t / s: its optimum is then relative to lam, so the
     solver's absolute accuracy resolves lam relatively, for small and large lam alike.
 
-    Soft batches (a generalised ``gmap`` of 4 columns per contact) add the cone row
-    lam r_i sigma_i / s.
+    Soft batches (a generalised ``gmap`` of 4 columns per contact, cone weights
+    ``weight`` (K, n)) add the cone row lam r_i w_i rho_i / s.
 
     Returns
     -------
@@ -421,7 +426,7 @@ def _solve_chunk(gmap, normals, ratios, lam):
     for i in range(n_contacts):
         a[:, 7 + d * i:10 + d * i, d * i:d * i + 3] = cone[:, i]
         if d == 4:
-            a[:, 10 + d * i, d * i + 3] = -(lam / scale) * ratios[:, i]
+            a[:, 10 + d * i, d * i + 3] = -(lam / scale) * ratios[:, i] * weight[:, i]
         a[:, 7 + d * i, -1] = 1.0
     b = np.zeros((n_grasps, shape.pattern.shape[0]))
     b[:, 6] = 1.0
@@ -441,12 +446,13 @@ def _solve_chunk(gmap, normals, ratios, lam):
     per_contact = x[:, :-1].reshape(n_grasps, n_contacts, d)
     normal_force = (per_contact[..., :3] * normals).sum(axis=2)
     slope = (cone_first * ratios * normal_force).sum(axis=1)
-    if d == 4:  # the sigma row scales with lam too: its multiplier times r_i sigma_i
-        slope += (z[:, 10::d][:, :n_contacts] * ratios * per_contact[..., 3]).sum(axis=1)
+    if d == 4:  # the rho row scales with lam too: its multiplier times r_i w_i rho_i
+        slope += (z[:, 10::d][:, :n_contacts] * ratios * weight
+                  * per_contact[..., 3]).sum(axis=1)
     return x[:, :-1], z[:, :6], x[:, -1] * scale, slope
 
 
-def upper_certificate(forces, gmap, normals, ratios, margin=0.0):
+def upper_certificate(forces, gmap, normals, ratios, margin=0.0, cone_weight=None):
     """The friction above which the given forces prove force closure with ``margin``.
 
     The forces are moved onto null(G) by a weighted least-norm correction that loads it
@@ -467,8 +473,10 @@ def upper_certificate(forces, gmap, normals, ratios, margin=0.0):
     margin : float
         Depth t >= 0 the forces must have in every cone (normal forces summing to one).
         Soft contacts: the least mu with mu c - margin S >= |(A, mu B)|, c = f_n - d,
-        A = |f_t| + d, B = |sigma| + d, the larger root of its quadratic (inf unless
+        A = |f_t| + d, B = w (|rho| + d), the larger root of its quadratic (inf unless
         c > B).
+    cone_weight : ndarray, shape (K, n), optional
+        Soft: the cone weight w of rho (:func:`.contact_model.torsion_scales`).
 
     Returns
     -------
@@ -513,7 +521,8 @@ def upper_certificate(forces, gmap, normals, ratios, margin=0.0):
             ratio = (tangential + distance + margin * total) / (ratios * (normal_part - distance))
             return np.where(valid, ratio.max(axis=1), np.inf)
         c, need = normal_part - distance, margin * total
-        along, twist = tangential + distance, np.abs(generalised[..., 3]) + distance
+        along = tangential + distance
+        twist = cone_weight * (np.abs(generalised[..., 3]) + distance)
         room = c * c - twist * twist
         root = (c * need + np.sqrt(np.maximum(c * c * need * need
                                               - room * (need * need - along * along), 0.0)))
@@ -557,7 +566,7 @@ def margin_bound(mu, work_normal, work_tangential, ratios, work_twist=None):
     return np.where(total > 0, bound, np.inf)
 
 
-def lower_certificate(wrench, gmap, normals, ratios, ceiling, margin=0.0):
+def lower_certificate(wrench, gmap, normals, ratios, ceiling, margin=0.0, weight=None):
     """The largest friction at which a wrench proves the margin at most ``margin``.
 
     Parameters
@@ -565,7 +574,9 @@ def lower_certificate(wrench, gmap, normals, ratios, ceiling, margin=0.0):
     wrench : ndarray, shape (K, 6)
         Candidate separating wrench (either sign is tried), of grasps of unit size.
     gmap : ndarray, shape (K, 6, d n)
-        d = 4 (soft): the sigma columns' work b_i = gamma_i n_i . w_torque counts too.
+        d = 4 (soft): the rho columns' work b_i = c_i n_i . w_torque counts too, as
+        |b_i| / w_i = gamma_i |n_i . w_torque| per unit normal force (``weight``: the
+        cone weights w of :func:`.contact_model.torsion_scales`).
     normals : ndarray, shape (K, n, 3)
     ratios : ndarray, shape (K, n)
     ceiling : ndarray, shape (K,)
@@ -588,7 +599,8 @@ def lower_certificate(wrench, gmap, normals, ratios, ceiling, margin=0.0):
     work_normal = np.concatenate([normal_part, -normal_part]) + np.tile(slack, (2, 1))
     work_tangential = np.tile(tangential + slack, (2, 1))
     both_ratios, ceiling = np.tile(ratios, (2, 1)), np.tile(ceiling, 2)
-    twist = None if work.shape[-1] == 3 else np.tile(np.abs(work[..., 3]) + slack, (2, 1))
+    twist = None if work.shape[-1] == 3 else np.tile(np.abs(work[..., 3]) / weight + slack,
+                                                     (2, 1))
     # Where w strictly separates (no work > 0 anywhere), the closed form: the largest mu
     # with a_n,i + mu r_i |a_t,i| <= 0 for all i (soft: a_n,i + |(mu r_i |a_t,i|, b_i)|
     # <= 0, i.e. a_n,i <= -|b_i| and mu r_i |a_t,i| <= sqrt(a_n,i^2 - b_i^2)); the
