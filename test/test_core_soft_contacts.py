@@ -310,3 +310,24 @@ def test_filter_stays_sound_where_soft_normals_share_a_plane(seed, n_contacts, m
         passed = torque_filter(positions, normals, mu, origins=origins,
                                torsional_friction=gamma)
         assert not np.any(exact & ~passed)
+
+
+def test_filter_passes_grasps_whose_soft_normals_span_at_once(monkeypatch):
+    """The shortcut changes no verdict: the same grasps through the torque sets."""
+    from grasp_fc_ros.core import torque_space_filter
+    rng = np.random.default_rng(11)
+    positions, normals, gamma = soft_grasps(rng, 600, 4, soft_share=0.6)
+    spanned = torque_space_filter.soft_normals_span(prepare_grasps(positions, normals, 0.3,
+                                                                   gamma))
+    assert spanned.any() and (~spanned).any()
+    quick = [torque_filter(positions, normals, 0.3, origins=o, torsional_friction=gamma,
+                           certificates=True) for o in ("seed", "all")]
+    with pytest.raises(ValueError, match="origins must be one of"):   # all spanned
+        torque_filter(positions, normals, 0.3, origins="none", torsional_friction=1.0)
+    monkeypatch.setattr(torque_space_filter, "soft_normals_span",
+                        lambda grasps: np.zeros(len(grasps.mu), dtype=bool))
+    for (passed, wrench), origins in zip(quick, ("seed", "all")):
+        slow, slow_wrench = torque_filter(positions, normals, 0.3, origins=origins,
+                                          torsional_friction=gamma, certificates=True)
+        assert np.array_equal(passed, slow) and passed[spanned].all()
+        assert np.array_equal(wrench, slow_wrench, equal_nan=True)

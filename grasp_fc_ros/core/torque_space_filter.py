@@ -22,8 +22,9 @@ lies in its hard fan (plane, {0}) plus the line along its normal n. The filter u
 exactly that superset: every soft contact, the origin contact included, adds the line
 {tau n} (generators n and -n, :func:`.torque_sets.normal_lines`). A rejection then
 needs a direction c perpendicular (within SPAN_TOL) to every soft normal, so grasps with
-three soft contacts of independent normals always pass; the filter stays sound and
-catches non-force-closure grasps with at most two soft normal directions. Its
+three soft contacts of independent normals always pass (they are passed at once, without
+their torque sets, :func:`soft_normals_span`); the filter stays sound and catches
+non-force-closure grasps whose soft normals lie in one plane. Its
 certificate wrenches are checked with the soft work term (:func:`does_no_positive_work`).
 
 The seed origins depend on the coordinate frame and on the length unit (the offset
@@ -51,7 +52,7 @@ import numpy as np
 from .contact_model import largest_work
 from .grasp_input import GraspBatch, prepare_grasps
 from .positive_span import positively_spans
-from .tolerances import CERTIFICATE_TOL, WORK_ROUNDING_ULPS
+from .tolerances import CERTIFICATE_TOL, SOFT_SPAN_TOL, WORK_ROUNDING_ULPS
 from .torque_sets import (concatenate, cone_torque_sets, dot, friction_half_angle_sine,
                           normal_lines)
 
@@ -173,6 +174,10 @@ def passes_torque_filter(grasps: GraspBatch, origins: str = "seed",
         nearly collinear grasps come close) is passed on instead, so with certificates
         every rejection has one.
     """
+    if grasps.torsional is not None:
+        spanned = soft_normals_span(grasps)
+        if spanned.any():
+            return _pass_spanned(grasps, spanned, origins, certificates)
     # Component-first copies, (3, n, N): the grasp axis becomes the contiguous one.
     points = np.ascontiguousarray(grasps.positions.transpose(2, 1, 0))
     normals = np.ascontiguousarray(grasps.normals.transpose(2, 1, 0))
@@ -207,6 +212,37 @@ def passes_torque_filter(grasps: GraspBatch, origins: str = "seed",
     if not certificates:
         return passing
     return _certify(grasps, passing, rejected_about, direction)
+
+
+def soft_normals_span(grasps: GraspBatch) -> np.ndarray:
+    """Grasps (N,) whose soft contacts' normals span R^3 (within SOFT_SPAN_TOL).
+
+    Their lines {tau n_i} alone positively span R^3 about every origin, so the filter
+    passes them whatever the other torque sets are.
+    """
+    soft = (grasps.torsional > 0).astype(np.float64)
+    moment = np.einsum("gi,gij,gik->gjk", soft, grasps.normals, grasps.normals)
+    return np.linalg.eigvalsh(moment)[:, 0] > SOFT_SPAN_TOL
+
+
+def _pass_spanned(grasps: GraspBatch, spanned: np.ndarray, origins: str,
+                  certificates: bool):
+    """:func:`passes_torque_filter` with the ``spanned`` grasps (N,) passed at once and
+    the rest filtered."""
+    if origins not in ORIGIN_CHOICES:
+        raise ValueError(f"origins must be one of {ORIGIN_CHOICES}, got {origins!r}")
+    n_grasps = spanned.size
+    passed = np.ones(n_grasps, dtype=bool)
+    wrench = np.full((n_grasps, 6), np.nan)
+    rest = np.flatnonzero(~spanned)
+    if rest.size:
+        others = GraspBatch(grasps.positions[rest], grasps.normals[rest], grasps.mu[rest],
+                            single=False, torsional=grasps.torsional[rest])
+        if certificates:
+            passed[rest], wrench[rest] = passes_torque_filter(others, origins, True)
+        else:
+            passed[rest] = passes_torque_filter(others, origins)
+    return (passed, wrench) if certificates else passed
 
 
 def _all_origins_at_once(spans_about, origin: np.ndarray, certificates: bool):
