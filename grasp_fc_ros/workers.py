@@ -41,7 +41,7 @@ from grasp_fc_ros.evaluation import PackedGrasps, Settings, Verdicts, evaluate
 # at the core's best efficiency, and pickling a chunk both ways is a small part of it.
 CHUNK_CONTACTS = 4096
 # Chunks of a batch with soft contacts hold CHUNK_CONTACTS / 16 contacts: their exact
-# test (Clarabel path) measured 0.25-0.65 ms per grasp of 3-6 fingers against the fast
+# test (Clarabel path) measured 0.13-0.65 ms per grasp of 3-6 fingers against the fast
 # stage's 0.004-0.04 (benchmarks/bench_soft.py), so a chunk stays near 10-30 ms.
 SOFT_CHUNK_DIVISOR = 16
 # Requests up to this many grasps are decided inline (one core call, ~0.1-0.2 ms): a
