@@ -38,9 +38,9 @@ enough. ``margin=MARGIN_TOL`` computes that numerical boundary instead (see
 :func:`minimum_friction`).
 
 Soft fingers (``torsional_friction``, :mod:`.contact_model`): gamma is fixed while mu
-varies; the soft cone (mu f_n - t, f_t, mu sigma) in Q^4 still grows with mu, so mu*
+varies; the soft cone (mu f_n - t, f_t, mu w rho) in Q^4 still grows with mu, so mu*
 is defined the same way. Each certificate gets the soft form: the upper bound is the
-least mu with mu (f_n - d) - margin S >= |(|f_t| + d, mu (|sigma| + d))| (a quadratic
+least mu with mu (f_n - d) - margin S >= |(|f_t| + d, mu w (|rho| + d))| (a quadratic
 in mu), the lower bound's wrench does the torsional work |gamma n . w_torque| too.
 """
 
@@ -260,7 +260,7 @@ def _step(chunk, state, gmap, grasps, margin, weight=None):
 
 
 def _generalised(vectors, model):
-    """Per-contact 3-vectors (K, n, 3) as generalised forces (K, n, d): sigma = 0."""
+    """Per-contact 3-vectors (K, n, 3) as generalised forces (K, n, d): rho = 0."""
     if model is HARD:
         return vectors
     return np.concatenate([vectors, np.zeros(vectors.shape[:2] + (1,))], axis=2)
