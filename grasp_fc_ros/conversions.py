@@ -69,7 +69,8 @@ def batch_to_packed(msg: ContactArrayBatch) -> PackedGrasps:
     ------
     MalformedBatch
         If the batch is mis-packed: not one contact count per id, or positions,
-        normals or friction coefficients not exactly as long as the counts declare.
+        normals, friction coefficients or torsional friction coefficients not exactly
+        as long as the counts declare (the last two may also be empty).
         Contacts are stored grasp after grasp, so one wrong count shifts every later
         grasp: no grasp of such a batch is decided.
     """
@@ -78,6 +79,7 @@ def batch_to_packed(msg: ContactArrayBatch) -> PackedGrasps:
     flat_positions = _as_numpy(msg.positions, np.float64)
     flat_normals = _as_numpy(msg.normals, np.float64)
     flat_mu = _as_numpy(msg.friction_coefficients, np.float64)
+    flat_torsional = _as_numpy(msg.torsional_friction, np.float64)
     if len(counts) != len(ids):
         raise MalformedBatch(f"malformed batch: {len(counts)} contact counts for "
                              f"{len(ids)} ids")
@@ -89,13 +91,24 @@ def batch_to_packed(msg: ContactArrayBatch) -> PackedGrasps:
             f"{len(flat_positions)} values, normals {len(flat_normals)}, "
             f"friction_coefficients {len(flat_mu)} (need {3 * total}, {3 * total}, "
             f"{total} or 0)")
+    if len(flat_torsional) not in (0, total):
+        raise MalformedBatch(
+            f"malformed batch: contact_counts declare {total} contacts, but "
+            f"torsional_friction has {len(flat_torsional)} values (need {total} or 0)")
     return PackedGrasps(
         ids=ids,
         counts=counts,
         positions=flat_positions.reshape(total, 3),
         normals=flat_normals.reshape(total, 3),
         mu=flat_mu if len(flat_mu) else np.zeros(total),
+        torsional=_soft_or_none(flat_torsional),
     )
+
+
+def _soft_or_none(torsional: np.ndarray) -> np.ndarray | None:
+    """Per-contact gamma (K,), or None when empty or all exactly 0 (every contact hard:
+    the node's hard path, unchanged). Bad values are kept for validation to name."""
+    return torsional if len(torsional) and np.any(torsional != 0) else None
 
 
 def contact_arrays_to_packed(grasps: list[ContactArray], name_by_id: bool = False
@@ -110,10 +123,12 @@ def contact_arrays_to_packed(grasps: list[ContactArray], name_by_id: bool = Fals
     values = np.fromiter(
         (v for g in grasps for c in g.contacts
          for v in (c.position.x, c.position.y, c.position.z,
-                   c.normal.x, c.normal.y, c.normal.z, c.friction_coefficient)),
-        dtype=np.float64, count=7 * total).reshape(total, 7)
+                   c.normal.x, c.normal.y, c.normal.z, c.friction_coefficient,
+                   c.torsional_friction)),
+        dtype=np.float64, count=8 * total).reshape(total, 8)
     return PackedGrasps(ids=ids, counts=counts, positions=values[:, 0:3],
-                        normals=values[:, 3:6], mu=values[:, 6], name_by_id=name_by_id)
+                        normals=values[:, 3:6], mu=values[:, 6], name_by_id=name_by_id,
+                        torsional=_soft_or_none(values[:, 7]))
 
 
 def verdicts_to_array_msg(verdicts: Verdicts, query: ContactArrayBatch | None = None
@@ -306,7 +321,7 @@ def verdict_msgs_to_numpy(replies: list[ForceClosureVerdict], counts) -> Verdict
 
 
 def grasps_to_batch_msg(ids, positions, normals, mu=None, counts=None, *, client_id=0,
-                        request_id=0) -> ContactArrayBatch:
+                        request_id=0, torsional_friction=None) -> ContactArrayBatch:
     """Build a ContactArrayBatch (client side).
 
     Parameters
@@ -318,6 +333,8 @@ def grasps_to_batch_msg(ids, positions, normals, mu=None, counts=None, *, client
         Contacts per grasp for stacked (K, 3) input of mixed sizes.
     client_id, request_id : int
         Echoed in the verdict array, so that the client recognises its reply.
+    torsional_friction : None, scalar, or one value per contact
+        gamma of soft contacts (m); None or empty: every contact hard.
 
     Raises
     ------
@@ -344,11 +361,16 @@ def grasps_to_batch_msg(ids, positions, normals, mu=None, counts=None, *, client
         if mu.size != n_contacts:
             mu = np.broadcast_to(mu, positions.shape[:-1])
         msg.friction_coefficients = _to_field(_TYPECODE_FLOAT64, mu.reshape(-1))
+    if torsional_friction is not None and np.size(torsional_friction):
+        gamma = np.asarray(torsional_friction, dtype=np.float64)
+        if gamma.size != n_contacts:
+            gamma = np.broadcast_to(gamma, positions.shape[:-1])
+        msg.torsional_friction = _to_field(_TYPECODE_FLOAT64, gamma.reshape(-1))
     return msg
 
 
-def grasp_to_contact_array(grasp_id, positions, normals, mu=0.0, *, client_id=0
-                           ) -> ContactArray:
+def grasp_to_contact_array(grasp_id, positions, normals, mu=0.0, *, client_id=0,
+                           torsional_friction=0.0) -> ContactArray:
     """Build a single-grasp ContactArray (client side).
 
     Parameters
@@ -358,14 +380,19 @@ def grasp_to_contact_array(grasp_id, positions, normals, mu=0.0, *, client_id=0
     mu : scalar or (n,) float; a finite value <= 0 means node default
     client_id : int
         Echoed in the verdict.
+    torsional_friction : scalar or (n,) float
+        gamma of soft contacts (m); 0: hard.
     """
     positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
     normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
     mus = np.broadcast_to(np.asarray(mu, dtype=np.float64), (len(positions),))
+    gammas = np.broadcast_to(np.asarray(torsional_friction, dtype=np.float64),
+                             (len(positions),))
     msg = ContactArray(id=int(grasp_id), client_id=int(client_id))
     contacts = []
-    for p, nrm, m in zip(positions.tolist(), normals.tolist(), mus.tolist()):
-        c = Contact(friction_coefficient=m)
+    for p, nrm, m, g in zip(positions.tolist(), normals.tolist(), mus.tolist(),
+                            gammas.tolist()):
+        c = Contact(friction_coefficient=m, torsional_friction=g)
         c.position.x, c.position.y, c.position.z = p
         c.normal.x, c.normal.y, c.normal.z = nrm
         contacts.append(c)

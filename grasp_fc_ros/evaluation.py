@@ -89,6 +89,10 @@ class PackedGrasps:
     first_index : int
         Index of grasp 0 of this object in the message it came from (a chunk of a
         batch names its grasps by their index in the whole batch).
+    torsional : (K,) float64 or None
+        Torsional friction coefficient gamma per contact (m; 0: a hard contact; soft
+        fingers, see ``grasp_fc_ros.core.contact_model``); None: every contact hard.
+        Negative, NaN and inf are invalid.
     """
 
     ids: np.ndarray
@@ -98,6 +102,7 @@ class PackedGrasps:
     mu: np.ndarray
     name_by_id: bool = False
     first_index: int = 0
+    torsional: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -136,7 +141,8 @@ class PackedGrasps:
         return PackedGrasps(ids=self.ids[first:last], counts=self.counts[first:last],
                             positions=self.positions[lo:hi], normals=self.normals[lo:hi],
                             mu=self.mu[lo:hi], name_by_id=self.name_by_id,
-                            first_index=self.first_index + first)
+                            first_index=self.first_index + first,
+                            torsional=None if self.torsional is None else self.torsional[lo:hi])
 
 
 @dataclass
@@ -265,9 +271,11 @@ def find_invalid(packed: PackedGrasps, mu: np.ndarray, settings: Settings
             f"max_contacts={settings.max_contacts}")))
     if not len(mu):
         return problems
+    torsional = 0.0 if packed.torsional is None else np.repeat(
+        packed.torsional[:, None], 2, axis=1)
     doubled = validate_grasps(np.repeat(packed.positions[:, None], 2, axis=1),
                               np.repeat(packed.normals[:, None], 2, axis=1),
-                              np.repeat(mu[:, None], 2, axis=1))
+                              np.repeat(mu[:, None], 2, axis=1), torsional)
     bad_contacts = np.flatnonzero(~doubled.valid)
     if not len(bad_contacts):
         return problems
@@ -336,7 +344,8 @@ def evaluate(packed: PackedGrasps, settings: Settings) -> tuple[Verdicts, dict]:
             result = check_force_closure(
                 packed.positions[rows], packed.normals[rows], mu[rows],
                 use_filter="auto" if settings.use_filter else False,
-                origins=settings.filter_origins, certificates=settings.certificates)
+                origins=settings.filter_origins, certificates=settings.certificates,
+                torsional_friction=0.0 if packed.torsional is None else packed.torsional[rows])
         except Exception as exc:  # noqa: BLE001 - one group must not spoil the others
             verdicts.status[group] = Status.SOLVER_FAILURE
             for i in group:
@@ -354,7 +363,8 @@ def evaluate(packed: PackedGrasps, settings: Settings) -> tuple[Verdicts, dict]:
             began = time.perf_counter()
             try:
                 verdicts.min_friction[group] = group_min_friction(
-                    packed.positions[rows], packed.normals[rows], mu[rows])
+                    packed.positions[rows], packed.normals[rows], mu[rows],
+                    None if packed.torsional is None else packed.torsional[rows])
             except Exception as exc:  # noqa: BLE001 - an optional extra: verdicts stand
                 for i in group:
                     verdicts.messages[i] = f"min_friction not computed: {exc}"
@@ -362,8 +372,8 @@ def evaluate(packed: PackedGrasps, settings: Settings) -> tuple[Verdicts, dict]:
     return verdicts, seconds
 
 
-def group_min_friction(positions: np.ndarray, normals: np.ndarray, mu: np.ndarray
-                       ) -> np.ndarray:
+def group_min_friction(positions: np.ndarray, normals: np.ndarray, mu: np.ndarray,
+                       torsional: np.ndarray | None = None) -> np.ndarray:
     """mu* of validated same-size grasps, in units of each grasp's largest friction.
 
     Parameters
@@ -372,6 +382,8 @@ def group_min_friction(positions: np.ndarray, normals: np.ndarray, mu: np.ndarra
     mu : (G, n) float64
         Effective friction per contact (> 0); the query's proportions between contacts
         are kept (ratios = mu / max mu of the grasp).
+    torsional : (G, n) float64 or None
+        Torsional friction per contact (m; 0 or None: hard contacts).
 
     Returns
     -------
@@ -385,7 +397,8 @@ def group_min_friction(positions: np.ndarray, normals: np.ndarray, mu: np.ndarra
         inf: no friction up to MU_CAP; NaN: not certified.
     """
     return minimum_friction(positions, normals, mu / mu.max(axis=1, keepdims=True),
-                            margin=MARGIN_TOL)
+                            margin=MARGIN_TOL,
+                            torsional_friction=0.0 if torsional is None else torsional)
 
 
 # --- contact forces for a load (the compute_contact_forces service) ----------------------

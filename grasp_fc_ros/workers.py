@@ -40,6 +40,10 @@ from grasp_fc_ros.evaluation import PackedGrasps, Settings, Verdicts, evaluate
 # 680 keeps a chunk near 10-20 ms (the time a shutdown or a service call waits for it)
 # at the core's best efficiency, and pickling a chunk both ways is a small part of it.
 CHUNK_CONTACTS = 4096
+# Chunks of a batch with soft contacts hold CHUNK_CONTACTS / 16 contacts: their exact
+# test (Clarabel path) measured 0.13-0.65 ms per grasp of 3-6 fingers against the fast
+# stage's 0.004-0.04 (benchmarks/bench_soft.py), so a chunk stays near 10-30 ms.
+SOFT_CHUNK_DIVISOR = 16
 # Requests up to this many grasps are decided inline (one core call, ~0.1-0.2 ms): a
 # service call or a trickle of single queries does not wait behind batch chunks.
 INLINE_GRASPS = 4
@@ -155,7 +159,11 @@ class EvaluationPool:
         if not self._workers or len(packed) <= INLINE_GRASPS:
             return evaluate(packed, settings)
         futures = []
-        for chunk in packed.chunks(self._chunk_contacts):
+        # Soft grasps take the exact test's Clarabel path, ~15-60x a hard grasp's cost
+        # (benchmarks/bench_soft.py): smaller chunks keep one chunk's delay as short.
+        limit = (self._chunk_contacts if packed.torsional is None
+                 else max(1, self._chunk_contacts // SOFT_CHUNK_DIVISOR))
+        for chunk in packed.chunks(limit):
             future: Future = Future()
             self._tasks.put((priority, next(self._order), (future, chunk, settings)))
             futures.append(future)

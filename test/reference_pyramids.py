@@ -5,10 +5,19 @@ the cone: if its grasp is force closure, so is the true one) or circumscribed (a
 the cone: if its grasp is not force closure, neither is the true one). A polyhedral
 grasp is force closure iff its primitive wrenches W have rank 6 and some strictly
 positive combination of them sums to zero, decided here with scipy's LP solver.
+
+Soft-finger contacts (torsional friction gamma): in the scaled coordinates
+(f_t / mu, tau / gamma) per unit normal force the elliptic soft cone's cross-section is
+the unit ball, so a polytope with vertices on the unit sphere gives an inscribed
+polyhedral cone, and the same polytope scaled by one over its inradius a circumscribed
+one (:func:`ball_polytope`); each vertex is a primitive wrench (f, p x f + tau n).
 """
+
+from functools import lru_cache
 
 import numpy as np
 from scipy.optimize import linprog
+from scipy.spatial import ConvexHull
 
 
 def pyramid_edges(normal, mu, sides, inscribed):
@@ -144,3 +153,118 @@ def pyramid_min_max_force(positions, normals, mu, wrench, sides=8, inscribed=Tru
     if result.status == 2:
         return np.inf
     return result.x[-1]
+
+
+@lru_cache(maxsize=8)
+def ball_polytope(points=64, inscribed=True):
+    """Vertices (points, 3) of a polytope inside (on the unit sphere, a Fibonacci
+    lattice) or around (the same divided by its inradius) the unit ball."""
+    k = np.arange(points) + 0.5
+    z = 1.0 - 2.0 * k / points
+    azimuth = np.pi * (1.0 + 5.0 ** 0.5) * k
+    radius = np.sqrt(1.0 - z * z)
+    vertices = np.stack([radius * np.cos(azimuth), radius * np.sin(azimuth), z], axis=1)
+    if inscribed:
+        return vertices
+    inradius = -ConvexHull(vertices).equations[:, -1].max()     # facets n.x + d <= 0
+    return vertices / inradius
+
+
+def _soft_wrench_columns(positions, normals, frictions, torsional, points, inscribed):
+    """Primitive wrenches (6, k) of per-contact polyhedral soft cones, grasp at unit size
+    (gamma scaled along). A hard contact (gamma = 0) gets its pyramid of ``points`` sides."""
+    centred = positions - positions.mean(axis=0)
+    scale = np.abs(centred).max()
+    centred = centred / scale
+    columns = []
+    for p, n, mu, gamma in zip(centred, normals, frictions, torsional / scale):
+        if gamma == 0:
+            edges, twists = pyramid_edges(n, mu, points, inscribed), np.zeros(points)
+        else:
+            helper = np.eye(3)[np.abs(n).argmin()]
+            t1 = np.cross(n, helper)
+            t1 /= np.linalg.norm(t1)
+            t2 = np.cross(n, t1)
+            ball = ball_polytope(points, inscribed)
+            edges = n + mu * (ball[:, :1] * t1 + ball[:, 1:2] * t2)
+            twists = gamma * ball[:, 2]
+        columns += [np.concatenate([f, np.cross(p, f) + tau * n])
+                    for f, tau in zip(edges, twists)]
+    return np.array(columns).T
+
+
+def soft_pyramid_is_force_closure(positions, normals, frictions, torsional, points=64,
+                                  inscribed=True, tol=1e-9):
+    """Polyhedral force closure of soft contacts (hard where gamma = 0): rank 6 and an
+    LP margin > tol. Inscribed: FC implies the true grasp is FC; circumscribed: not FC
+    implies the true grasp is not FC."""
+    n = len(positions)
+    wrenches = _soft_wrench_columns(positions, normals,
+                                    np.broadcast_to(np.asarray(frictions, float), (n,)),
+                                    np.broadcast_to(np.asarray(torsional, float), (n,)),
+                                    points, inscribed)
+    return _lp_margin(wrenches) > tol
+
+
+def soft_pyramid_min_max_force(positions, normals, mu, torsional, wrench, points=64,
+                               inscribed=True):
+    """Least largest normal force of polyhedral soft-cone contact wrenches holding
+    ``wrench`` (LP), or inf. Torque about the origin of ``positions`` (no normalising).
+
+    Each contact's wrench is sum_j lam_ij (e_ij, p_i x e_ij + tau_ij n_i) over the
+    vertices of :func:`ball_polytope` (pyramid edges where gamma = 0), lam >= 0;
+    minimise s subject to equilibrium and n_i . f_i <= s. Inscribed cones give an upper
+    bound on the true s*, circumscribed ones a lower bound.
+    """
+    n_contacts = len(positions)
+    frictions = np.broadcast_to(np.asarray(mu, float), (n_contacts,))
+    gammas = np.broadcast_to(np.asarray(torsional, float), (n_contacts,))
+    columns, normal_parts, owner = [], [], []
+    for i, (p, n, m, gamma) in enumerate(zip(positions, normals, frictions, gammas)):
+        helper = np.eye(3)[np.abs(n).argmin()]
+        t1 = np.cross(n, helper)
+        t1 /= np.linalg.norm(t1)
+        t2 = np.cross(n, t1)
+        if gamma == 0:
+            edges, twists = pyramid_edges(n, m, points, inscribed), np.zeros(points)
+        else:
+            ball = ball_polytope(points, inscribed)
+            edges = n + m * (ball[:, :1] * t1 + ball[:, 1:2] * t2)
+            twists = gamma * ball[:, 2]
+        for f, tau in zip(edges, twists):
+            columns.append(np.concatenate([f, np.cross(p, f) + tau * n]))
+            normal_parts.append(f @ n)
+            owner.append(i)
+    wrenches, normal_parts, owner = np.array(columns).T, np.array(normal_parts), np.array(owner)
+    k = wrenches.shape[1]
+    cost = np.zeros(k + 1)
+    cost[-1] = 1.0
+    per_contact = np.zeros((n_contacts, k))
+    per_contact[owner, np.arange(k)] = normal_parts
+    result = _linprog_robust(cost, A_ub=np.hstack([per_contact, -np.ones((n_contacts, 1))]),
+                             b_ub=np.zeros(n_contacts),
+                             A_eq=np.hstack([wrenches, np.zeros((6, 1))]),
+                             b_eq=-np.asarray(wrench, float), bounds=[(0, None)] * (k + 1))
+    if result.status == 2:
+        return np.inf
+    return result.x[-1]
+
+
+def soft_pyramid_minimum_friction(positions, normals, torsional, points=32, inscribed=True,
+                                  high=1e2, steps=30):
+    """Least friction at which polyhedral soft cones make the grasp FC: (low, high) as
+    :func:`pyramid_minimum_friction` (inscribed: an upper bound on the true mu*,
+    circumscribed: a lower bound); gamma stays fixed."""
+    def fc(mu):
+        return soft_pyramid_is_force_closure(positions, normals, mu, torsional, points,
+                                             inscribed)
+    if not fc(high):
+        return np.inf, np.inf
+    low = 0.0
+    for _ in range(steps):
+        middle = np.sqrt(max(low, 1e-9) * high) if high > 4 * max(low, 1e-9) else 0.5 * (low + high)
+        if fc(middle):
+            high = middle
+        else:
+            low = middle
+    return low, high

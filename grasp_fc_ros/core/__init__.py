@@ -1,6 +1,7 @@
 """ROS-free core of grasp_fc_ros: numpy, clarabel and numba only.
 
-Force closure of n hard point contacts with Coulomb friction, after Niparnan, Phoka and
+Force closure of n point contacts with Coulomb friction (hard, or soft fingers with
+torsional friction: ``torsional_friction=``), after Niparnan, Phoka and
 Sudsang, "Heuristic Approach for Multiple Queries of 3D N-Finger Frictional Force
 Closure Grasp":
 
@@ -17,6 +18,8 @@ Closure Grasp":
   closure (certified bounds);
 * :mod:`.grasp_forces` -- the least largest normal force that holds a given load;
 * :mod:`.stacked_socp` -- many same-shape SOCPs in one Clarabel solve (for the two above);
+* :mod:`.contact_model` -- hard contacts and soft fingers (torsional friction): cones,
+  wrench columns, depths and work, in one place;
 * :mod:`.grasp_input` -- shapes and per-grasp validation;
 * :mod:`.tolerances` -- every numerical tolerance, with the reason for its value.
 

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .contact_model import HARD, ContactModel, cone_depth, depth_reach_factor, largest_work
 from .tolerances import CERTIFICATE_TOL, EQUILIBRIUM_TOL, ROUNDING_SLACK
 
 _EPS = np.finfo(np.float64).eps
@@ -86,30 +87,37 @@ def grasp_maps(unit: np.ndarray) -> np.ndarray:
 
 def certified_internal_force(forces: np.ndarray, grasp_map: np.ndarray,
                              row_space: np.ndarray, sigma_min: np.ndarray,
-                             normals: np.ndarray, mu: np.ndarray):
+                             normals: np.ndarray, mu: np.ndarray, model: ContactModel = HARD,
+                             weight: np.ndarray | None = None):
     """Project candidate forces onto equilibrium and certify how deep they are.
 
     Parameters
     ----------
-    forces : ndarray, shape (N, n, 3)
-        Candidate contact forces (any scale), global components.
-    grasp_map : ndarray, shape (N, 6, 3n)
-        Grasp maps of the unit-size grasps.
-    row_space : ndarray, shape (N, 6, 3n)
+    forces : ndarray, shape (N, n, d)
+        Candidate generalised contact forces (any scale), global components: f (d = 3)
+        or (f, rho) (d = 4, soft, see :mod:`.contact_model`).
+    grasp_map : ndarray, shape (N, 6, d n)
+        (Generalised) grasp maps of the unit-size grasps.
+    row_space : ndarray, shape (N, 6, d n)
         Orthonormal bases of their row spaces.
     sigma_min : ndarray, shape (N,)
         Smallest singular values of the grasp maps (> 0).
     normals : ndarray, shape (N, n, 3)
         Unit inward normals.
     mu : ndarray, shape (N, n)
+    model : ContactModel
+        The batch's contact model (d = model.components).
+    weight : ndarray, shape (N, n), optional
+        Soft: the cone weight w of rho (:func:`.contact_model.torsion_scales`).
 
     Returns
     -------
     depth : ndarray, shape (N,)
         A lower bound, valid despite rounding, on min_i (mu_i f_n,i - |f_t,i|) / sum_i f_n,i
-        of an exactly equilibrated force within reach of the projection; -inf where the
-        total normal force is not certainly positive.
-    equilibrium : ndarray, shape (N, n, 3)
+        (soft: mu_i f_n,i - |(f_t,i, mu_i w_i rho_i)|) of an exactly equilibrated force
+        within reach of the projection; -inf where the total normal force is not
+        certainly positive.
+    equilibrium : ndarray, shape (N, n, d)
         The projected forces scaled so that their normal components sum to one (NaN
         where the total is not certainly positive).
     """
@@ -123,9 +131,8 @@ def certified_internal_force(forces: np.ndarray, grasp_map: np.ndarray,
     rounding = ROUNDING_SLACK * _EPS * flat.shape[1] * np.linalg.norm(grasp_map, axis=(1, 2))
     reach = (residual + rounding * size) / sigma_min
     per_contact = projected.reshape(forces.shape)
-    normal_part = (per_contact * normals).sum(axis=-1)
-    tangential = per_contact - normal_part[..., None] * normals
-    depth = mu * normal_part - np.linalg.norm(tangential, axis=-1) - (mu + 1.0) * reach[:, None]
+    depth, normal_part = cone_depth(per_contact, normals, mu, weight)
+    depth = depth - depth_reach_factor(mu, model) * reach[:, None]
     total = normal_part.sum(axis=1)
     slack = np.sqrt(normal_part.shape[1]) * reach
     positive = total - slack > 0
@@ -137,7 +144,7 @@ def certified_internal_force(forces: np.ndarray, grasp_map: np.ndarray,
 
 
 def wrench_bound(wrench: np.ndarray, unit: np.ndarray, normals: np.ndarray,
-                 mu: np.ndarray):
+                 mu: np.ndarray, torsional_unit: np.ndarray | None = None):
     """Upper bounds on the margin t* from trial wrenches, valid despite rounding.
 
     Parameters
@@ -146,6 +153,10 @@ def wrench_bound(wrench: np.ndarray, unit: np.ndarray, normals: np.ndarray,
         Trial wrenches (force, torque) about the centroid of the unit-size grasps.
     unit, normals : ndarray, shape (N, n, 3)
     mu : ndarray, shape (N, n)
+    torsional_unit : ndarray, shape (N, n), optional
+        gamma in the unit grasp's length (soft batches): l_i gets the torsional term
+        of :func:`.contact_model.largest_work`, and the same bound t* <= max(L, 0) / S
+        holds (a soft contact's work is at most c_i L - t (L - n_i . a_i) / mu_i too).
 
     Returns
     -------
@@ -158,10 +169,16 @@ def wrench_bound(wrench: np.ndarray, unit: np.ndarray, normals: np.ndarray,
     force, torque = wrench[:, None, :3], wrench[:, None, 3:]
     work = force + np.cross(torque, unit)                               # a_i, (N, n, 3)
     normal_work = (work * normals).sum(axis=-1)
-    tangential = np.linalg.norm(work - normal_work[..., None] * normals, axis=-1)
     error = ROUNDING_SLACK * _EPS * (np.linalg.norm(force, axis=-1)
                                      + 2.0 * np.linalg.norm(torque, axis=-1))   # (N, 1)
-    level = (normal_work + mu * tangential).max(axis=1) + (1.0 + mu.max(axis=1)) * error[:, 0]
+    if torsional_unit is None:
+        tangential = np.linalg.norm(work - normal_work[..., None] * normals, axis=-1)
+        level = ((normal_work + mu * tangential).max(axis=1)
+                 + (1.0 + mu.max(axis=1)) * error[:, 0])
+    else:
+        twist_error = ROUNDING_SLACK * _EPS * torsional_unit * np.linalg.norm(torque, axis=-1)
+        level = ((largest_work(work, normals, mu, wrench[:, 3:], torsional_unit)
+                  + twist_error).max(axis=1) + (1.0 + mu.max(axis=1)) * error[:, 0])
     spread = ((level[:, None] - normal_work - error) / mu).sum(axis=1) * (1.0 - 1e-12)
     with np.errstate(divide="ignore", invalid="ignore"):
         bound = np.where(spread > 0, np.maximum(level, 0.0) / spread, np.inf)
@@ -194,29 +211,9 @@ def to_caller_wrench(wrench: np.ndarray, centre: np.ndarray, size: np.ndarray) -
         return caller / np.linalg.norm(caller, axis=1, keepdims=True)
 
 
-def largest_work(a: np.ndarray, normals: np.ndarray, mu: np.ndarray) -> np.ndarray:
-    """The most work a cone force with unit normal part does on a wrench, per contact.
-
-    Parameters
-    ----------
-    a : ndarray, shape (..., n, 3)
-        a_i = w_force + w_torque x p_i: the work of a force f at contact i is a_i . f.
-    normals : ndarray, shape (..., n, 3)
-        Unit inward normals.
-    mu : ndarray, shape (..., n)
-
-    Returns
-    -------
-    ndarray, shape (..., n)
-        n_i . a_i + mu_i |a_i - (n_i . a_i) n_i|: at most 0 at every contact iff no
-        contact force does positive work on the wrench.
-    """
-    a_n = (a * normals).sum(axis=-1)
-    return a_n + mu * np.linalg.norm(a - a_n[..., None] * normals, axis=-1)
-
-
 def verify_certificates(positions, normals, mu, contact_forces=None,
-                        separating_wrench=None):
+                        separating_wrench=None, torsional_friction=None,
+                        contact_torques=None):
     """Check certificates in the caller's frame, independently of how they were found.
 
     Parameters
@@ -228,15 +225,23 @@ def verify_certificates(positions, normals, mu, contact_forces=None,
         Claimed internal forces (NaN rows: no claim).
     separating_wrench : array_like, shape (6,) or (N, 6), optional
         Claimed separating wrenches (force, torque about the origin; NaN: no claim).
+    torsional_friction : float or array_like broadcastable to (N, n), optional
+        gamma of soft contacts (positions' unit); None or 0: hard contacts.
+    contact_torques : array_like, shape (n,) or (N, n), optional
+        Claimed torsional moments tau_i about each normal (force x length), with
+        ``contact_forces``; None: all zero.
 
     Returns
     -------
     forces_ok, wrench_ok : ndarray of bool, shape () or (N,)
         ``forces_ok``: normal components sum to one (within EQUILIBRIUM_TOL), net force
-        and net torque about the origin vanish (relative to EQUILIBRIUM_TOL), every
-        force strictly inside its cone. ``wrench_ok``: unit length, and for every contact
-        n_i . a_i + mu_i |a_t,i| <= CERTIFICATE_TOL max_j |a_j|. False where there is no
-        claim (NaN) or it fails.
+        and net torque (sum p_i x f_i + tau_i n_i) about the origin vanish (relative to
+        EQUILIBRIUM_TOL), every contact strictly inside its cone (mu f_n > |f_t| hard;
+        mu f_n > |(f_t, mu tau / gamma)| soft; tau = 0 where gamma = 0).
+        ``wrench_ok``: unit length, and for every contact n_i . a_i + mu_i |a_t,i|
+        <= CERTIFICATE_TOL max_j |a_j| (soft: n_i . a_i + |(mu_i |a_t,i|, gamma_i
+        n_i . w_torque)| <= CERTIFICATE_TOL max_j |(a_j, gamma_j |w_torque|)|). False
+        where there is no claim (NaN) or it fails.
     """
     p = np.asarray(positions, dtype=np.float64)
     single = p.ndim == 2
@@ -244,27 +249,43 @@ def verify_certificates(positions, normals, mu, contact_forces=None,
     n = np.asarray(normals, dtype=np.float64).reshape(p.shape)
     n = n / np.linalg.norm(n, axis=-1, keepdims=True)
     friction = np.broadcast_to(np.asarray(mu, dtype=np.float64), p.shape[:2])
+    gamma = None
+    if torsional_friction is not None:
+        gamma = np.broadcast_to(np.asarray(torsional_friction, dtype=np.float64),
+                                p.shape[:2])
     forces_ok = np.zeros(p.shape[0], dtype=bool)
     wrench_ok = np.zeros(p.shape[0], dtype=bool)
     if contact_forces is not None:
         f = np.asarray(contact_forces, dtype=np.float64).reshape(p.shape)
+        tau = (np.zeros(p.shape[:2]) if contact_torques is None
+               else np.asarray(contact_torques, dtype=np.float64).reshape(p.shape[:2]))
         f_n = (f * n).sum(axis=-1)
         f_t = np.linalg.norm(f - f_n[..., None] * n, axis=-1)
         scale = np.linalg.norm(f, axis=-1).sum(axis=1)
         lever = np.abs(p).max(axis=(1, 2))
-        with np.errstate(invalid="ignore"):
-            forces_ok = (np.all(friction * f_n - f_t > 0, axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            if gamma is None:
+                inside = (friction * f_n - f_t > 0) & (tau == 0)
+            else:
+                twist = np.where(gamma > 0, friction * tau / gamma, np.where(tau == 0, 0, np.inf))
+                inside = friction * f_n - np.hypot(f_t, twist) > 0
+            net_torque = (np.cross(p, f) + tau[..., None] * n).sum(axis=1)
+            forces_ok = (np.all(inside, axis=1)
                          & (np.abs(f_n.sum(axis=1) - 1.0) <= EQUILIBRIUM_TOL)
                          & (np.linalg.norm(f.sum(axis=1), axis=1) <= EQUILIBRIUM_TOL * scale)
-                         & (np.linalg.norm(np.cross(p, f).sum(axis=1), axis=1)
-                            <= EQUILIBRIUM_TOL * scale * lever))
+                         & (np.linalg.norm(net_torque, axis=1)
+                            <= EQUILIBRIUM_TOL * (scale * lever + np.abs(tau).sum(axis=1))))
     if separating_wrench is not None:
         w = np.asarray(separating_wrench, dtype=np.float64).reshape(-1, 6)
         work = w[:, None, :3] + np.cross(w[:, None, 3:], p)
-        largest = np.linalg.norm(work, axis=-1).max(axis=1)
+        size = np.linalg.norm(work, axis=-1)
+        if gamma is not None:
+            size = np.hypot(size, gamma * np.linalg.norm(w[:, None, 3:], axis=-1))
+        largest = size.max(axis=1)
         with np.errstate(invalid="ignore"):
-            wrench_ok = (np.all(largest_work(work, n, friction)
-                                <= CERTIFICATE_TOL * largest[:, None], axis=1)
+            most = (largest_work(work, n, friction) if gamma is None
+                    else largest_work(work, n, friction, w[:, 3:], gamma))
+            wrench_ok = (np.all(most <= CERTIFICATE_TOL * largest[:, None], axis=1)
                          & (np.abs(np.linalg.norm(w, axis=1) - 1.0) <= EQUILIBRIUM_TOL))
     if single:
         return forces_ok[0], wrench_ok[0]

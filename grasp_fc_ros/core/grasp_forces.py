@@ -25,6 +25,10 @@ onto the equilibrium set, then must lie in every cone and within every limit to 
 FORCE_TOL of s*, and s* must be within OPTIMALITY_TOL of a lower bound proved by the
 solver's dual wrench (:func:`lower_bound`), which also certifies every s* = inf. A grasp
 that fails even when solved alone with tight tolerances gets s* = NaN.
+
+Soft fingers (``torsional_friction``, :mod:`.contact_model`): each contact also applies
+a torsional moment tau_i n_i, inside the elliptic cone with its force; the program then
+has a 4-D cone per contact and the dual bound the soft work term.
 """
 
 from __future__ import annotations
@@ -32,6 +36,8 @@ from __future__ import annotations
 import numpy as np
 
 from .certificates import grasp_maps, normalise_positions
+from .contact_model import (HARD, ContactModel, cone_rows, model_of, torsion_scales,
+                            wrench_columns)
 from .grasp_input import GraspBatch, prepare_grasps
 from .stacked_socp import SOLVE_BATCH, BlockShape, solve_stacked, split_normal, tangent_bases
 
@@ -66,7 +72,8 @@ ROOT_BISECTIONS = 45
 RETRY_TOL = 1e-11
 
 
-def optimal_contact_forces(positions, normals, mu, wrench, max_normal_force=None):
+def optimal_contact_forces(positions, normals, mu, wrench, max_normal_force=None,
+                           torsional_friction=None):
     """The least largest normal force that holds a wrench, and the contact forces.
 
     Parameters
@@ -82,6 +89,10 @@ def optimal_contact_forces(positions, normals, mu, wrench, max_normal_force=None
         ``positions``. One grasp with an (M, 6) wrench is solved for each of the M.
     max_normal_force : None, float or array_like broadcastable to (N, n)
         Limit on each contact's normal force, >= 0 (inf: none); None for no limits.
+    torsional_friction : None, float or array_like broadcastable to (N, n)
+        gamma of soft contacts (>= 0, the positions' length unit; 0: hard). None
+        (default): all hard, and two arrays are returned; given (even 0): a third,
+        ``torques``.
 
     Returns
     -------
@@ -91,6 +102,9 @@ def optimal_contact_forces(positions, normals, mu, wrench, max_normal_force=None
         the wrench; NaN where the solver could not decide.
     forces : ndarray of float, shape (n, 3) or (N, n, 3)
         Optimal contact forces (world frame); NaN where s_star is inf or NaN.
+    torques : ndarray of float, shape (n,) or (N, n), only with ``torsional_friction``
+        The torsional moment of each contact about its normal (force unit x length
+        unit), with ``forces``; 0 at hard contacts, NaN where ``forces`` is.
 
     Raises
     ------
@@ -98,12 +112,15 @@ def optimal_contact_forces(positions, normals, mu, wrench, max_normal_force=None
         On bad input, naming the grasp (and contact, or wrench) that is wrong.
     """
     positions, normals, wrench, single = _broadcast_wrench(positions, normals, wrench)
-    grasps = prepare_grasps(positions, normals, mu)
+    grasps = prepare_grasps(positions, normals, mu, torsional_friction)
     limits = _limits(max_normal_force, grasps.mu.shape)
-    s_star, forces = solve_contact_forces(grasps, wrench, limits)
-    if single:
-        return s_star[0], forces[0]
-    return s_star, forces
+    s_star, forces, torques = solve_contact_forces(grasps, wrench, limits)
+    result = (s_star, forces)
+    if torsional_friction is not None:
+        result += (np.zeros(s_star.shape + forces.shape[1:2]) if torques is None
+                   else torques,)
+        result[2][np.isnan(forces[..., 0])] = np.nan
+    return tuple(r[0] for r in result) if single else result
 
 
 def _broadcast_wrench(positions, normals, wrench):
@@ -164,8 +181,10 @@ def solve_contact_forces(grasps: GraspBatch, wrench: np.ndarray, limits: np.ndar
     -------
     s_star : ndarray, shape (N,)
     forces : ndarray, shape (N, n, 3)
+    torques : ndarray, shape (N, n), or None for a hard batch
     """
     n_grasps, n_contacts = grasps.mu.shape
+    model = model_of(grasps.torsional)
     unit, centroid, size = normalise_positions(grasps.positions)
     # Torque about the centroid, then in units of the grasp's size.
     torque = wrench[:, 3:] - np.cross(centroid, wrench[:, :3])
@@ -174,15 +193,18 @@ def solve_contact_forces(grasps: GraspBatch, wrench: np.ndarray, limits: np.ndar
     direction = scaled / np.where(magnitude > 0, magnitude, 1.0)[:, None]
     relative_limits = limits / np.where(magnitude > 0, magnitude, 1.0)[:, None]
 
-    gmap = grasp_maps(unit)
+    torsional_unit = None if model is HARD else grasps.torsional / size[:, None]
+    gmap = wrench_columns(grasp_maps(unit), grasps.normals, torsional_unit)
+    column_scale, weight = (None, None) if model is HARD else torsion_scales(torsional_unit)
     s_star = np.zeros(n_grasps)
-    forces = np.zeros((n_grasps, n_contacts, 3))
+    forces = np.zeros((n_grasps, n_contacts, model.components))
     loaded = np.flatnonzero(magnitude > 0)
     limited = bool(np.isfinite(limits).any())
     for start in range(0, loaded.size, SOLVE_BATCH):
         chunk = loaded[start:start + SOLVE_BATCH]
         args = (gmap[chunk], grasps.normals[chunk], grasps.mu[chunk], direction[chunk],
-                relative_limits[chunk], limited)
+                relative_limits[chunk], limited, model,
+                None if weight is None else weight[chunk])
         s, f, ok = _solve_and_check(*args, tol=None)
         for k in np.flatnonzero(~ok):
             lone = tuple(a[k:k + 1] if isinstance(a, np.ndarray) else a for a in args)
@@ -191,26 +213,31 @@ def solve_contact_forces(grasps: GraspBatch, wrench: np.ndarray, limits: np.ndar
         f[~ok] = np.nan
         s_star[chunk] = s * magnitude[chunk]
         forces[chunk] = f * magnitude[chunk, None, None]
-    return s_star, forces
+    if model is HARD:
+        return s_star, forces, None
+    # tau = c rho in the unit grasp, times its size in the caller's unit.
+    return s_star, forces[..., :3], column_scale * forces[..., 3] * size[:, None]
 
 
-def _block_shape(n_contacts: int, limited: bool) -> BlockShape:
-    """Rows: G f + beta W = 0 (6); n.f <= 1 (n); [n.f <= beta f_max (n)]; Q^3 per contact."""
-    n_vars = 3 * n_contacts + 1
+def _block_shape(n_contacts: int, limited: bool, d: int = 3) -> BlockShape:
+    """Rows: G f + beta W = 0 (6); n.f <= 1 (n); [n.f <= beta f_max (n)]; Q^d per
+    contact (d generalised force components, :mod:`.contact_model`)."""
+    n_vars = d * n_contacts + 1
     n_nonneg = 2 * n_contacts if limited else n_contacts
-    pattern = np.zeros((6 + n_nonneg + 3 * n_contacts, n_vars), dtype=bool)
+    pattern = np.zeros((6 + n_nonneg + d * n_contacts, n_vars), dtype=bool)
     pattern[:6, :] = True
     for i in range(n_contacts):
-        columns = slice(3 * i, 3 * i + 3)
+        columns = slice(d * i, d * i + d)
         pattern[6 + i, columns] = True
         if limited:
             pattern[6 + n_contacts + i, columns] = True
             pattern[6 + n_contacts + i, -1] = True
-        pattern[6 + n_nonneg + 3 * i:9 + n_nonneg + 3 * i, columns] = True
-    return BlockShape(pattern, zero_rows=6, nonneg_rows=n_nonneg, soc_sizes=(3,) * n_contacts)
+        pattern[6 + n_nonneg + d * i:6 + n_nonneg + d * (i + 1), columns] = True
+    return BlockShape(pattern, zero_rows=6, nonneg_rows=n_nonneg, soc_sizes=(d,) * n_contacts)
 
 
-def _solve_and_check(gmap, normals, mu, direction, limits, limited, tol):
+def _solve_and_check(gmap, normals, mu, direction, limits, limited,
+                     model: ContactModel = HARD, weight=None, tol=None):
     """Solve the homogenised problem for K grasps and check each answer.
 
     Returns
@@ -218,22 +245,24 @@ def _solve_and_check(gmap, normals, mu, direction, limits, limited, tol):
     s_star : ndarray, shape (K,)
         Largest normal force of the checked forces, for the unit wrench; inf where the
         dual bound is at least 1 / INFEASIBLE_BETA.
-    forces : ndarray, shape (K, n, 3)
+    forces : ndarray, shape (K, n, d)
+        Generalised forces (d = model.components).
     ok : ndarray of bool, shape (K,)
         The forces passed the checks and are optimal to OPTIMALITY_TOL, or the dual
         bound certifies s* = inf.
     """
     n_grasps, n_contacts = mu.shape
-    shape = _block_shape(n_contacts, limited)
+    d = model.components
+    shape = _block_shape(n_contacts, limited, d)
     n_nonneg = shape.nonneg_rows
     tangent, bitangent = tangent_bases(normals)
     a = np.zeros((n_grasps,) + shape.pattern.shape)
     b = np.zeros((n_grasps, shape.pattern.shape[0]))
     a[:, :6, :-1] = gmap
     a[:, :6, -1] = direction
-    cone = -np.stack([mu[..., None] * normals, tangent, bitangent], axis=2)   # (K, n, 3, 3)
+    cone = -cone_rows(normals, tangent, bitangent, mu, model, weight)  # (K, n, d, d)
     for i in range(n_contacts):
-        columns = slice(3 * i, 3 * i + 3)
+        columns = slice(d * i, d * i + 3)                              # the force part
         a[:, 6 + i, columns] = normals[:, i]
         if limited:
             finite = np.isfinite(limits[:, i])
@@ -241,18 +270,20 @@ def _solve_and_check(gmap, normals, mu, direction, limits, limited, tol):
             a[:, 6 + n_contacts + i, columns] = np.where(finite[:, None], normals[:, i], 0)
             a[:, 6 + n_contacts + i, -1] = -np.where(finite, limits[:, i], 0.0)
             b[:, 6 + n_contacts + i] = np.where(finite, 0.0, 1.0)
-        a[:, 6 + n_nonneg + 3 * i:9 + n_nonneg + 3 * i, columns] = cone[:, i]
+        a[:, 6 + n_nonneg + d * i:6 + n_nonneg + d * (i + 1), d * i:d * (i + 1)] = cone[:, i]
     b[:, 6:6 + n_contacts] = 1.0
     q = np.zeros((n_grasps, shape.pattern.shape[1]))
     q[:, -1] = -1.0
     solution = solve_stacked(shape, a, b, q, tol)
     beta = solution.x[:, -1]
-    lower = lower_bound(solution.z[:, :6], gmap, normals, mu, direction, limits)
+    lower = lower_bound(solution.z[:, :6], gmap, normals, mu, direction, limits, weight)
     infeasible = lower >= 1.0 / INFEASIBLE_BETA
     with np.errstate(divide="ignore", invalid="ignore"):
         forces = solution.x[:, :-1] / beta[:, None]
-    forces = _project_to_equilibrium(forces, gmap, direction).reshape(n_grasps, n_contacts, 3)
-    normal_part, tangential = split_normal(forces, normals)
+    forces = _project_to_equilibrium(forces, gmap, direction).reshape(n_grasps, n_contacts, d)
+    normal_part, tangential = split_normal(forces[..., :3], normals)
+    if d == 4:  # the soft cone: |(f_t, mu w rho)| <= mu f_n
+        tangential = np.hypot(tangential, mu * weight * forces[..., 3])
     s_star = normal_part.max(axis=1)
     slack = FORCE_TOL * np.abs(s_star)[:, None]
     residual = np.einsum("gkv,gv->gk", gmap, forces.reshape(n_grasps, -1)) + direction
@@ -266,7 +297,7 @@ def _solve_and_check(gmap, normals, mu, direction, limits, limited, tol):
     return s_star, forces, ok
 
 
-def lower_bound(wrench, gmap, normals, mu, direction, limits):
+def lower_bound(wrench, gmap, normals, mu, direction, limits, weight=None):
     """Lower bound on s* (unit wrench, normalised grasp) proved by a dual wrench w.
 
     For any feasible (f, beta) of the homogenised problem, 0 = w . (G f + beta W) =
@@ -280,25 +311,33 @@ def lower_bound(wrench, gmap, normals, mu, direction, limits):
     ----------
     wrench : ndarray, shape (K, 6)
         Candidate dual wrench (either sign is tried).
-    gmap : ndarray, shape (K, 6, 3n)
+    gmap : ndarray, shape (K, 6, d n)
+        d = 4 for soft batches: each contact's rho column adds work b_i = c_i
+        n_i . w_torque, and l_i = a_n,i + |(mu_i (|a_t,i| + slack), |b_i| / w_i + slack)|
+        (|b_i| / w_i = gamma_i |n_i . w_torque|, the support of the soft cone).
     normals : ndarray, shape (K, n, 3)
     mu : ndarray, shape (K, n)
     direction : ndarray, shape (K, 6)
         The unit external wrench.
     limits : ndarray, shape (K, n)
         Normal-force limits for the unit wrench, inf where none.
+    weight : ndarray, shape (K, n), optional
+        Soft: the cone weight w of rho (:func:`.contact_model.torsion_scales`).
 
     Returns
     -------
     ndarray, shape (K,)
         The bound, the work inflated by its rounding slack; 0 where w proves nothing.
     """
-    work = np.einsum("gkv,gk->gv", gmap, wrench).reshape(normals.shape)
-    normal_part, tangential = split_normal(work, normals)
+    work = np.einsum("gkv,gk->gv", gmap, wrench).reshape(normals.shape[:2] + (-1,))
+    normal_part, tangential = split_normal(work[..., :3], normals)
     slack = (CERT_SLACK * np.abs(wrench).max(axis=1))[:, None]
     best = np.zeros(wrench.shape[0])
+    friction_work = mu * (tangential + slack)
+    if work.shape[-1] == 4:
+        friction_work = np.hypot(friction_work, np.abs(work[..., 3]) / weight + slack)
     for sign in (1.0, -1.0):
-        excess = np.maximum(sign * normal_part + slack + mu * (tangential + slack), 0.0)
+        excess = np.maximum(sign * normal_part + slack + friction_work, 0.0)
         along = -sign * (wrench * direction).sum(axis=1) - slack[:, 0]
         with np.errstate(divide="ignore", invalid="ignore"):
             high = np.where(along > 0, excess.sum(axis=1) / along, np.inf)    # g(high) <= 0
@@ -323,12 +362,12 @@ def _dual_room(beta, excess, limits, along):
 
 
 def _project_to_equilibrium(forces, gmap, direction):
-    """The nearest forces (K, 3n) with G f + W = 0 exactly (up to rounding).
+    """The nearest forces (K, d n) with G f + W = 0 exactly (up to rounding).
 
     Parameters
     ----------
-    forces : ndarray, shape (K, 3n)
-    gmap : ndarray, shape (K, 6, 3n)
+    forces : ndarray, shape (K, d n)
+    gmap : ndarray, shape (K, 6, d n)
         Full rank is not assumed: the least-squares correction uses the pseudo-inverse.
     direction : ndarray, shape (K, 6)
     """

@@ -8,7 +8,9 @@ coefficient mu. Public functions accept one grasp (arrays (n, 3)) or a batch (ar
 * normals of any length whose largest |component| is at least ``MIN_NORMAL_COMPONENT``
   (the smallest normal float, about 2.2e-308): 1e-300 and 1e300 are both fine; only
   the zero vector and subnormal-only vectors are refused;
-* 0 < mu <= ``MAX_FRICTION_COEFFICIENT`` (1e3).
+* 0 < mu <= ``MAX_FRICTION_COEFFICIENT`` (1e3);
+* torsional friction 0 <= gamma <= ``MAX_ABS_COORDINATE`` (a length, optional,
+  broadcastable like mu; 0 is a hard contact, see :mod:`.contact_model`).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .contact_model import torsional_all_valid, torsional_checks, torsional_or_none
 from .tolerances import MAX_ABS_COORDINATE, MAX_FRICTION_COEFFICIENT, MIN_NORMAL_COMPONENT
 
 MIN_CONTACTS = 2
@@ -36,12 +39,16 @@ class GraspBatch:
         Friction coefficients, all finite and > 0.
     single : bool
         True if the caller passed one grasp; results are then returned 0-d.
+    torsional : ndarray, shape (N, n), or None
+        Torsional friction coefficients gamma (>= 0, positions' unit) when some contact
+        is soft; None when every contact is hard (the hard path).
     """
 
     positions: np.ndarray
     normals: np.ndarray
     mu: np.ndarray
     single: bool
+    torsional: np.ndarray | None = None
 
     def unbatch(self, values: np.ndarray) -> np.ndarray:
         """Return per-grasp ``values`` (N,) as the caller expects: 0-d for one grasp."""
@@ -85,17 +92,27 @@ def _as_batch_arrays(positions, normals, mu):
     if single:
         p, nrm = p[None], nrm[None]
     n_grasps, n_contacts = p.shape[:2]
-    m = _real_array(mu, "mu")
+    return p, nrm, _per_contact(mu, "mu", single, (n_grasps, n_contacts)), single
+
+
+def _per_contact(values, name: str, single: bool, shape: tuple) -> np.ndarray:
+    """A per-contact coefficient (mu, gamma) broadcast to ``shape`` (N, n).
+
+    Raises
+    ------
+    ValueError
+        If it is not real numbers or does not broadcast, naming ``name``.
+    """
+    m = _real_array(values, name)
     if single and m.ndim >= 1:
         m = m[None]
     try:
-        m = np.broadcast_to(m, (n_grasps, n_contacts))
+        return np.broadcast_to(m, shape)
     except ValueError:
-        hint = " (for one mu per grasp pass an (N, 1) array)" if m.ndim == 1 else ""
+        hint = f" (for one {name} per grasp pass an (N, 1) array)" if m.ndim == 1 else ""
         raise ValueError(
-            f"mu of shape {np.shape(mu)} does not broadcast to (grasps, contacts) = "
-            f"{(n_grasps, n_contacts)}{hint}") from None
-    return p, nrm, m, single
+            f"{name} of shape {np.shape(values)} does not broadcast to (grasps, contacts) = "
+            f"{shape}{hint}") from None
 
 
 def _real_array(values, name: str) -> np.ndarray:
@@ -133,7 +150,7 @@ def _first_per_grasp(bad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return bad.any(axis=1), bad.argmax(axis=1)
 
 
-def validate_grasps(positions, normals, mu) -> GraspValidation:
+def validate_grasps(positions, normals, mu, torsional_friction=0.0) -> GraspValidation:
     """Check every grasp of a batch and say what is wrong with the bad ones.
 
     Parameters
@@ -142,6 +159,8 @@ def validate_grasps(positions, normals, mu) -> GraspValidation:
         Contact positions and inward normals.
     mu : array_like
         Friction coefficients, broadcastable to (N, n).
+    torsional_friction : array_like
+        Torsional friction coefficients gamma (a length), broadcastable to (N, n).
 
     Returns
     -------
@@ -154,11 +173,15 @@ def validate_grasps(positions, normals, mu) -> GraspValidation:
         Only if the shapes themselves are wrong or an argument is not real numbers;
         bad values are reported per grasp.
     """
-    return _validate(*_as_batch_arrays(positions, normals, mu)[:3])
+    p, nrm, m, single = _as_batch_arrays(positions, normals, mu)
+    return _validate(p, nrm, m, _per_contact(torsional_friction, "torsional_friction",
+                                             single, m.shape))
 
 
-def _validate(p: np.ndarray, nrm: np.ndarray, m: np.ndarray) -> GraspValidation:
-    """:func:`validate_grasps` on arrays already shaped (N, n, 3), (N, n, 3), (N, n)."""
+def _validate(p: np.ndarray, nrm: np.ndarray, m: np.ndarray,
+              torsional: np.ndarray | None = None) -> GraspValidation:
+    """:func:`validate_grasps` on arrays already shaped (N, n, 3), (N, n, 3), (N, n),
+    and gamma (N, n) or None (all hard)."""
     n_grasps, n_contacts = p.shape[:2]
     reasons = [""] * n_grasps
     if n_contacts < MIN_CONTACTS:
@@ -182,7 +205,7 @@ def _validate(p: np.ndarray, nrm: np.ndarray, m: np.ndarray) -> GraspValidation:
             (~(m > 0), "friction coefficient must be > 0"),
             (m > MAX_FRICTION_COEFFICIENT,
              f"friction coefficient exceeds {MAX_FRICTION_COEFFICIENT:g}"),
-        )
+        ) + (() if torsional is None else torsional_checks(torsional))
     valid = np.ones(n_grasps, dtype=bool)
     # Report the first problem of each grasp: a grasp already found bad is skipped.
     for bad, what in checks:
@@ -208,8 +231,18 @@ def _all_valid(p: np.ndarray, nrm: np.ndarray, m: np.ndarray) -> bool:
                     and ((m > 0) & (m <= MAX_FRICTION_COEFFICIENT)).all())
 
 
-def prepare_grasps(positions, normals, mu) -> GraspBatch:
+def _all_hard(torsional_friction) -> bool:
+    """None or a plain zero: every contact hard, known without building an array (the
+    default of every entry point, so a one-grasp call pays nothing for soft contacts)."""
+    return torsional_friction is None or (
+        isinstance(torsional_friction, (int, float)) and torsional_friction == 0)
+
+
+def prepare_grasps(positions, normals, mu, torsional_friction=None) -> GraspBatch:
     """Validate input and return it as a normalised batch.
+
+    ``torsional_friction`` (gamma, broadcastable to (N, n)) is optional; None or all
+    zeros give a hard batch (``torsional`` None).
 
     Raises
     ------
@@ -217,9 +250,13 @@ def prepare_grasps(positions, normals, mu) -> GraspBatch:
         On wrong shapes or any bad value, naming the first bad grasps and contacts.
     """
     p, nrm, m, single = _as_batch_arrays(positions, normals, mu)
-    validation = None if _all_valid(p, nrm, m) else _validate(p, nrm, m)
+    gamma = (None if _all_hard(torsional_friction) else
+             _per_contact(torsional_friction, "torsional_friction", single, m.shape))
+    good = _all_valid(p, nrm, m) and (gamma is None or torsional_all_valid(gamma))
+    validation = None if good else _validate(p, nrm, m, gamma)
     if validation is not None and not validation.valid.all():
         bad = [r for r in validation.reasons if r]
         more = f" (and {len(bad) - 3} more)" if len(bad) > 3 else ""
         raise ValueError("invalid grasp input: " + "; ".join(bad[:3]) + more)
-    return GraspBatch(p, unit_vectors(nrm), np.ascontiguousarray(m), single)
+    return GraspBatch(p, unit_vectors(nrm), np.ascontiguousarray(m), single,
+                      None if gamma is None else torsional_or_none(gamma))

@@ -36,6 +36,12 @@ above mu*, t*(mu) grows from 0 roughly like (mu - mu*) * min_i r_i f_n,i, so it 
 only from mu* + O(MARGIN_TOL * n / r) on: at mu*(1 + 1e-5) only where that slope is large
 enough. ``margin=MARGIN_TOL`` computes that numerical boundary instead (see
 :func:`minimum_friction`).
+
+Soft fingers (``torsional_friction``, :mod:`.contact_model`): gamma is fixed while mu
+varies; the soft cone (mu f_n - t, f_t, mu w rho) in Q^4 still grows with mu, so mu*
+is defined the same way. Each certificate gets the soft form: the upper bound is the
+least mu with mu (f_n - d) - margin S >= |(|f_t| + d, mu w (|rho| + d))| (a quadratic
+in mu), the lower bound's wrench does the torsional work |gamma n . w_torque| too.
 """
 
 from __future__ import annotations
@@ -45,6 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .certificates import grasp_maps, normalise_positions
+from .contact_model import HARD, SOFT, model_of, torsion_scales, wrench_columns
 from .grasp_input import GraspBatch, prepare_grasps
 from .stacked_socp import SOLVE_BATCH, BlockShape, solve_stacked, split_normal, tangent_bases
 from .tolerances import RANK_TOL
@@ -135,7 +142,8 @@ class MinimumFriction:
     solves: np.ndarray
 
 
-def minimum_friction(positions, normals, ratios=1.0, margin=0.0) -> np.ndarray:
+def minimum_friction(positions, normals, ratios=1.0, margin=0.0,
+                     torsional_friction=0.0) -> np.ndarray:
     """The least friction coefficient at which a grasp is force closure.
 
     Parameters
@@ -150,6 +158,9 @@ def minimum_friction(positions, normals, ratios=1.0, margin=0.0) -> np.ndarray:
         0 (default): the force-closure boundary itself. ``MARGIN_TOL``: the boundary of
         :func:`check_force_closure`'s verdict, the least mu whose exact-test margin
         t*(mu) reaches it (always > 0). Any margin in [0, 1) may be asked for.
+    torsional_friction : float or array_like broadcastable to (N, n)
+        gamma of soft contacts (>= 0, a length in the positions' unit; fixed while mu
+        varies); 0 (default): hard contacts.
 
     Returns
     -------
@@ -167,15 +178,17 @@ def minimum_friction(positions, normals, ratios=1.0, margin=0.0) -> np.ndarray:
     ValueError
         On bad input, naming the grasp and contact.
     """
-    return minimum_friction_bounds(positions, normals, ratios, margin).value
+    return minimum_friction_bounds(positions, normals, ratios, margin,
+                                   torsional_friction).value
 
 
-def minimum_friction_bounds(positions, normals, ratios=1.0, margin=0.0) -> MinimumFriction:
+def minimum_friction_bounds(positions, normals, ratios=1.0, margin=0.0,
+                            torsional_friction=0.0) -> MinimumFriction:
     """:func:`minimum_friction` with its certified bounds and solve counts."""
     if not 0.0 <= margin < 1.0:
         raise ValueError(f"margin must be in [0, 1), got {margin}")
     try:
-        grasps = prepare_grasps(positions, normals, ratios)
+        grasps = prepare_grasps(positions, normals, ratios, torsional_friction)
     except ValueError as error:
         raise ValueError(str(error).replace("friction coefficient", "friction ratio")) from None
     lower, upper, solves = solve_minimum_friction(grasps, float(margin))
@@ -199,18 +212,21 @@ def solve_minimum_friction(grasps: GraspBatch, margin: float = 0.0):
     solves : ndarray of int, shape (N,)
     """
     n_grasps = grasps.mu.shape[0]
-    unit, _, _ = normalise_positions(grasps.positions)
-    gmap = grasp_maps(unit)                                             # (N, 6, 3n)
+    model = model_of(grasps.torsional)
+    unit, _, size = normalise_positions(grasps.positions)
+    torsional_unit = None if model is HARD else grasps.torsional / size[:, None]
+    gmap = wrench_columns(grasp_maps(unit), grasps.normals, torsional_unit)   # (N, 6, d n)
+    weight = None if model is HARD else torsion_scales(torsional_unit)[1]
     singular = np.linalg.svd(gmap, compute_uv=False)
     full_rank = singular[:, -1] > RANK_TOL * singular[:, 0]
     state = _RootState.start(n_grasps, full_rank)
-    lifted = _lifts_off(gmap, grasps.normals, grasps.mu, full_rank)
+    lifted = _lifts_off(gmap, grasps.normals, grasps.mu, full_rank, weight)
     state.lower[lifted] = np.inf
     active = np.flatnonzero(full_rank & ~lifted)
     # Forces towards the centroid, f_i = c - p_i, are always in equilibrium (they pair
     # up along chords): where every one pushes into its contact, a free first bound.
-    centroid_bound = upper_certificate(-unit.reshape(n_grasps, -1), gmap, grasps.normals,
-                                       grasps.mu, margin)
+    centroid_bound = upper_certificate(_generalised(-unit, model).reshape(n_grasps, -1), gmap,
+                                       grasps.normals, grasps.mu, margin, weight)
     state.upper = np.where(full_rank, centroid_bound, np.inf)
     state.lam = np.where(np.isfinite(state.upper), state.upper, MU_START)
     for _ in range(MAX_SOLVES):
@@ -223,24 +239,39 @@ def solve_minimum_friction(grasps: GraspBatch, margin: float = 0.0):
         chunks = [active[~stalled][start:start + SOLVE_BATCH]
                   for start in range(0, int((~stalled).sum()), SOLVE_BATCH)]
         for chunk in chunks + [active[k:k + 1] for k in np.flatnonzero(stalled)]:
-            _step(chunk, state, gmap, grasps, margin)
+            _step(chunk, state, gmap, grasps, margin, weight)
         done = _resolved(state.lower[active], state.upper[active])
         active = active[~done & (state.stalls[active] < MAX_STALLS)]
     return state.lower, state.upper, state.solves
 
 
-def _step(chunk, state, gmap, grasps, margin):
-    """One stacked solve for the grasps ``chunk``: certificates, then the next lam."""
+def _step(chunk, state, gmap, grasps, margin, weight=None):
+    """One stacked solve for the grasps ``chunk``: certificates, then the next lam.
+
+    ``weight`` (N, n): soft batches' cone weights of rho (:mod:`.contact_model`)."""
     lam = state.lam[chunk]
     normals, ratios = grasps.normals[chunk], grasps.mu[chunk]
-    forces, wrench, depth, slope = _solve_chunk(gmap[chunk], normals, ratios, lam)
-    upper = upper_certificate(forces, gmap[chunk], normals, ratios, margin)
+    weight = None if weight is None else weight[chunk]
+    forces, wrench, depth, slope = _solve_chunk(gmap[chunk], normals, ratios, lam, weight)
+    upper = upper_certificate(forces, gmap[chunk], normals, ratios, margin, weight)
     ceiling = np.where(np.isfinite(state.upper[chunk]), state.upper[chunk], MU_CAP)
-    lower = lower_certificate(wrench, gmap[chunk], normals, ratios, ceiling, margin)
+    lower = lower_certificate(wrench, gmap[chunk], normals, ratios, ceiling, margin, weight)
     state.update(chunk, lam, depth - margin, slope, lower, upper)
 
 
-def _lifts_off(gmap, normals, ratios, full_rank):
+def _generalised(vectors, model):
+    """Per-contact 3-vectors (K, n, 3) as generalised forces (K, n, d): rho = 0."""
+    if model is HARD:
+        return vectors
+    return np.concatenate([vectors, np.zeros(vectors.shape[:2] + (1,))], axis=2)
+
+
+def _components(gmap, normals):
+    """Generalised components per contact of a (generalised) grasp map: 3 or 4."""
+    return gmap.shape[2] // normals.shape[1]
+
+
+def _lifts_off(gmap, normals, ratios, full_rank, weight=None):
     """Grasps (N,) certified not force closure up to MU_CAP without a solve.
 
     Where the normals' work is a combination of the rows of G (G^T w = the normals: the
@@ -250,10 +281,13 @@ def _lifts_off(gmap, normals, ratios, full_rank):
     """
     gram = np.einsum("gkv,gjv->gkj", gmap, gmap)
     gram[~full_rank] = np.eye(6)
-    normal_work = np.einsum("gkv,gv->gk", gmap, normals.reshape(len(gmap), -1))
+    model = SOFT if _components(gmap, normals) == 4 else HARD
+    normal_work = np.einsum("gkv,gv->gk", gmap,
+                            _generalised(normals, model).reshape(len(gmap), -1))
     lift_wrench = np.linalg.solve(gram, normal_work[..., None])[..., 0]
     ceiling = np.full(len(gmap), MU_CAP)
-    return full_rank & (lower_certificate(lift_wrench, gmap, normals, ratios, ceiling)
+    return full_rank & (lower_certificate(lift_wrench, gmap, normals, ratios, ceiling,
+                                          weight=weight)
                         >= MU_CAP)
 
 
@@ -345,19 +379,19 @@ class _RootState:
         return np.where(np.isfinite(upper), guess, escalated)
 
 
-def _block_shape(n_contacts: int) -> BlockShape:
-    """Rows: G f = 0 (6), sum f_n = 1 (1), one Q^3 per contact. Columns: f (3n), t."""
-    n_vars = 3 * n_contacts + 1
-    pattern = np.zeros((7 + 3 * n_contacts, n_vars), dtype=bool)
-    pattern[:7, :3 * n_contacts] = True
+def _block_shape(n_contacts: int, d: int = 3) -> BlockShape:
+    """Rows: G f = 0 (6), sum f_n = 1 (1), one Q^d per contact. Columns: f (d n), t."""
+    n_vars = d * n_contacts + 1
+    pattern = np.zeros((7 + d * n_contacts, n_vars), dtype=bool)
+    pattern[:7, :d * n_contacts] = True
     for i in range(n_contacts):
-        rows = slice(7 + 3 * i, 10 + 3 * i)
-        pattern[rows, 3 * i:3 * i + 3] = True
-        pattern[7 + 3 * i, -1] = True
-    return BlockShape(pattern, zero_rows=7, nonneg_rows=0, soc_sizes=(3,) * n_contacts)
+        rows = slice(7 + d * i, 7 + d * (i + 1))
+        pattern[rows, d * i:d * (i + 1)] = True
+        pattern[7 + d * i, -1] = True
+    return BlockShape(pattern, zero_rows=7, nonneg_rows=0, soc_sizes=(d,) * n_contacts)
 
 
-def _solve_chunk(gmap, normals, ratios, lam):
+def _solve_chunk(gmap, normals, ratios, lam, weight=None):
     """The signed-margin SOCP at friction lam * ratios for each grasp of a chunk (K).
 
         maximise t  s.t.  G f = 0,  sum_i f_n,i = 1,  (lam r_i f_n,i - t, f_t,i) in Q^3
@@ -366,28 +400,34 @@ def _solve_chunk(gmap, normals, ratios, lam):
     under scaling) and the variable is t / s: its optimum is then relative to lam, so the
     solver's absolute accuracy resolves lam relatively, for small and large lam alike.
 
+    Soft batches (a generalised ``gmap`` of 4 columns per contact, cone weights
+    ``weight`` (K, n)) add the cone row lam r_i w_i rho_i / s.
+
     Returns
     -------
-    forces : ndarray, shape (K, 3n)
+    forces : ndarray, shape (K, d n)
     wrench : ndarray, shape (K, 6)
         Multipliers of the equilibrium rows.
     depth : ndarray, shape (K,)
         The solver's optimum t (the signed margin of the exact test).
     """
     n_grasps, n_contacts = ratios.shape
-    shape = _block_shape(n_contacts)
+    d = _components(gmap, normals)
+    shape = _block_shape(n_contacts, d)
     tangent, bitangent = tangent_bases(normals)
     scale = np.maximum(lam, MARGIN_SCALE_FLOOR)
     a = np.zeros((n_grasps,) + shape.pattern.shape)
     a[:, :6, :-1] = gmap
-    a[:, 6, :-1] = normals.reshape(n_grasps, -1)
+    a[:, 6, :-1] = _generalised(normals, SOFT if d == 4 else HARD).reshape(n_grasps, -1)
     # Clarabel's form A x + s = b, s in the cone: each cone row of A holds -s(x).
     cone = -np.stack([((lam / scale)[:, None] * ratios)[..., None] * normals,
                       tangent / scale[:, None, None], bitangent / scale[:, None, None]],
                      axis=2)                                           # (K, n, 3, 3)
     for i in range(n_contacts):
-        a[:, 7 + 3 * i:10 + 3 * i, 3 * i:3 * i + 3] = cone[:, i]
-        a[:, 7 + 3 * i, -1] = 1.0
+        a[:, 7 + d * i:10 + d * i, d * i:d * i + 3] = cone[:, i]
+        if d == 4:
+            a[:, 10 + d * i, d * i + 3] = -(lam / scale) * ratios[:, i] * weight[:, i]
+        a[:, 7 + d * i, -1] = 1.0
     b = np.zeros((n_grasps, shape.pattern.shape[0]))
     b[:, 6] = 1.0
     q = np.zeros((n_grasps, shape.pattern.shape[1]))
@@ -402,13 +442,17 @@ def _solve_chunk(gmap, normals, ratios, lam):
         x, z = solution.x, solution.z
     # dt/dlam by the envelope theorem: sum_i (cone i's multiplier on its first row)
     # * r_i f_n,i; the rows' scaling by s cancels against t = s t'.
-    cone_first = z[:, 7::3][:, :n_contacts]
-    normal_force = (x[:, :-1].reshape(n_grasps, n_contacts, 3) * normals).sum(axis=2)
+    cone_first = z[:, 7::d][:, :n_contacts]
+    per_contact = x[:, :-1].reshape(n_grasps, n_contacts, d)
+    normal_force = (per_contact[..., :3] * normals).sum(axis=2)
     slope = (cone_first * ratios * normal_force).sum(axis=1)
+    if d == 4:  # the rho row scales with lam too: its multiplier times r_i w_i rho_i
+        slope += (z[:, 10::d][:, :n_contacts] * ratios * weight
+                  * per_contact[..., 3]).sum(axis=1)
     return x[:, :-1], z[:, :6], x[:, -1] * scale, slope
 
 
-def upper_certificate(forces, gmap, normals, ratios, margin=0.0):
+def upper_certificate(forces, gmap, normals, ratios, margin=0.0, cone_weight=None):
     """The friction above which the given forces prove force closure with ``margin``.
 
     The forces are moved onto null(G) by a weighted least-norm correction that loads it
@@ -420,13 +464,19 @@ def upper_certificate(forces, gmap, normals, ratios, margin=0.0):
 
     Parameters
     ----------
-    forces : ndarray, shape (K, 3n)
-        Candidate contact forces, world frame, of grasps normalised to unit size.
-    gmap : ndarray, shape (K, 6, 3n)
+    forces : ndarray, shape (K, d n)
+        Candidate (generalised) contact forces, world frame, of grasps normalised to
+        unit size.
+    gmap : ndarray, shape (K, 6, d n)
     normals : ndarray, shape (K, n, 3)
     ratios : ndarray, shape (K, n)
     margin : float
         Depth t >= 0 the forces must have in every cone (normal forces summing to one).
+        Soft contacts: the least mu with mu c - margin S >= |(A, mu B)|, c = f_n - d,
+        A = |f_t| + d, B = w (|rho| + d), the larger root of its quadratic (inf unless
+        c > B).
+    cone_weight : ndarray, shape (K, n), optional
+        Soft: the cone weight w of rho (:func:`.contact_model.torsion_scales`).
 
     Returns
     -------
@@ -438,11 +488,12 @@ def upper_certificate(forces, gmap, normals, ratios, margin=0.0):
         its total normal force), so the exact test's margin t*(mu) exceeds ``margin``.
     """
     n_grasps, n_contacts = ratios.shape
-    per_contact = forces.reshape(n_grasps, n_contacts, 3)
+    d = _components(gmap, normals)
+    per_contact = forces.reshape(n_grasps, n_contacts, d)[..., :3]
     normal_part = (per_contact * normals).sum(axis=2)
     weight = np.maximum(normal_part, 0.0)
     weight = np.maximum(weight, WEIGHT_FLOOR * weight.max(axis=1, keepdims=True) + 1e-300)
-    column_weight = np.repeat(weight, 3, axis=1)                       # (K, 3n)
+    column_weight = np.repeat(weight, d, axis=1)                       # (K, d n)
     weighted_map = gmap * column_weight[:, None, :]
     normal_matrix = np.einsum("gkv,gjv->gkj", weighted_map, gmap)      # G W G^T (K, 6, 6)
     smallest = np.linalg.eigvalsh(normal_matrix)[:, 0]
@@ -461,15 +512,25 @@ def upper_certificate(forces, gmap, normals, ratios, margin=0.0):
     with np.errstate(divide="ignore", invalid="ignore"):
         distance = np.where(solvable[:, None],
                             np.sqrt(weight / smallest[:, None]) * residual[:, None], np.inf)
-    normal_part, tangential = split_normal(corrected.reshape(normals.shape), normals)
+    generalised = corrected.reshape(n_grasps, n_contacts, d)
+    normal_part, tangential = split_normal(generalised[..., :3], normals)
     valid = (normal_part > distance).all(axis=1)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         total = (normal_part + distance).sum(axis=1, keepdims=True)
-        ratio = (tangential + distance + margin * total) / (ratios * (normal_part - distance))
+        if d == 3:
+            ratio = (tangential + distance + margin * total) / (ratios * (normal_part - distance))
+            return np.where(valid, ratio.max(axis=1), np.inf)
+        c, need = normal_part - distance, margin * total
+        along = tangential + distance
+        twist = cone_weight * (np.abs(generalised[..., 3]) + distance)
+        room = c * c - twist * twist
+        root = (c * need + np.sqrt(np.maximum(c * c * need * need
+                                              - room * (need * need - along * along), 0.0)))
+        ratio = np.where(room > 0, root / room, np.inf) / ratios
         return np.where(valid, ratio.max(axis=1), np.inf)
 
 
-def margin_bound(mu, work_normal, work_tangential, ratios):
+def margin_bound(mu, work_normal, work_tangential, ratios, work_twist=None):
     """Upper bound on the exact test's margin t*(mu) proved by one wrench.
 
     If a wrench w does work a_i = B_i w on unit forces at contact i, with
@@ -484,6 +545,9 @@ def margin_bound(mu, work_normal, work_tangential, ratios):
     mu : ndarray, shape (K,)
     work_normal, work_tangential : ndarray, shape (K, n)
     ratios : ndarray, shape (K, n)
+    work_twist : ndarray, shape (K, n), optional
+        Soft contacts: a bound on |gamma_i n_i . w_torque|, the work of unit torsion;
+        l0 = max_i (a_n,i + |(mu_i |a_t,i|, twist_i)|), the rest as above.
 
     Returns
     -------
@@ -492,21 +556,27 @@ def margin_bound(mu, work_normal, work_tangential, ratios):
         S is not positive (w does no work at any contact, e.g. w = 0: no information).
     """
     friction = mu[:, None] * ratios
-    l0 = (work_normal + friction * work_tangential).max(axis=1)
+    if work_twist is None:
+        l0 = (work_normal + friction * work_tangential).max(axis=1)
+    else:
+        l0 = (work_normal + np.hypot(friction * work_tangential, work_twist)).max(axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         total = ((np.maximum(l0, 0.0)[:, None] - work_normal) / friction).sum(axis=1)
         bound = np.where(l0 > 0, np.maximum(l0, 0.0) / total, 0.0)
     return np.where(total > 0, bound, np.inf)
 
 
-def lower_certificate(wrench, gmap, normals, ratios, ceiling, margin=0.0):
+def lower_certificate(wrench, gmap, normals, ratios, ceiling, margin=0.0, weight=None):
     """The largest friction at which a wrench proves the margin at most ``margin``.
 
     Parameters
     ----------
     wrench : ndarray, shape (K, 6)
         Candidate separating wrench (either sign is tried), of grasps of unit size.
-    gmap : ndarray, shape (K, 6, 3n)
+    gmap : ndarray, shape (K, 6, d n)
+        d = 4 (soft): the rho columns' work b_i = c_i n_i . w_torque counts too, as
+        |b_i| / w_i = gamma_i |n_i . w_torque| per unit normal force (``weight``: the
+        cone weights w of :func:`.contact_model.torsion_scales`).
     normals : ndarray, shape (K, n, 3)
     ratios : ndarray, shape (K, n)
     ceiling : ndarray, shape (K,)
@@ -521,26 +591,34 @@ def lower_certificate(wrench, gmap, normals, ratios, ceiling, margin=0.0):
         the better sign of w, the work inflated by its rounding slack; 0 if none. t*(mu)
         only grows with mu, so the bound holds at every mu <= L too.
     """
-    work = np.einsum("gkv,gk->gv", gmap, wrench).reshape(normals.shape)
-    normal_part, tangential = split_normal(work, normals)
+    work = np.einsum("gkv,gk->gv", gmap, wrench).reshape(normals.shape[:2] + (-1,))
+    normal_part, tangential = split_normal(work[..., :3], normals)
     slack = (CERT_SLACK * np.abs(wrench).max(axis=1))[:, None]
     threshold = max(margin, CERT_MARGIN)
     # Both signs of w at once: rows [w; -w], shape (2K, n).
     work_normal = np.concatenate([normal_part, -normal_part]) + np.tile(slack, (2, 1))
     work_tangential = np.tile(tangential + slack, (2, 1))
     both_ratios, ceiling = np.tile(ratios, (2, 1)), np.tile(ceiling, 2)
+    twist = None if work.shape[-1] == 3 else np.tile(np.abs(work[..., 3]) / weight + slack,
+                                                     (2, 1))
     # Where w strictly separates (no work > 0 anywhere), the closed form: the largest mu
-    # with a_n,i + mu r_i |a_t,i| <= 0 for all i; the bisection starts from there.
+    # with a_n,i + mu r_i |a_t,i| <= 0 for all i (soft: a_n,i + |(mu r_i |a_t,i|, b_i)|
+    # <= 0, i.e. a_n,i <= -|b_i| and mu r_i |a_t,i| <= sqrt(a_n,i^2 - b_i^2)); the
+    # bisection starts from there.
+    reach = -work_normal if twist is None else np.sqrt(np.maximum(
+        work_normal * work_normal - twist * twist, 0.0))
     with np.errstate(divide="ignore", invalid="ignore"):
-        separating = (-work_normal / (both_ratios * work_tangential)).min(axis=1)
-    strict = (work_normal <= 0).all(axis=1) & (np.tile(slack[:, 0], 2) > 0)   # w = 0: nothing
+        separating = (reach / (both_ratios * work_tangential)).min(axis=1)
+    strict = ((work_normal <= 0).all(axis=1) if twist is None
+              else (work_normal + twist <= 0).all(axis=1))
+    strict &= np.tile(slack[:, 0], 2) > 0                              # w = 0: nothing
     low = np.minimum(np.where(strict, separating, 0.0), ceiling)
     high = ceiling.copy()
-    holds = margin_bound(high, work_normal, work_tangential, both_ratios) <= threshold
+    holds = margin_bound(high, work_normal, work_tangential, both_ratios, twist) <= threshold
     low[holds] = high[holds]
     for _ in range(LOWER_BISECTIONS):
         middle = 0.5 * (low + high)
-        ok = margin_bound(middle, work_normal, work_tangential, both_ratios) <= threshold
+        ok = margin_bound(middle, work_normal, work_tangential, both_ratios, twist) <= threshold
         low, high = np.where(ok, middle, low), np.where(ok, high, middle)
     best = np.maximum(low[:len(wrench)], low[len(wrench):])
     return best

@@ -10,6 +10,13 @@ for a grasp map of rank < 6). Both ends reported are certified:
 MARGIN_ACCURACY (1e-8) where the fast stage decides (Clarabel's ~1e-8 accuracy on its
 fallback grasps); ``margin="bound"`` stops at the verdict, which is about twice as
 fast, and reports whatever interval was certified by then (often wide).
+
+Soft contacts
+-------------
+``torsional_friction`` (gamma, a length in the positions' unit, broadcastable like mu;
+0 = hard, the default) makes contacts soft fingers (:mod:`.contact_model`): the margin
+is then mu f_n - |(f_t, mu tau / gamma)|, the exact test runs on the Clarabel path
+only, and certificates carry the torsional moments in ``contact_torques``.
 """
 
 from __future__ import annotations
@@ -72,12 +79,18 @@ class ForceClosureResult:
         With ``certificates=True``: for FILTERED_OUT and NOT_FORCE_CLOSURE grasps a unit
         wrench (force, torque about the caller's origin) on which no contact force does
         positive work (within CERTIFICATE_TOL), checked likewise; NaN where none.
+        Soft contacts count the work of their torsional moments too.
     marginal : ndarray of bool, or None
         With ``certificates=True``: NOT_FORCE_CLOSURE (or FILTERED_OUT) grasps without
         a separating wrench: 0 < t* < MARGIN_TOL, so internal forces exist but too close
         to the cone boundaries; or a grasp map of rank < 6 (e.g. collinear contacts)
         whose only separating wrenches do zero work at every contact, which rounding
         blurs beyond the relative CERTIFICATE_TOL check.
+    contact_torques : ndarray, shape (n,) or (N, n), or None
+        With ``certificates=True`` and soft contacts (some torsional_friction > 0): the
+        torsional moment tau_i about each normal of ``contact_forces`` (force times the
+        positions' unit; 0 at hard contacts), part of the same verified certificate;
+        NaN where ``contact_forces`` is. None for hard grasps.
     """
 
     force_closure: np.ndarray
@@ -89,11 +102,13 @@ class ForceClosureResult:
     contact_forces: np.ndarray | None = None
     separating_wrench: np.ndarray | None = None
     marginal: np.ndarray | None = None
+    contact_torques: np.ndarray | None = None
 
 
 def check_force_closure(positions, normals, mu, use_filter: bool | str = "auto",
                         origins: str = "seed", margin: str = "optimum",
-                        certificates: bool = False) -> ForceClosureResult:
+                        certificates: bool = False,
+                        torsional_friction=0.0) -> ForceClosureResult:
     """Decide force closure of one grasp or a batch: the filter, then the exact test.
 
     Parameters
@@ -116,6 +131,9 @@ def check_force_closure(positions, normals, mu, use_filter: bool | str = "auto",
     certificates : bool
         Also return contact forces, separating wrenches and the ``marginal`` flags,
         each verified in the caller's frame before it is returned.
+    torsional_friction : float or array_like broadcastable to (N, n)
+        Torsional friction coefficient gamma of each contact (>= 0, a length in the
+        positions' unit); 0 (default) is a hard contact. See the module docstring.
 
     Returns
     -------
@@ -126,8 +144,8 @@ def check_force_closure(positions, normals, mu, use_filter: bool | str = "auto",
     ValueError
         On bad input, naming the grasp and contact.
     """
-    return run_pipeline(prepare_grasps(positions, normals, mu), use_filter, origins, margin,
-                        certificates)
+    return run_pipeline(prepare_grasps(positions, normals, mu, torsional_friction), use_filter,
+                        origins, margin, certificates)
 
 
 def run_pipeline(grasps: GraspBatch, use_filter: bool | str = True, origins: str = "seed",
@@ -172,8 +190,9 @@ def run_pipeline(grasps: GraspBatch, use_filter: bool | str = True, origins: str
 
 
 def _subset(grasps: GraspBatch, indices: np.ndarray) -> GraspBatch:
+    torsional = None if grasps.torsional is None else grasps.torsional[indices]
     return GraspBatch(grasps.positions[indices], grasps.normals[indices], grasps.mu[indices],
-                      single=False)
+                      single=False, torsional=torsional)
 
 
 def _certificates(grasps: GraspBatch, survivors: np.ndarray, exact,
@@ -193,15 +212,23 @@ def _certificates(grasps: GraspBatch, survivors: np.ndarray, exact,
         rejected = status == Status.FILTERED_OUT
         wrench[rejected] = filter_wrench[rejected]
     rejected_any = (status == Status.NOT_FORCE_CLOSURE) | (status == Status.FILTERED_OUT)
+    torques = None
+    if grasps.torsional is not None:
+        torques = np.full((n_grasps, n_contacts), np.nan)
+        torques[survivors] = exact.torques
     forces_ok, wrench_ok = verify_certificates(grasps.positions, grasps.normals, grasps.mu,
-                                               forces, wrench)
+                                               forces, wrench, grasps.torsional, torques)
     forces[~forces_ok] = np.nan
     wrench[~wrench_ok] = np.nan
-    return {"contact_forces": forces, "separating_wrench": wrench,
-            "marginal": rejected_any & ~wrench_ok}
+    extra = {"contact_forces": forces, "separating_wrench": wrench,
+             "marginal": rejected_any & ~wrench_ok}
+    if torques is not None:
+        torques[~forces_ok] = np.nan
+        extra["contact_torques"] = torques
+    return extra
 
 
-def exact_force_closure(positions, normals, mu) -> np.ndarray:
+def exact_force_closure(positions, normals, mu, torsional_friction=0.0) -> np.ndarray:
     """The exact force-closure test alone (no filter).
 
     Parameters
@@ -209,6 +236,8 @@ def exact_force_closure(positions, normals, mu) -> np.ndarray:
     positions : array_like, shape (n, 3) or (N, n, 3)
     normals : array_like, same shape as ``positions``
     mu : float or array_like broadcastable to (N, n)
+    torsional_friction : float or array_like broadcastable to (N, n)
+        gamma of soft contacts (a length); 0 (default): hard contacts.
 
     Returns
     -------
@@ -220,5 +249,5 @@ def exact_force_closure(positions, normals, mu) -> np.ndarray:
     ValueError
         On bad input, naming the grasp and contact.
     """
-    grasps = prepare_grasps(positions, normals, mu)
+    grasps = prepare_grasps(positions, normals, mu, torsional_friction)
     return grasps.unbatch(solve_exact(grasps).force_closure)

@@ -111,3 +111,10 @@ MARGIN_ACCURACY = 1e-8
 #: positive work at any contact: a tenth of CERTIFICATE_TOL, leaving room for the
 #: rounding of the map back to the caller's frame.
 SEPARATION_TARGET = 1e-7
+
+#: The torque filter passes a grasp with soft contacts at once when the smallest
+#: eigenvalue of sum_i n_i n_i^T over its soft normals exceeds this: a rejection needs a
+#: unit direction c with |c . n_i| <= SPAN_TOL at every soft contact (its line {tau n_i}),
+#: so c^T (sum_i n_i n_i^T) c <= n SPAN_TOL^2 (~1e-20 for 10,000 contacts), far below it.
+#: Below it the grasp just goes through the filter as usual.
+SOFT_SPAN_TOL = 1e-12

@@ -137,3 +137,31 @@ def cone_torque_sets(lever_arms: np.ndarray, normals: np.ndarray,
     kind[is_fan] = TorqueSetKind.FAN
     kind[is_plane] = TorqueSetKind.PLANE
     return TorqueSets(kind, first, second, np.where(is_null, 0.0, r_hat))
+
+
+def normal_lines(normals: np.ndarray, soft: np.ndarray) -> TorqueSets:
+    """The torque sets of soft contacts' torsional moments: the lines along their normals.
+
+    A soft contact's torque set about any origin lies in its fan (or plane, or {0} at
+    the origin) plus the line {tau n}; for the positive span only generators matter, so
+    each line enters as a "fan" with boundary torques n and -n, and a hard contact as a
+    null set. Shapes as :func:`cone_torque_sets`.
+
+    Parameters
+    ----------
+    normals : ndarray, shape (3, ...)
+        Unit inward normals, component-first.
+    soft : ndarray of bool, shape (...)
+        Which contacts are soft (gamma > 0).
+    """
+    first = np.where(soft, normals, 0.0)
+    kind = np.where(soft, TorqueSetKind.FAN, TorqueSetKind.NULL).astype(np.int8)
+    return TorqueSets(kind, first, -first, np.zeros_like(first))
+
+
+def concatenate(parts: list[TorqueSets]) -> TorqueSets:
+    """Torque sets of several families of one batch, joined along the first set axis."""
+    return TorqueSets(np.concatenate([part.kind for part in parts]),
+                      np.concatenate([part.first for part in parts], axis=1),
+                      np.concatenate([part.second for part in parts], axis=1),
+                      np.concatenate([part.axis for part in parts], axis=1))

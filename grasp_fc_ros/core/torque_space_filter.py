@@ -16,6 +16,17 @@ Origins:
   Still sound, and rejects more grasps that are not force closure, at n/2 times the
   cost.
 
+Soft contacts (torsional friction gamma > 0, :mod:`.contact_model`): a soft contact's
+torque set about an origin is {r x f + tau n} with (f, tau) in its elliptic cone, which
+lies in its hard fan (plane, {0}) plus the line along its normal n. The filter uses
+exactly that superset: every soft contact, the origin contact included, adds the line
+{tau n} (generators n and -n, :func:`.torque_sets.normal_lines`). A rejection then
+needs a direction c perpendicular (within SPAN_TOL) to every soft normal, so grasps with
+three soft contacts of independent normals always pass (they are passed at once, without
+their torque sets, :func:`soft_normals_span`); the filter stays sound and catches
+non-force-closure grasps whose soft normals lie in one plane. Its
+certificate wrenches are checked with the soft work term (:func:`does_no_positive_work`).
+
 The seed origins depend on the coordinate frame and on the length unit (the offset
 (1, 0, 0) is in the caller's unit), as in the paper: which non-force-closure grasps
 the filter catches can change with them. Its soundness, and so every final verdict,
@@ -38,11 +49,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .certificates import largest_work
+from .contact_model import largest_work
 from .grasp_input import GraspBatch, prepare_grasps
 from .positive_span import positively_spans
-from .tolerances import CERTIFICATE_TOL, WORK_ROUNDING_ULPS
-from .torque_sets import cone_torque_sets, dot, friction_half_angle_sine
+from .tolerances import CERTIFICATE_TOL, SOFT_SPAN_TOL, WORK_ROUNDING_ULPS
+from .torque_sets import (concatenate, cone_torque_sets, dot, friction_half_angle_sine,
+                          normal_lines)
 
 ORIGIN_CHOICES = ("seed", "all")
 
@@ -107,7 +119,8 @@ def resolve_use_filter(use_filter, n_contacts: int, origins: str = "seed") -> bo
 
 
 def torque_filter(positions, normals, mu, origins: str = "seed",
-                  certificates: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+                  certificates: bool = False,
+                  torsional_friction=0.0) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Necessary condition for force closure: do the torque sets positively span R^3?
 
     Parameters
@@ -122,6 +135,9 @@ def torque_filter(positions, normals, mu, origins: str = "seed",
         Which contacts serve as torque origins (see module docstring).
     certificates : bool
         Also return a separating wrench for every rejected grasp.
+    torsional_friction : float or array_like broadcastable to (N, n)
+        gamma of soft contacts (a length, >= 0); 0 (default): hard contacts. Soft
+        contacts' torque sets include the line along their normals (module docstring).
 
     Returns
     -------
@@ -136,7 +152,7 @@ def torque_filter(positions, normals, mu, origins: str = "seed",
     ValueError
         On bad input (naming grasp and contact) or an unknown ``origins``.
     """
-    grasps = prepare_grasps(positions, normals, mu)
+    grasps = prepare_grasps(positions, normals, mu, torsional_friction)
     if not certificates:
         return grasps.unbatch(passes_torque_filter(grasps, origins))
     passed, wrench = passes_torque_filter(grasps, origins, certificates=True)
@@ -158,11 +174,16 @@ def passes_torque_filter(grasps: GraspBatch, origins: str = "seed",
         nearly collinear grasps come close) is passed on instead, so with certificates
         every rejection has one.
     """
+    if grasps.torsional is not None:
+        spanned = soft_normals_span(grasps)
+        if spanned.any():
+            return _pass_spanned(grasps, spanned, origins, certificates)
     # Component-first copies, (3, n, N): the grasp axis becomes the contiguous one.
     points = np.ascontiguousarray(grasps.positions.transpose(2, 1, 0))
     normals = np.ascontiguousarray(grasps.normals.transpose(2, 1, 0))
     sin_half_angle = friction_half_angle_sine(np.ascontiguousarray(grasps.mu.T))
     n_contacts = points.shape[1]
+    soft = None if grasps.torsional is None else np.ascontiguousarray(grasps.torsional.T) > 0
     per_pass = max(1, _MAX_LEVER_ARMS_PER_PASS // (n_contacts - 1))
 
     def spans_about(origin: np.ndarray, grasp: np.ndarray):
@@ -176,9 +197,12 @@ def passes_torque_filter(grasps: GraspBatch, origins: str = "seed",
                     if certificates else None)
         others = _other_contacts(origin, n_contacts)                   # (n-1, k)
         lever_arms = points[:, others, grasp] - points[:, origin, grasp][:, None]
-        result = positively_spans(cone_torque_sets(
-            lever_arms, normals[:, others, grasp], sin_half_angle[others, grasp]),
-            directions=certificates)
+        sets = cone_torque_sets(lever_arms, normals[:, others, grasp],
+                                sin_half_angle[others, grasp])
+        if soft is not None:
+            # Every soft contact, the origin's own included, adds the line {tau n}.
+            sets = concatenate([sets, normal_lines(normals[:, :, grasp], soft[:, grasp])])
+        result = positively_spans(sets, directions=certificates)
         return result if certificates else (result, None)
 
     origin = _origin_indices(points, origins)                          # (O, N)
@@ -188,6 +212,37 @@ def passes_torque_filter(grasps: GraspBatch, origins: str = "seed",
     if not certificates:
         return passing
     return _certify(grasps, passing, rejected_about, direction)
+
+
+def soft_normals_span(grasps: GraspBatch) -> np.ndarray:
+    """Grasps (N,) whose soft contacts' normals span R^3 (within SOFT_SPAN_TOL).
+
+    Their lines {tau n_i} alone positively span R^3 about every origin, so the filter
+    passes them whatever the other torque sets are.
+    """
+    soft = (grasps.torsional > 0).astype(np.float64)
+    moment = np.einsum("gi,gij,gik->gjk", soft, grasps.normals, grasps.normals)
+    return np.linalg.eigvalsh(moment)[:, 0] > SOFT_SPAN_TOL
+
+
+def _pass_spanned(grasps: GraspBatch, spanned: np.ndarray, origins: str,
+                  certificates: bool):
+    """:func:`passes_torque_filter` with the ``spanned`` grasps (N,) passed at once and
+    the rest filtered."""
+    if origins not in ORIGIN_CHOICES:
+        raise ValueError(f"origins must be one of {ORIGIN_CHOICES}, got {origins!r}")
+    n_grasps = spanned.size
+    passed = np.ones(n_grasps, dtype=bool)
+    wrench = np.full((n_grasps, 6), np.nan)
+    rest = np.flatnonzero(~spanned)
+    if rest.size:
+        others = GraspBatch(grasps.positions[rest], grasps.normals[rest], grasps.mu[rest],
+                            single=False, torsional=grasps.torsional[rest])
+        if certificates:
+            passed[rest], wrench[rest] = passes_torque_filter(others, origins, True)
+        else:
+            passed[rest] = passes_torque_filter(others, origins)
+    return (passed, wrench) if certificates else passed
 
 
 def _all_origins_at_once(spans_about, origin: np.ndarray, certificates: bool):
@@ -314,7 +369,10 @@ def does_no_positive_work(grasps: GraspBatch, grasp: np.ndarray, origin: np.ndar
     ndarray of bool, shape (R,)
         For every contact, with a_i = c x (p_i - o) computed with the lever arms scaled
         to at most one (a power of two, exact): n_i . a_i + mu_i |a_i - (n_i . a_i) n_i|
-        <= CERTIFICATE_TOL max_j |a_j| + WORK_ROUNDING_ULPS eps (1 + mu_i).
+        <= CERTIFICATE_TOL max_j |a_j| + WORK_ROUNDING_ULPS eps (1 + mu_i). Soft batches:
+        the work of the torsional moment counts too (gamma scaled like the lever arms,
+        :func:`.contact_model.largest_work`), and max_j |a_j| becomes
+        max_j |(a_j, gamma_j)|, with gamma_j of the rounding allowance added.
     """
     positions = grasps.positions[grasp]                                # (R, n, 3)
     lever_arms = positions - positions[np.arange(grasp.size), origin][:, None]
@@ -322,9 +380,16 @@ def does_no_positive_work(grasps: GraspBatch, grasp: np.ndarray, origin: np.ndar
     lever_arms = np.ldexp(lever_arms, -exponent[:, None, None])
     a = np.cross(torque[:, None], lever_arms)
     mu = grasps.mu[grasp]
-    most_work = largest_work(a, grasps.normals[grasp], mu)
-    allowed = (CERTIFICATE_TOL * np.linalg.norm(a, axis=2).max(axis=1)[:, None]
-               + WORK_ROUNDING_ULPS * np.finfo(float).eps * (1.0 + mu))
+    if grasps.torsional is None:
+        most_work = largest_work(a, grasps.normals[grasp], mu)
+        allowed = (CERTIFICATE_TOL * np.linalg.norm(a, axis=2).max(axis=1)[:, None]
+                   + WORK_ROUNDING_ULPS * np.finfo(float).eps * (1.0 + mu))
+        return (most_work <= allowed).all(axis=1)
+    gamma = np.ldexp(grasps.torsional[grasp], -exponent[:, None])
+    most_work = largest_work(a, grasps.normals[grasp], mu, torque, gamma)
+    size = np.hypot(np.linalg.norm(a, axis=2), gamma).max(axis=1)
+    allowed = (CERTIFICATE_TOL * size[:, None]
+               + WORK_ROUNDING_ULPS * np.finfo(float).eps * (1.0 + mu + gamma))
     return (most_work <= allowed).all(axis=1)
 
 
