@@ -287,7 +287,8 @@ class GraspClient:
 
     def compute_contact_forces(self, positions, normals, wrench, mu=0.0,
                                max_normal_forces=None, frame_id: str = "",
-                               timeout: float = DEFAULT_TIMEOUT_S) -> ContactForces:
+                               timeout: float = DEFAULT_TIMEOUT_S,
+                               torsional_friction=0.0) -> ContactForces:
         """The least-largest-normal-force contact forces that hold a load (the node's
         ``compute_contact_forces`` service).
 
@@ -304,13 +305,15 @@ class GraspClient:
             Per-contact normal-force limits (N); None: no limits.
         frame_id : str
             Frame of the contacts and the wrench.
+        torsional_friction : scalar or (n,) float
+            Torsional friction per contact (m; 0: hard contact).
 
         Returns
         -------
         ContactForces
             ``feasible``, ``max_normal_force`` s* (inf: infeasible, NaN: invalid
-            request), ``contact_forces`` (n, 3) (shape (0, 3) unless feasible) and
-            ``message`` (why the request was refused, naming the contact).
+            request), ``contact_forces`` (n, 3) and ``contact_torques`` (n,) (empty unless
+            feasible) and ``message`` (why the request was refused, naming the contact).
 
         Raises
         ------
@@ -318,7 +321,8 @@ class GraspClient:
             If no response came within ``timeout``.
         """
         request = ComputeContactForces.Request(
-            grasp=grasp_to_contact_array(0, positions, normals, mu))
+            grasp=grasp_to_contact_array(0, positions, normals, mu,
+                                         torsional_friction=torsional_friction))
         request.grasp.header.frame_id = frame_id
         w = np.asarray(wrench, dtype=np.float64).reshape(6).tolist()
         force, torque = request.wrench.force, request.wrench.torque
@@ -334,7 +338,8 @@ class GraspClient:
         forces = np.array([(v.x, v.y, v.z) for v in response.contact_forces],
                           dtype=np.float64).reshape(-1, 3)
         return ContactForces(bool(response.feasible), float(response.max_normal_force),
-                             forces, response.message)
+                             forces, np.array(response.contact_torques, dtype=np.float64),
+                             response.message)
 
     @staticmethod
     def _wait(service, request, timeout: float):

@@ -420,6 +420,9 @@ class ContactForces:
         is invalid or the solver could not decide.
     contact_forces : (n, 3) float64
         The optimal force per contact (N); shape (0, 3) unless feasible.
+    contact_torques : (n,) float64
+        The torsional moment about each contact's normal (N m; 0 at hard contacts);
+        shape (0,) unless feasible.
     message : str
         Empty, or why there is no answer (naming the query and contact).
     """
@@ -427,12 +430,18 @@ class ContactForces:
     feasible: bool
     max_normal_force: float
     contact_forces: np.ndarray
+    contact_torques: np.ndarray
     message: str = ""
 
     @classmethod
     def refused(cls, message: str) -> ContactForces:
         """No answer: ``message`` says why."""
-        return cls(False, float("nan"), np.empty((0, 3)), message)
+        return cls(False, float("nan"), np.empty((0, 3)), np.empty(0), message)
+
+    @classmethod
+    def infeasible(cls, max_normal_force: float) -> ContactForces:
+        """No forces hold the load (s* = inf), or none within the limits."""
+        return cls(False, max_normal_force, np.empty((0, 3)), np.empty(0))
 
 
 def contact_forces_for_load(packed: PackedGrasps, wrench, max_normal_forces,
@@ -477,11 +486,13 @@ def contact_forces_for_load(packed: PackedGrasps, wrench, max_normal_forces,
         return ContactForces.refused(
             f"{label}, contact {bad[0]}: max_normal_force must be >= 0 (inf: no limit), "
             f"got {limits[bad[0]]}")
-    s_star, forces = optimal_contact_forces(packed.positions, packed.normals, mu, wrench,
-                                            limits if len(limits) else None)
+    torsional = np.zeros(n_contacts) if packed.torsional is None else packed.torsional
+    s_star, forces, torques = optimal_contact_forces(
+        packed.positions, packed.normals, mu, wrench, limits if len(limits) else None,
+        torsional_friction=torsional)
     s_star = float(s_star)
     if math.isnan(s_star):
         return ContactForces.refused(f"{label}: the solver could not decide")
     if math.isinf(s_star):
-        return ContactForces(False, s_star, np.empty((0, 3)))
-    return ContactForces(True, s_star, forces)
+        return ContactForces.infeasible(s_star)
+    return ContactForces(True, s_star, forces, torques)

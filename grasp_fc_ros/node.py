@@ -506,6 +506,7 @@ class ForceClosureNode(Node):
         response.max_normal_force = answer.max_normal_force
         response.contact_forces = [Vector3(x=x, y=y, z=z)
                                    for x, y, z in answer.contact_forces.tolist()]
+        response.contact_torques = answer.contact_torques.tolist()
         response.message = answer.message
         return response
 

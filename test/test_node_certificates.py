@@ -233,3 +233,22 @@ def test_compute_contact_forces_invalid_request_names_the_contact(certifying, ch
     assert not got.feasible and math.isnan(got.max_normal_force)
     assert got.message.startswith(message), got.message
     assert got.contact_forces.shape == (0, 3)
+
+
+def test_compute_contact_forces_soft_fingers_twist(certifying):
+    # Two soft fingers squeezing along x resist a twist about x only by torsional
+    # friction: each carries half the torque, so s* = T / (2 gamma), and the torques
+    # come back with the forces.
+    positions = np.array([[0.03, 0.0, 0.0], [-0.03, 0.0, 0.0]])
+    normals = np.array([[-1.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    gamma, torque = 0.005, 0.02
+    _, client = certifying
+    got = client.compute_contact_forces(positions, normals, [0, 0, 0, torque, 0, 0],
+                                        torsional_friction=gamma)
+    assert got.feasible and got.message == ""
+    assert got.max_normal_force == pytest.approx(torque / (2 * gamma), rel=S_STAR_RTOL)
+    # the moments about the normals (along -x and +x) cancel the load's torque
+    moments = got.contact_torques[:, None] * normals
+    np.testing.assert_allclose(moments.sum(axis=0) + [torque, 0, 0], 0, atol=BALANCE_ATOL)
+    hard = client.compute_contact_forces(positions, normals, [0, 0, 0, torque, 0, 0])
+    assert not hard.feasible and hard.max_normal_force == math.inf
