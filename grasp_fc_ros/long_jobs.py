@@ -187,16 +187,16 @@ def decide_in_chunks(pool: EvaluationPool, packed: PackedGrasps, settings: Setti
     stopped = False
     try:
         while True:
-            while len(in_flight) < window and first < len(packed) and not stopped:
+            if stop():
+                stopped = True
+                break
+            while len(in_flight) < window and first < len(packed):
                 last = chunk_end(ends, first, chunk_contacts)
                 chunk = packed.slice(first, last)
                 in_flight.append((chunk, pool.submit(chunk, settings, priority)))
                 first = last
             tally.report_if_due()
             if not in_flight:
-                break
-            if stop():
-                stopped = True
                 break
             chunk, future = in_flight[0]
             try:
