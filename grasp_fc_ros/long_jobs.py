@@ -116,14 +116,14 @@ class _Tally:
         self._start = time.monotonic()
         self._last_report = -math.inf
 
-    def add(self, verdicts: Verdicts, seconds: dict):
+    def add(self, verdicts: Verdicts, seconds: dict) -> None:
         self.parts.append(verdicts)
         self.done += len(verdicts)
         self.counts += np.bincount(verdicts.status, minlength=N_STATUSES)[:N_STATUSES]
         for key, value in seconds.items():
             self.seconds[key] = self.seconds.get(key, 0.0) + value
 
-    def report_if_due(self):
+    def report_if_due(self) -> None:
         now = time.monotonic()
         if now - self._last_report < self._period_s:
             return
