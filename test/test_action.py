@@ -305,3 +305,37 @@ def test_label_grasps_without_a_node_times_out(ros):
         with pytest.raises(TimeoutError, match="no label_grasps action server"):
             lonely.label_grasps(np.ones((1, 4, 3)), np.ones((1, 4, 3)), timeout=0.5)
         assert time.monotonic() - start < 3.0
+
+
+def test_sigterm_aborts_a_running_goal_with_its_prefix_and_the_node_exits(grasps, ros):
+    import os
+    import signal
+
+    from grasp_fc_msgs.action import LabelGrasps
+    from rclpy.action import ActionClient
+    from ros_fixtures import NodeProcess, node_command
+
+    from grasp_fc_ros.client import GraspClient
+
+    namespace = f"/action_sigterm_{os.getpid()}"
+    process = NodeProcess(node_command() + ["--ros-args", "-r", f"__ns:={namespace}",
+                                            "-p", "workers:=1"])
+    client = GraspClient(f"{namespace}/force_closure")
+    try:
+        action = ActionClient(client.node, LabelGrasps, f"{namespace}/label_grasps")
+        assert action.wait_for_server(timeout_sec=30.0)
+        positions, normals, expected = tiled(grasps, LONG_GOAL)
+        goal = Goal(action, batch_msg(positions, normals))
+        goal.wait_for_progress()
+        stop_at = time.monotonic()
+        code, _, err = process.stop(signal.SIGTERM)
+        exit_s = time.monotonic() - stop_at
+        status, verdicts = goal.result(timeout=10.0)
+    finally:
+        client.close()
+        if process.proc.poll() is None:
+            process.proc.kill()
+    assert code == 0 and "Traceback" not in err, err
+    assert exit_s < 2.0, f"node took {exit_s:.2f} s to exit"
+    assert status == GoalStatus.STATUS_ABORTED
+    assert 0 < len(assert_prefix(verdicts, expected)) < LONG_GOAL
