@@ -103,6 +103,11 @@ SIGNAL_POLL_S = 0.05
 SHUTDOWN_ACK_TIMEOUT_S = 0.5
 # label_grasps goals decided side by side (their chunks share the workers); more wait.
 ACTION_THREADS = 4
+# How long the action server keeps an ended goal, its request (the whole batch) and
+# result for late result requests (s). rclpy's default, 15 minutes, would hold ~60 MB per
+# 100,000-grasp goal that long; clients ask for the result as soon as a goal is
+# accepted (GraspClient does), so they get it when the goal ends.
+ACTION_RESULT_TIMEOUT_S = 30
 # After the last goal ended at shutdown, time for the action's executor to send its
 # result response (s).
 ACTION_RESULT_GRACE_S = 0.05
@@ -425,7 +430,8 @@ class ForceClosureNode(Node):
                                  start_parameter_services=False)
         self._action_server = ActionServer(
             self._action_node, LabelGrasps, "label_grasps", self._execute_goal,
-            goal_callback=self._on_goal, cancel_callback=self._on_cancel)
+            goal_callback=self._on_goal, cancel_callback=self._on_cancel,
+            result_timeout=ACTION_RESULT_TIMEOUT_S)
         self._action_executor = SingleThreadedExecutor(context=self.context)
         self._action_executor.add_node(self._action_node)
         self._action_thread = threading.Thread(target=self._spin_action, daemon=True,
