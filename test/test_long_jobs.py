@@ -20,13 +20,14 @@ from grasp_fc_ros.core import Status
 from grasp_fc_ros.evaluation import PackedGrasps, Settings, evaluate
 from grasp_fc_ros.long_jobs import (
     MIN_CHUNK_CONTACTS,
+    STOP_POLL_S,
     TARGET_CHUNK_S,
     adapted_chunk_contacts,
     chunk_end,
     decide_in_chunks,
 )
 from grasp_fc_ros.objects import make_object, sample_grasps
-from grasp_fc_ros.workers import POLL_S, EvaluationPool
+from grasp_fc_ros.workers import EvaluationPool
 
 
 def packed_grasps(n_grasps: int, seed: int = 0, mixed: bool = False) -> PackedGrasps:
@@ -150,7 +151,7 @@ def test_reports_keep_coming_and_a_stop_is_seen_while_a_chunk_hangs():
     stopped_at = time.monotonic()
     stop.set()
     thread.join(timeout=5.0)
-    assert time.monotonic() - stopped_at < POLL_S + 0.2
+    assert time.monotonic() - stopped_at < STOP_POLL_S + 0.2
     outcome = result["outcome"]
     assert not outcome.complete
     # Chunks 0 and 1 were decided; chunk 2 was still waiting and was cancelled.
