@@ -43,16 +43,16 @@ from dataclasses import fields, replace
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from grasp_fc_msgs.action import LabelGrasps
 from grasp_fc_msgs.msg import (
     ContactArray,
     ContactArrayBatch,
     ForceClosureVerdict,
     ForceClosureVerdictArray,
 )
-from grasp_fc_msgs.action import LabelGrasps
 from grasp_fc_msgs.srv import CheckForceClosure
-from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rcl_interfaces.msg import IntegerRange, ParameterDescriptor, ParameterType, SetParametersResult
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.duration import Duration
 from rclpy.exceptions import ParameterException
 from rclpy.executors import (
@@ -422,8 +422,7 @@ class ForceClosureNode(Node):
         executor. Its callbacks only queue or flag: each goal's execute coroutine waits
         (without blocking the executor) for :data:`ACTION_THREADS` goal threads, which
         decide goals in chunks on the workers and publish their feedback; so a running
-        goal never delays a cancel request, another goal, or the other interfaces by
-        more than one chunk's worth of GIL.
+        goal does not hold up cancel requests, other goals or the other interfaces.
         """
         self._action_node = Node(f"{self.get_name()}_action", namespace=self.get_namespace(),
                                  context=self.context, use_global_arguments=False,

@@ -21,8 +21,10 @@ pytestmark = pytest.mark.timeout(240)
 
 N_UNIQUE = 3000
 N_FINGERS = 6
-# A goal of this many grasps takes several seconds on one worker (~8,000-15,000 grasps/s).
-LONG_GOAL = 20 * N_UNIQUE
+# A long goal should take about this long on the node's one worker (s); its size is
+# measured per run (the rate varies several-fold with the machine and its load).
+LONG_GOAL_S = 5.0
+LONG_GOAL_RANGE = (20 * N_UNIQUE, 480_000)
 WAIT_S = 60.0
 # Bounds asserted here; the action aims at 1 s between feedbacks and 0.1 s per cancel.
 FEEDBACK_GAP_BOUND_S = 1.5
@@ -55,7 +57,7 @@ def served(ros):
 
     namespace = "/action_test"
     node = ForceClosureNode(namespace=namespace, parameter_overrides=[
-        Parameter("workers", value=1)])
+        Parameter("workers", value=1), Parameter("max_batch", value=500_000)])
     spinner = SpinThread(node)
     client = GraspClient(f"{namespace}/force_closure")
     assert client.wait_for_node(timeout=30.0)
@@ -116,6 +118,16 @@ def action_client(served):
     return action
 
 
+@pytest.fixture(scope="module")
+def long_goal(grasps, action_client):
+    """Grasps in a goal that takes about LONG_GOAL_S here, from a measured goal."""
+    positions, normals, _ = grasps
+    goal = Goal(action_client, batch_msg(positions, normals))
+    goal.result()
+    rate = len(positions) / (goal.ended_at - goal.sent_at)
+    return int(np.clip(rate * LONG_GOAL_S, *LONG_GOAL_RANGE))
+
+
 def batch_msg(positions, normals, ids=None):
     from grasp_fc_ros.conversions import grasps_to_batch_msg
 
@@ -134,22 +146,22 @@ def assert_prefix(verdicts, expected, n=None):
     return got
 
 
-def test_feedback_comes_at_least_once_a_second_and_verdicts_equal_the_core(grasps,
-                                                                          action_client):
-    positions, normals, expected = tiled(grasps, LONG_GOAL)
+def test_feedback_comes_at_least_once_a_second_and_verdicts_equal_the_core(
+        grasps, action_client, long_goal):
+    positions, normals, expected = tiled(grasps, long_goal)
     goal = Goal(action_client, batch_msg(positions, normals))
     status, verdicts = goal.result()
     assert status == GoalStatus.STATUS_SUCCEEDED
-    assert_prefix(verdicts, expected, LONG_GOAL)
+    assert_prefix(verdicts, expected, long_goal)
     duration = goal.ended_at - goal.sent_at
     assert duration > 2.0, f"goal took only {duration:.2f} s: too short to judge the rate"
     times = [goal.sent_at] + [t for t, _ in goal.feedback] + [goal.ended_at]
     assert max(np.diff(times)) < FEEDBACK_GAP_BOUND_S
     assert len(goal.feedback) >= duration - 1
     done = [f.done for _, f in goal.feedback]
-    assert done == sorted(done) and done[-1] <= LONG_GOAL
+    assert done == sorted(done) and done[-1] <= long_goal
     for _, f in goal.feedback:
-        assert f.total == LONG_GOAL
+        assert f.total == long_goal
         assert (f.force_closure + f.not_force_closure + f.filtered_out + f.invalid_input
                 + f.solver_failure) == f.done
     last = goal.feedback[-1][1]
@@ -159,8 +171,9 @@ def test_feedback_comes_at_least_once_a_second_and_verdicts_equal_the_core(grasp
     assert last.grasps_per_second > 0
 
 
-def test_cancel_returns_the_decided_prefix_within_a_second(grasps, action_client):
-    positions, normals, expected = tiled(grasps, LONG_GOAL)
+def test_cancel_returns_the_decided_prefix_within_a_second(grasps, action_client,
+                                                           long_goal):
+    positions, normals, expected = tiled(grasps, long_goal)
     goal = Goal(action_client, batch_msg(positions, normals))
     reported = goal.wait_for_progress()
     cancel_at = time.monotonic()
@@ -170,13 +183,13 @@ def test_cancel_returns_the_decided_prefix_within_a_second(grasps, action_client
     assert status == GoalStatus.STATUS_CANCELED
     assert latency < CANCEL_BOUND_S, f"cancel took {latency:.3f} s"
     got = assert_prefix(verdicts, expected)  # nothing lost, nothing out of order
-    assert reported <= len(got) < LONG_GOAL
+    assert reported <= len(got) < long_goal
 
 
-def test_two_goals_side_by_side_while_the_topic_and_the_service_answer(grasps, served,
-                                                                       action_client):
+def test_two_goals_side_by_side_while_the_topic_and_the_service_answer(
+        grasps, served, action_client, long_goal):
     _, client = served
-    positions, normals, expected = tiled(grasps, LONG_GOAL // 2)
+    positions, normals, expected = tiled(grasps, long_goal // 2)
     goals = [Goal(action_client, batch_msg(positions, normals)) for _ in range(2)]
     for goal in goals:
         goal.wait_for_progress()  # both run: the second does not wait for the first
@@ -192,10 +205,11 @@ def test_two_goals_side_by_side_while_the_topic_and_the_service_answer(grasps, s
     for goal in goals:
         status, verdicts = goal.result()
         assert status == GoalStatus.STATUS_SUCCEEDED
-        assert_prefix(verdicts, expected, LONG_GOAL // 2)
+        assert_prefix(verdicts, expected, long_goal // 2)
 
 
-def test_malformed_and_oversized_goals_get_invalid_input_verdicts(grasps, action_client):
+def test_malformed_and_oversized_goals_get_invalid_input_verdicts(grasps, served,
+                                                                   action_client):
     positions, normals, _ = grasps
     malformed = batch_msg(positions[:4], normals[:4])
     malformed.contact_counts = malformed.contact_counts[:3]
@@ -205,11 +219,18 @@ def test_malformed_and_oversized_goals_get_invalid_input_verdicts(grasps, action
     assert all(m.startswith("malformed batch: 3 contact counts for 4 ids")
                for m in verdicts.messages)
 
-    oversized = batch_msg(np.ones((100_001, 2, 3)), np.ones((100_001, 2, 3)))
-    status, verdicts = Goal(action_client, oversized).result()
-    assert status == GoalStatus.STATUS_SUCCEEDED and len(verdicts.status) == 100_001
+    from rclpy.parameter import Parameter
+
+    node, _ = served
+    node.set_parameters([Parameter("max_batch", value=1000)])
+    try:
+        oversized = batch_msg(np.ones((1001, 2, 3)), np.ones((1001, 2, 3)))
+        status, verdicts = Goal(action_client, oversized).result()
+    finally:
+        node.set_parameters([Parameter("max_batch", value=500_000)])
+    assert status == GoalStatus.STATUS_SUCCEEDED and len(verdicts.status) == 1001
     assert set(verdicts.status) == {Status.INVALID_INPUT}
-    assert verdicts.messages[0] == "100001 grasps exceed max_batch=100000"
+    assert verdicts.messages[0] == "1001 grasps exceed max_batch=1000"
 
     zero_normal = normals[:3].copy()
     zero_normal[1, 0] = 0.0  # grasp 1, contact 0
@@ -243,11 +264,12 @@ def test_client_label_grasps_returns_all_verdicts_in_order(grasps, served):
     np.testing.assert_array_equal(verdicts.status, expected)
 
 
-def test_client_ctrl_c_cancels_and_returns_the_decided_prefix(grasps, served, monkeypatch):
+def test_client_ctrl_c_cancels_and_returns_the_decided_prefix(grasps, served, long_goal,
+                                                              monkeypatch):
     import grasp_fc_ros.client as client_module
 
     _, client = served
-    positions, normals, expected = tiled(grasps, LONG_GOAL)
+    positions, normals, expected = tiled(grasps, long_goal)
 
     def interrupted(done, latest, bar, deadline, goal_handle):
         # Ctrl-C once some verdicts were reported (the real loop, then the interrupt).
@@ -258,7 +280,7 @@ def test_client_ctrl_c_cancels_and_returns_the_decided_prefix(grasps, served, mo
     monkeypatch.setattr(client_module, "_follow_goal", interrupted)
     verdicts = client.label_grasps(positions, normals, progress=True, timeout=WAIT_S)
     assert client.last_goal_status == GoalStatus.STATUS_CANCELED
-    assert 0 < len(verdicts) < LONG_GOAL
+    assert 0 < len(verdicts) < long_goal
     np.testing.assert_array_equal(verdicts.ids, np.arange(len(verdicts)))
     np.testing.assert_array_equal(verdicts.status, expected[:len(verdicts)])
 
@@ -280,7 +302,7 @@ def test_destroying_the_node_aborts_its_goals_with_their_prefixes(grasps, ros):
     try:
         action = ActionClient(client.node, LabelGrasps, f"{namespace}/label_grasps")
         assert action.wait_for_server(timeout_sec=30.0)
-        positions, normals, expected = tiled(grasps, 30_000)
+        positions, normals, expected = tiled(grasps, 60_000)
         # More goals than goal threads: the last one is still queued at shutdown.
         goals = [Goal(action, batch_msg(positions, normals)) for _ in range(ACTION_THREADS + 1)]
         goals[0].wait_for_progress()
@@ -294,7 +316,7 @@ def test_destroying_the_node_aborts_its_goals_with_their_prefixes(grasps, ros):
     assert stop_s < 1.5, f"node took {stop_s:.2f} s to stop"
     assert all(status == GoalStatus.STATUS_ABORTED for status, _ in results)
     lengths = [len(assert_prefix(verdicts, expected)) for _, verdicts in results]
-    assert lengths[0] > 0 and lengths[-1] == 0 and max(lengths) < 30_000
+    assert lengths[0] > 0 and lengths[-1] == 0 and max(lengths) < 60_000
 
 
 def test_label_grasps_without_a_node_times_out(ros):
@@ -307,7 +329,8 @@ def test_label_grasps_without_a_node_times_out(ros):
         assert time.monotonic() - start < 3.0
 
 
-def test_sigterm_aborts_a_running_goal_with_its_prefix_and_the_node_exits(grasps, ros):
+def test_sigterm_aborts_a_running_goal_with_its_prefix_and_the_node_exits(grasps, ros,
+                                                                          long_goal):
     import os
     import signal
 
@@ -324,7 +347,8 @@ def test_sigterm_aborts_a_running_goal_with_its_prefix_and_the_node_exits(grasps
     try:
         action = ActionClient(client.node, LabelGrasps, f"{namespace}/label_grasps")
         assert action.wait_for_server(timeout_sec=30.0)
-        positions, normals, expected = tiled(grasps, LONG_GOAL)
+        n_grasps = min(long_goal, 100_000)  # the node's default max_batch
+        positions, normals, expected = tiled(grasps, n_grasps)
         goal = Goal(action, batch_msg(positions, normals))
         goal.wait_for_progress()
         stop_at = time.monotonic()
@@ -338,4 +362,4 @@ def test_sigterm_aborts_a_running_goal_with_its_prefix_and_the_node_exits(grasps
     assert code == 0 and "Traceback" not in err, err
     assert exit_s < 2.0, f"node took {exit_s:.2f} s to exit"
     assert status == GoalStatus.STATUS_ABORTED
-    assert 0 < len(assert_prefix(verdicts, expected)) < LONG_GOAL
+    assert 0 < len(assert_prefix(verdicts, expected)) < n_grasps
