@@ -199,9 +199,16 @@ def test_two_goals_side_by_side_while_the_topic_and_the_service_answer(
     served_at = time.monotonic()
     answer = client.call(positions[:3], normals[:3], timeout=WAIT_S)
     service_s = time.monotonic() - served_at
+    batch_at = time.monotonic()
+    batch = client.check_batch(positions[:10], normals[:10], timeout=WAIT_S)
+    batch_s = time.monotonic() - batch_at
+    # Published about once a second whatever the goals do.
+    diagnostics = client.next_diagnostics(timeout=2.5)
     assert not any(goal.done.is_set() for goal in goals), "goals too short for this test"
     assert single.status == expected[5] and list(answer.status) == list(expected[:3])
-    assert single_s < 1.0 and service_s < 1.0, (single_s, service_s)
+    assert list(batch.status) == list(expected[:10])
+    assert single_s < 1.0 and service_s < 1.0 and batch_s < 2.0, (single_s, service_s, batch_s)
+    assert diagnostics["action_goals_running"] == "2"
     for goal in goals:
         status, verdicts = goal.result()
         assert status == GoalStatus.STATUS_SUCCEEDED
