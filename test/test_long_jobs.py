@@ -206,7 +206,7 @@ def test_chunk_end_takes_at_most_the_budget_and_at_least_one_grasp(counts, first
 def test_chunks_shrink_when_slow_and_never_exceed_the_pool_chunk():
     upper = 4096
     assert adapted_chunk_contacts(4096, TARGET_CHUNK_S / 10, upper) == upper
-    assert adapted_chunk_contacts(4096, 4 * TARGET_CHUNK_S, upper) == 1024
+    assert adapted_chunk_contacts(4096, 2 * TARGET_CHUNK_S, upper) == 2048
     assert adapted_chunk_contacts(4096, 1e6, upper) == MIN_CHUNK_CONTACTS
     assert adapted_chunk_contacts(4096, 0.0, upper) == upper  # nothing measured
     assert adapted_chunk_contacts(100, 1.0, 50) == 50  # the pool's bound wins
