@@ -3,8 +3,8 @@
 The demo starts the node *in this process*, spun by its own executor on a separate
 thread, with its ``publish_markers`` parameter on, and a client node that sends random
 6-finger grasps on a built-in object to it: a few single-grasp ``ContactArray``
-queries on ``contacts``, then the rest as one goal of the ``label_grasps`` action,
-with a progress bar fed by the action's feedback (Ctrl-C cancels the goal and keeps
+queries on ``contacts``, then the rest through the ``label_grasps`` action (goals of
+:data:`GOAL_GRASPS` at most), with a progress bar fed by the action's feedback (Ctrl-C cancels the goal and keeps
 the verdicts decided so far), and one service call. Every message still goes through
 DDS (serialised, delivered, deserialised); only the process is shared, which keeps
 start-up fast and needs no discovery of a second process. Both nodes live in a
@@ -41,6 +41,9 @@ from grasp_fc_ros.objects import OBJECT_NAMES, make_object, sample_grasps
 
 N_FINGERS = 6
 SINGLE_QUERIES = 20
+# Grasps per label_grasps goal: the node's default max_batch (a larger goal would be
+# refused as INVALID_INPUT); more grasps go as several goals, one after the other.
+GOAL_GRASPS = 100_000
 # The node's default friction, which the demo's grasps use (for the PNG's certificates).
 DEMO_MU = 0.5
 DEFAULT_MARKERS_PNG = "demo_out/markers.png"
@@ -144,17 +147,19 @@ def _stream(client: GraspClient, args, node_name: str) -> int:
     single = [f.result(REPLY_TIMEOUT_S) for f in futures]
     statuses = np.array([v.status for v in single], dtype=np.uint8)
     margins = np.array([v.margin for v in single], dtype=np.float64)
-    ids = np.arange(n_single, args.grasps)
     complete = True
-    if len(ids):
+    for first in range(n_single, args.grasps, GOAL_GRASPS):
+        ids = np.arange(first, min(first + GOAL_GRASPS, args.grasps))
         verdicts = client.label_grasps(positions[ids], normals[ids], ids=ids,
                                        timeout=REPLY_TIMEOUT_S)
         if not np.array_equal(verdicts.ids, ids[:len(verdicts)]):
-            print("the label_grasps goal came back with other ids", file=sys.stderr)
+            print("a label_grasps goal came back with other ids", file=sys.stderr)
             return 1
-        complete = len(verdicts) == len(ids)
         statuses = np.concatenate([statuses, verdicts.status])
         margins = np.concatenate([margins, verdicts.margin])
+        complete = len(verdicts) == len(ids)
+        if not complete:
+            break  # Ctrl-C cancelled the goal
     elapsed = time.perf_counter() - start
     served = client.call(positions[:1], normals[:1], timeout=REPLY_TIMEOUT_S)
     if served.status[0] != statuses[0]:
