@@ -4,8 +4,8 @@ The demo starts the node *in this process*, spun by its own executor on a separa
 thread, with its ``publish_markers`` parameter on, and a client node that sends random
 6-finger grasps on a built-in object to it: a few single-grasp ``ContactArray``
 queries on ``contacts``, then the rest through the ``label_grasps`` action (goals of
-:data:`GOAL_GRASPS` at most), with a progress bar fed by the action's feedback (Ctrl-C cancels the goal and keeps
-the verdicts decided so far), and one service call. Every message still goes through
+:data:`GOAL_GRASPS` at most), with a progress bar fed by the action's feedback (Ctrl-C
+cancels the goal and keeps the verdicts decided so far), and one service call. Every message still goes through
 DDS (serialised, delivered, deserialised); only the process is shared, which keeps
 start-up fast and needs no discovery of a second process. Both nodes live in a
 namespace of their own (``/grasp_fc_demo_<pid>``) so a node started elsewhere with
