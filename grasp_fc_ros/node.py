@@ -590,6 +590,7 @@ class ForceClosureNode(Node):
             return
         with self._lock:
             queued, self._goals = list(self._goals), deque()
+            ending = bool(self._goal_records)  # goals whose results are still to go out
         for goal in queued:
             self._end_goal(goal, self._empty_goal_reply(goal), aborted=True)
         deadline = time.monotonic() + SHUTDOWN_ACK_TIMEOUT_S
@@ -598,7 +599,7 @@ class ForceClosureNode(Node):
         if self._goal_records:
             self.get_logger().warning(
                 f"{len(self._goal_records)} label_grasps goals not ended at shutdown")
-        else:
+        elif ending:
             time.sleep(ACTION_RESULT_GRACE_S)
         self._action_executor.shutdown()
         self._action_thread.join()
