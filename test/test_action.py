@@ -367,7 +367,7 @@ def test_sigterm_aborts_a_running_goal_with_its_prefix_and_the_node_exits(grasps
         if process.proc.poll() is None:
             process.proc.kill()
     assert code == 0 and "Traceback" not in err, err
-    # About 1 s on a quiet machine; measured up to 2.15 s at a load average of 10 on the 2
+    # The aim is about 1 s; measured up to 2.15 s at a load average of 10 on the 2
     # cores (the node's own destroy_node took 0.24 s of it).
     assert exit_s < 3.0, f"node took {exit_s:.2f} s to exit"
     assert status == GoalStatus.STATUS_ABORTED
