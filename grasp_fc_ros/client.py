@@ -14,7 +14,9 @@ reliable, KEEP_ALL), keeps at most ``max_in_flight`` single queries unanswered (
 :meth:`submit` calls wait), keeps only verdicts carrying its own random ``client_id``,
 and publishes again every unanswered query when a node (re)appears on the query topics,
 e.g. after the node was killed and restarted. A verdict answering an id twice (the old
-and the new node both answered) resolves its future once.
+and the new node both answered) resolves its future once. :meth:`GraspClient.label_grasps`
+sends a long job to the node's ``label_grasps`` action, with a progress bar and Ctrl-C
+cancelling it.
 """
 
 from __future__ import annotations
@@ -25,7 +27,9 @@ import time
 from concurrent.futures import Future
 
 import numpy as np
+from action_msgs.msg import GoalStatus
 from diagnostic_msgs.msg import DiagnosticArray
+from grasp_fc_msgs.action import LabelGrasps
 from grasp_fc_msgs.msg import (
     ContactArray,
     ContactArrayBatch,
@@ -33,8 +37,10 @@ from grasp_fc_msgs.msg import (
     ForceClosureVerdictArray,
 )
 from grasp_fc_msgs.srv import CheckForceClosure, ComputeContactForces
+from rclpy.action import ActionClient
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from tqdm import tqdm
 
 from grasp_fc_ros.conversions import (
     grasp_to_contact_array,
@@ -53,6 +59,11 @@ DEFAULT_TIMEOUT_S = 60.0
 WATCH_PERIOD_S = 0.25
 # Grace period after matching: DDS matches the two directions at different moments.
 MATCH_GRACE_S = 0.3
+# How often label_grasps redraws its progress bar and looks at its deadline (s).
+PROGRESS_POLL_S = 0.1
+# How long label_grasps waits for the decided prefix after it cancelled its goal (s):
+# the node ends a canceled goal within ~0.1 s.
+CANCEL_WAIT_S = 10.0
 
 
 class GraspClient:
@@ -98,6 +109,9 @@ class GraspClient:
                                                 f"{prefix}/check_force_closure")
         self._forces_service = self.node.create_client(ComputeContactForces,
                                                        f"{prefix}/compute_contact_forces")
+        self._label_action = ActionClient(self.node, LabelGrasps, f"{prefix}/label_grasps")
+        # GoalStatus code of the last label_grasps goal (STATUS_UNKNOWN before any).
+        self.last_goal_status = GoalStatus.STATUS_UNKNOWN
         self._matched = 0
         self._closed = False
         self.node.create_timer(WATCH_PERIOD_S, self._watch_node)
@@ -352,6 +366,82 @@ class GraspClient:
             raise TimeoutError(f"no service response within {timeout} s")
         return future.result()
 
+    # --- the label_grasps action ------------------------------------------------------
+
+    def label_grasps(self, positions, normals, mu=None, counts=None, ids=None,
+                     progress: bool = True, timeout: float | None = None) -> Verdicts:
+        """Decide grasps through the node's ``label_grasps`` action; their :class:`Verdicts`.
+
+        The grasps go as one goal (packed as for :meth:`submit_batch`); the node's
+        feedback (about 4 per second) drives a tqdm progress bar on stderr. Ctrl-C
+        (KeyboardInterrupt) while waiting cancels the goal and returns the verdicts
+        decided so far; a second Ctrl-C while waiting for them raises.
+
+        Parameters
+        ----------
+        positions, normals : (N, n, 3) float, or stacked (K, 3) with ``counts`` (N,)
+            Contact positions (m) and inward normals.
+        mu : None, scalar or one value per contact
+            None or values <= 0: the node's default friction.
+        counts, ids : (N,) int, optional
+            Contacts per grasp for stacked input; query ids (default 0..N-1).
+        progress : bool
+            Show the progress bar.
+        timeout : float, optional
+            Seconds for the whole goal (None: as long as it takes; the action server
+            is then looked for for at most 60 s). On expiry the goal is cancelled.
+
+        Returns
+        -------
+        Verdicts
+            One per grasp, in order; fewer (a prefix) when the goal was cancelled
+            (Ctrl-C) or aborted (the node shut down): :attr:`last_goal_status` says
+            which (an ``action_msgs/GoalStatus`` code).
+
+        Raises
+        ------
+        TimeoutError
+            No action server, or the goal did not end within ``timeout``.
+        RuntimeError
+            The node rejected the goal (it is shutting down).
+        """
+        deadline = None if timeout is None else time.monotonic() + timeout
+        n_grasps = len(counts) if counts is not None else len(positions)
+        ids = np.arange(n_grasps) if ids is None else ids
+        with self._cond:
+            request_id, self._next_request = self._next_request, self._next_request + 1
+        batch = grasps_to_batch_msg(ids, positions, normals, mu, counts,
+                                    client_id=self.client_id, request_id=request_id)
+        batch.header.stamp = self.node.get_clock().now().to_msg()
+        wait_s = DEFAULT_TIMEOUT_S if deadline is None else max(deadline - time.monotonic(), 0)
+        if not self._label_action.wait_for_server(timeout_sec=wait_s):
+            raise TimeoutError(f"no label_grasps action server within {wait_s:.1f} s")
+        latest: list = [None]  # the newest feedback, written by the spin thread
+        goal_handle = _wait_rclpy(
+            self._label_action.send_goal_async(
+                LabelGrasps.Goal(grasps=batch),
+                feedback_callback=lambda msg: latest.__setitem__(0, msg.feedback)),
+            deadline, "the label_grasps goal to be accepted")
+        if not goal_handle.accepted:
+            raise RuntimeError("the node rejected the label_grasps goal (shutting down?)")
+        result_future = goal_handle.get_result_async()
+        done = threading.Event()
+        result_future.add_done_callback(lambda _: done.set())
+        with tqdm(total=n_grasps, unit="grasp", disable=not progress, dynamic_ncols=True,
+                  desc="label_grasps") as bar:
+            try:
+                _follow_goal(done, latest, bar, deadline, goal_handle)
+            except KeyboardInterrupt:
+                goal_handle.cancel_goal_async()
+                if not done.wait(CANCEL_WAIT_S):
+                    raise
+            response = result_future.result()
+            verdicts = verdict_array_to_numpy(response.result.verdicts)
+            _show_progress(bar, latest[0])
+            bar.update(len(verdicts) - bar.n)  # the last feedback may predate the end
+        self.last_goal_status = response.status
+        return verdicts
+
     # --- diagnostics --------------------------------------------------------------------
 
     def _on_diagnostics(self, msg: DiagnosticArray):
@@ -402,3 +492,32 @@ class GraspClient:
     def __exit__(self, *exc_info):
         self.close()
 
+
+
+def _wait_rclpy(future, deadline: float | None, what: str):
+    """The result of an rclpy Future that the client's spin thread resolves."""
+    done = threading.Event()
+    future.add_done_callback(lambda _: done.set())
+    wait_s = None if deadline is None else max(deadline - time.monotonic(), 0)
+    if not done.wait(wait_s):
+        raise TimeoutError(f"timed out waiting for {what}")
+    return future.result()
+
+
+def _follow_goal(done: threading.Event, latest: list, bar, deadline: float | None,
+                 goal_handle):
+    """Show a goal's feedback until its result is in; cancel it at ``deadline``."""
+    while not done.wait(PROGRESS_POLL_S):
+        _show_progress(bar, latest[0])
+        if deadline is not None and time.monotonic() > deadline:
+            goal_handle.cancel_goal_async()
+            raise TimeoutError("label_grasps goal not done within its timeout (cancelled)")
+
+
+def _show_progress(bar, feedback):
+    """Move a tqdm ``bar`` to a LabelGrasps feedback's ``done`` (None: none yet)."""
+    if feedback is None:
+        return
+    bar.set_postfix(force_closure=feedback.force_closure,
+                    rate=f"{feedback.grasps_per_second:.0f}/s", refresh=False)
+    bar.update(int(feedback.done) - bar.n)

@@ -1,17 +1,20 @@
 """grasp-fc-demo: the force_closure node answering a stream of random grasps.
 
 The demo starts the node *in this process*, spun by its own executor on a separate
-thread, and a client node that streams random 6-finger grasps on a built-in object
-to it through the node's topics: packed ``ContactArrayBatch`` messages on
-``contacts_batch``, plus a few single-grasp ``ContactArray`` queries on ``contacts``.
-Every message still goes through DDS (serialised, delivered, deserialised); only the
-process is shared, which keeps start-up fast and needs no discovery of a second
-process. Both nodes live in a namespace of their own (``/grasp_fc_demo_<pid>``) so a
-node started elsewhere with ``grasp-fc-node`` cannot answer the demo's queries.
+thread, with its ``publish_markers`` parameter on, and a client node that sends random
+6-finger grasps on a built-in object to it: a few single-grasp ``ContactArray``
+queries on ``contacts``, then the rest through the ``label_grasps`` action (goals of
+:data:`GOAL_GRASPS` at most), with a progress bar fed by the action's feedback (Ctrl-C
+cancels the goal and keeps the verdicts decided so far), and one service call. Every message still goes through
+DDS (serialised, delivered, deserialised); only the process is shared, which keeps
+start-up fast and needs no discovery of a second process. Both nodes live in a
+namespace of their own (``/grasp_fc_demo_<pid>``) so a node started elsewhere with
+``grasp-fc-node`` cannot answer the demo's queries. At the end it writes a PNG of the
+RViz markers of one grasp per verdict (:mod:`grasp_fc_ros.marker_render`).
 
 Usage::
 
-    grasp-fc-demo [--grasps N] [--object NAME] [--seed S]
+    grasp-fc-demo [--grasps N] [--object NAME] [--seed S] [--markers-png PATH]
 
 ``GRASP_FC_DEMO_GRASPS`` and ``GRASP_FC_DEMO_OBJECT`` set the defaults.
 Exit code 0 when every query got its verdict.
@@ -29,15 +32,21 @@ from concurrent.futures import TimeoutError as FutureTimeout
 import numpy as np
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.parameter import Parameter
 
 from grasp_fc_ros.client import GraspClient
-from grasp_fc_ros.core import Status
+from grasp_fc_ros.core import Status, check_force_closure
 from grasp_fc_ros.node import NODE_NAME, ForceClosureNode, shutdown_rclpy
 from grasp_fc_ros.objects import OBJECT_NAMES, make_object, sample_grasps
 
 N_FINGERS = 6
-BATCH_SIZE = 250
 SINGLE_QUERIES = 20
+# Grasps per label_grasps goal: the node's default max_batch (a larger goal would be
+# refused as INVALID_INPUT); more grasps go as several goals, one after the other.
+GOAL_GRASPS = 100_000
+# The node's default friction, which the demo's grasps use (for the PNG's certificates).
+DEMO_MU = 0.5
+DEFAULT_MARKERS_PNG = "demo_out/markers.png"
 CONNECT_TIMEOUT_S = 20.0
 REPLY_TIMEOUT_S = 120.0
 
@@ -54,19 +63,13 @@ def parse_args(argv=None):
     parser.add_argument("--node-name", default=None,
                         help="drive this running node (e.g. force_closure or "
                              "/robot/force_closure) instead of starting one in-process")
+    parser.add_argument("--markers-png", default=DEFAULT_MARKERS_PNG,
+                        help="where to write the PNG of a few grasps' markers (default "
+                             f"{DEFAULT_MARKERS_PNG}; its folder is created)")
     args = parser.parse_args(argv)
     if args.grasps < 1:
         parser.error("--grasps must be >= 1")
     return args
-
-
-def _progress(done: int, total: int, start: float):
-    rate = done / max(time.perf_counter() - start, 1e-9)
-    line = f"  {done:>7}/{total} grasps  {100 * done / total:5.1f}%  {rate:8.0f} grasps/s"
-    if sys.stdout.isatty():
-        print("\r" + line, end="", flush=True)
-    else:
-        print(line, flush=True)
 
 
 def _table(status: np.ndarray, elapsed_s: float, object_name: str) -> str:
@@ -93,11 +96,14 @@ def run(args) -> int:
     fc_node = spinner = None
     if node_name is None:
         namespace = f"/grasp_fc_demo_{os.getpid()}"
-        fc_node = ForceClosureNode(namespace=namespace)
+        # A node without the parameter warns that it ignores it; the demo goes on.
+        fc_node = ForceClosureNode(namespace=namespace, parameter_overrides=[
+            Parameter("publish_markers", value=True)])
         spinner = SingleThreadedExecutor()
         spinner.add_node(fc_node)
         threading.Thread(target=_spin_quietly, args=(spinner,), daemon=True).start()
         node_name = f"{namespace}/{NODE_NAME}"
+    print(_markers_note(fc_node, node_name))
     client = GraspClient(node_name)
     try:
         if not client.wait_for_node(CONNECT_TIMEOUT_S):
@@ -116,37 +122,84 @@ def run(args) -> int:
             fc_node.destroy_node()
 
 
+def _markers_note(fc_node: ForceClosureNode | None, node_name: str) -> str:
+    """Where the node's RViz markers go, as far as the demo can tell."""
+    topic = node_name.rsplit("/", 1)[0] + "/markers"
+    if fc_node is None:
+        return (f"markers: on {topic} when that node's publish_markers parameter is on "
+                "(visualization_msgs/MarkerArray, for RViz)")
+    if fc_node.has_parameter("publish_markers") and fc_node.get_parameter(
+            "publish_markers").value:
+        return (f"markers: published on {topic} (publish_markers is on; "
+                "visualization_msgs/MarkerArray, for RViz)")
+    return "markers: none published (this node has no publish_markers parameter)"
+
+
 def _stream(client: GraspClient, args, node_name: str) -> int:
     surface = make_object(args.object)
     positions, normals = sample_grasps(surface, args.grasps, N_FINGERS,
                                        np.random.default_rng(args.seed))
     print(f"{args.grasps} random {N_FINGERS}-finger grasps on '{args.object}' -> node "
-          f"{node_name}")
+          f"{node_name}", flush=True)
     start = time.perf_counter()
     n_single = min(SINGLE_QUERIES, args.grasps)
     futures = [client.submit(positions[i], normals[i], query_id=i) for i in range(n_single)]
     single = [f.result(REPLY_TIMEOUT_S) for f in futures]
-    statuses = [np.array([v.status for v in single], dtype=np.uint8)]
-    _progress(n_single, args.grasps, start)
-    for first in range(n_single, args.grasps, BATCH_SIZE):
-        ids = np.arange(first, min(first + BATCH_SIZE, args.grasps))
-        verdicts = client.check_batch(positions[ids], normals[ids], ids=ids,
-                                      timeout=REPLY_TIMEOUT_S)
-        if not np.array_equal(verdicts.ids, ids):
-            print(f"\nbatch starting at grasp {first} came back with other ids",
-                  file=sys.stderr)
+    statuses = np.array([v.status for v in single], dtype=np.uint8)
+    margins = np.array([v.margin for v in single], dtype=np.float64)
+    complete = True
+    for first in range(n_single, args.grasps, GOAL_GRASPS):
+        ids = np.arange(first, min(first + GOAL_GRASPS, args.grasps))
+        verdicts = client.label_grasps(positions[ids], normals[ids], ids=ids,
+                                       timeout=REPLY_TIMEOUT_S)
+        if not np.array_equal(verdicts.ids, ids[:len(verdicts)]):
+            print("a label_grasps goal came back with other ids", file=sys.stderr)
             return 1
-        statuses.append(verdicts.status)
-        _progress(ids[-1] + 1, args.grasps, start)
+        statuses = np.concatenate([statuses, verdicts.status])
+        margins = np.concatenate([margins, verdicts.margin])
+        complete = len(verdicts) == len(ids)
+        if not complete:
+            break  # Ctrl-C cancelled the goal
     elapsed = time.perf_counter() - start
-    if sys.stdout.isatty():
-        print()
     served = client.call(positions[:1], normals[:1], timeout=REPLY_TIMEOUT_S)
-    if served.status[0] != statuses[0][0]:
-        print("\nthe service and the topic disagree on grasp 0", file=sys.stderr)
+    if served.status[0] != statuses[0]:
+        print("the service and the topic disagree on grasp 0", file=sys.stderr)
         return 1
-    print(_table(np.concatenate(statuses), elapsed, args.object))
+    print(_table(statuses, elapsed, args.object))
+    _write_markers_png(args.markers_png, surface, positions[:len(statuses)],
+                       normals[:len(statuses)], statuses, margins)
+    if not complete:
+        print(f"interrupted: {len(statuses)} of {args.grasps} grasps decided",
+              file=sys.stderr)
+        return 130
     return 0
+
+
+def _write_markers_png(path: str, surface, positions, normals, status, margin):
+    """Draw the markers of the first grasp of each verdict to ``path``; say where.
+
+    Separating wrenches come from the core on those few grasps (the node sends them
+    only with its ``certificates`` parameter on), drawn where the core agrees with
+    the node's verdict.
+    """
+    from grasp_fc_ros.marker_render import EXAMPLE_STATUSES, render_verdict_examples
+
+    chosen = [int(np.flatnonzero(status == s)[0]) for s in EXAMPLE_STATUSES
+              if np.any(status == s)]
+    if not chosen:
+        print("markers PNG: no grasp with a drawable verdict")
+        return
+    local = check_force_closure(positions[chosen], normals[chosen], DEMO_MU,
+                                certificates=True)
+    wrench = np.where((local.status == status[chosen])[:, None], local.separating_wrench,
+                      np.nan)
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    render_verdict_examples(path, positions[chosen], normals[chosen], DEMO_MU,
+                            status[chosen], margin[chosen], ids=np.array(chosen),
+                            separating_wrench=wrench, frame_id=surface.name,
+                            cloud=surface.points[::4])
+    print(f"markers PNG: {len(chosen)} grasps (one per verdict) drawn from their RViz "
+          f"markers to {os.path.abspath(path)}")
 
 
 def _spin_quietly(executor):

@@ -8,6 +8,8 @@ Interfaces (package ``grasp_fc_msgs``):
   ForceClosureVerdictArray per batch on ``verdicts_batch``;
 - serves ``check_force_closure`` (CheckForceClosure) and ``compute_contact_forces``
   (ComputeContactForces);
+- serves the action ``label_grasps`` (LabelGrasps): a long batch with progress feedback
+  and cancel (:meth:`ForceClosureNode._start_action`);
 - publishes ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) once a second.
 
 The node is wiring only: messages are converted by :mod:`grasp_fc_ros.conversions`
@@ -43,6 +45,7 @@ import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Vector3
+from grasp_fc_msgs.action import LabelGrasps
 from grasp_fc_msgs.msg import (
     ContactArray,
     ContactArrayBatch,
@@ -51,6 +54,7 @@ from grasp_fc_msgs.msg import (
 )
 from grasp_fc_msgs.srv import CheckForceClosure, ComputeContactForces
 from rcl_interfaces.msg import IntegerRange, ParameterDescriptor, ParameterType, SetParametersResult
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.duration import Duration
 from rclpy.exceptions import ParameterException
 from rclpy.executors import (
@@ -60,6 +64,7 @@ from rclpy.executors import (
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
+from rclpy.task import Future as RclpyFuture
 
 from grasp_fc_ros.conversions import (
     MalformedBatch,
@@ -79,6 +84,7 @@ from grasp_fc_ros.evaluation import (
     Verdicts,
     contact_forces_for_load,
 )
+from grasp_fc_ros.long_jobs import Progress, decide_in_chunks
 from grasp_fc_ros.workers import (
     PRIORITY_BATCH,
     PRIORITY_INTERACTIVE,
@@ -104,6 +110,16 @@ DEFAULT_WORKERS = 2
 SIGNAL_POLL_S = 0.05
 # How long shutdown waits for readers to acknowledge the answers it publishes (s).
 SHUTDOWN_ACK_TIMEOUT_S = 0.5
+# label_grasps goals decided side by side (their chunks share the workers); more wait.
+ACTION_THREADS = 4
+# How long the action server keeps an ended goal, its request (the whole batch) and
+# result for late result requests (s). rclpy's default, 15 minutes, would hold ~60 MB per
+# 100,000-grasp goal that long; clients ask for the result as soon as a goal is
+# accepted (GraspClient does), so they get it when the goal ends.
+ACTION_RESULT_TIMEOUT_S = 30
+# After the last goal ended at shutdown, time for the action's executor to send its
+# result response (s).
+ACTION_RESULT_GRACE_S = 0.05
 # Verdict message of queries still queued when the node is destroyed.
 SHUTDOWN_MESSAGE = "node shutting down: query not evaluated"
 
@@ -192,6 +208,19 @@ class _Statistics:
         self.seconds = {"conversion_s": 0.0, "validation_s": 0.0, "filter_s": 0.0,
                         "exact_s": 0.0}
         self.processing_s = deque(maxlen=TIMING_WINDOW)
+        # label_grasps goals: received, and how they ended; grasps of canceled or
+        # aborted goals that were never decided.
+        self.goals = {"received": 0, "succeeded": 0, "canceled": 0, "aborted": 0}
+        self.goal_grasps_undecided = 0
+
+    def count_goal(self, event: str):
+        """Count a label_grasps goal ``event``: a key of :attr:`goals`."""
+        with self._lock:
+            self.goals[event] += 1
+
+    def count_undecided(self, n_grasps: int):
+        with self._lock:
+            self.goal_grasps_undecided += n_grasps
 
     def count_received(self, n_queries: int):
         with self._lock:
@@ -246,6 +275,8 @@ class _Statistics:
                 "callback_errors": self.callback_errors,
                 "overloaded": self.overloaded,
                 **pending,
+                **{f"action_goals_{key}": value for key, value in self.goals.items()},
+                "action_grasps_undecided": self.goal_grasps_undecided,
                 # Microseconds: a one-grasp exact test takes ~0.01-0.1 ms, so a few
                 # queries' worth would not show in milliseconds.
                 **{f"{key[:-2]}_time_total_s": f"{value:.6f}"
@@ -294,6 +325,20 @@ def _batch_failure(msg: ContactArrayBatch, status: Status, message: str
     return verdicts_to_array_msg(Verdicts.failed(ids, status, message), msg)
 
 
+class _Goal:
+    """One accepted label_grasps goal: its handle, its cancel flag and its end.
+
+    ``finished`` is awaited by the goal's execute coroutine on the action's executor;
+    whoever ends the goal (a goal thread, the cancel callback, shutdown) sets it.
+    """
+
+    def __init__(self, handle):
+        self.handle = handle
+        self.cancel = threading.Event()
+        self.finished = RclpyFuture()
+        self.aborted = False
+
+
 class ForceClosureNode(Node):
     """Answers force-closure queries on topics and a service; see the module docstring."""
 
@@ -308,6 +353,12 @@ class ForceClosureNode(Node):
         self._queued_batch_grasps = 0
         self._busy_batch_grasps = 0
         self._stopping = False
+        # label_grasps goals waiting for a goal thread, oldest first; every goal not yet
+        # ended, by goal id; goals being decided.
+        self._goals: deque[_Goal] = deque()
+        self._goal_records: dict[bytes, _Goal] = {}
+        self._running_goals = 0
+        self._action_thread = None
         self._duplicate_warned = False
         self._settings = Settings(**{name: PARAMETERS[name][0] for name in _SETTING_NAMES})
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -340,6 +391,7 @@ class ForceClosureNode(Node):
                                  QUERY_QOS)
         self.create_timer(DIAGNOSTICS_PERIOD_S, self._on_timer)
         self._start_service()
+        self._start_action()
         for work in (self._single_queries, self._next_batch):
             thread = threading.Thread(target=self._loop, args=(work,), daemon=True,
                                       name=work.__name__)
@@ -348,6 +400,7 @@ class ForceClosureNode(Node):
         self.get_logger().info(
             f"ready: topics contacts, contacts_batch; services check_force_closure, "
             f"compute_contact_forces; "
+            f"action label_grasps; "
             f"settings {self._settings}; workers {self._pool.workers}")
 
     def _start_service(self):
@@ -380,6 +433,200 @@ class ForceClosureNode(Node):
             self._service_executor.spin()
         except Exception:  # noqa: BLE001 - rclpy shut down while spinning: end quietly
             pass
+
+    # --- the label_grasps action ------------------------------------------------------
+
+    def _start_action(self):
+        """Serve label_grasps from a helper node with an executor of its own.
+
+        As for the service (:meth:`_start_service`): the helper, ``<name>_action`` in
+        the node's namespace, keeps goal, cancel and result requests off the node's
+        executor. Its callbacks only queue or flag: each goal's execute coroutine waits
+        (without blocking the executor) for :data:`ACTION_THREADS` goal threads, which
+        decide goals in chunks on the workers and publish their feedback; so a running
+        goal does not hold up cancel requests, other goals or the other interfaces.
+        """
+        self._action_node = Node(f"{self.get_name()}_action", namespace=self.get_namespace(),
+                                 context=self.context, use_global_arguments=False,
+                                 start_parameter_services=False)
+        self._action_server = ActionServer(
+            self._action_node, LabelGrasps, "label_grasps", self._execute_goal,
+            goal_callback=self._on_goal, cancel_callback=self._on_cancel,
+            result_timeout=ACTION_RESULT_TIMEOUT_S)
+        self._action_executor = SingleThreadedExecutor(context=self.context)
+        self._action_executor.add_node(self._action_node)
+        self._action_thread = threading.Thread(target=self._spin_action, daemon=True,
+                                               name="action")
+        self._action_thread.start()
+        for index in range(ACTION_THREADS):
+            thread = threading.Thread(target=self._loop, args=(self._next_goal,), daemon=True,
+                                      name=f"goal_{index}")
+            thread.start()
+            self._threads.append(thread)
+
+    def _spin_action(self):
+        try:
+            self._action_executor.spin()
+        except Exception:  # noqa: BLE001 - rclpy shut down while spinning: end quietly
+            pass
+
+    def _on_goal(self, _request) -> GoalResponse:
+        if self._stopping:
+            return GoalResponse.REJECT
+        self._stats.count_goal("received")
+        return GoalResponse.ACCEPT
+
+    def _on_cancel(self, goal_handle) -> CancelResponse:
+        """Accept every cancel: a queued goal ends at once, a running one at its next poll."""
+        with self._lock:
+            goal = self._goal_records.get(bytes(goal_handle.goal_id.uuid))
+            queued = goal is not None and goal in self._goals
+            if queued:
+                self._goals.remove(goal)
+        if goal is not None:
+            goal.cancel.set()
+            if queued:
+                self._end_goal(goal, self._empty_goal_reply(goal), aborted=False)
+        return CancelResponse.ACCEPT
+
+    async def _execute_goal(self, goal_handle) -> LabelGrasps.Result:
+        """Queue the goal for a goal thread and await its end (on the action's executor)."""
+        goal = _Goal(goal_handle)
+        key = bytes(goal_handle.goal_id.uuid)
+        with self._lock:
+            self._goal_records[key] = goal
+            queue_it = not self._stopping and not goal_handle.is_cancel_requested
+            if queue_it:
+                self._goals.append(goal)
+                self._lock.notify_all()
+        if not queue_it:  # canceled before it was queued, or the node is stopping
+            self._end_goal(goal, self._empty_goal_reply(goal), aborted=self._stopping)
+        try:
+            result = await goal.finished
+            # The cancel callback and this coroutine both run on the action's executor,
+            # so a cancel accepted before this point has already made the goal CANCELING.
+            if goal_handle.is_cancel_requested:
+                goal_handle.canceled()
+                self._stats.count_goal("canceled")
+            elif goal.aborted:
+                goal_handle.abort()
+                self._stats.count_goal("aborted")
+            else:
+                goal_handle.succeed()
+                self._stats.count_goal("succeeded")
+            return result
+        finally:
+            with self._lock:
+                del self._goal_records[key]
+
+    def _end_goal(self, goal: _Goal, reply: ForceClosureVerdictArray, aborted: bool):
+        """Hand a goal's verdicts to its execute coroutine (from any thread)."""
+        goal.aborted = aborted
+        goal.finished.set_result(LabelGrasps.Result(verdicts=reply))
+        # The executor resumes waiting coroutines when it wakes up: wake it now.
+        try:
+            self._action_executor.wake()
+        except Exception:  # noqa: BLE001 - rclpy shut down: no result can be sent anyway
+            pass
+
+    def _empty_goal_reply(self, goal: _Goal) -> ForceClosureVerdictArray:
+        """The answer of a goal ended before any grasp was decided: no verdicts."""
+        msg = goal.handle.request.grasps
+        return verdicts_to_array_msg(
+            Verdicts.failed(np.empty(0, np.uint64), Status.INVALID_INPUT, ""), msg)
+
+    def _next_goal(self):
+        """Decide the oldest queued goal in chunks and end it."""
+        with self._lock:
+            self._lock.wait_for(lambda: self._goals or self._stopping)
+            if self._stopping:
+                return
+            goal = self._goals.popleft()
+            self._running_goals += 1
+        try:
+            reply, complete = self._goal_reply(goal)
+        finally:
+            with self._lock:
+                self._running_goals -= 1
+        self._end_goal(goal, reply, aborted=not complete and not goal.cancel.is_set())
+
+    def _goal_reply(self, goal: _Goal) -> tuple[ForceClosureVerdictArray, bool]:
+        """Decide a goal and count it: (verdicts of all or a prefix, complete).
+
+        Answered as the batch topic answers (invalid and oversized goals get
+        INVALID_INPUT verdicts); stopped by a cancel or the node's shutdown.
+        """
+        msg = goal.handle.request.grasps
+        start = time.perf_counter()
+        n_grasps = batch_size(msg)
+        self._stats.count_received(n_grasps)
+        settings = self._settings
+        if n_grasps > settings.max_batch:
+            self._stats.record(np.full(n_grasps, Status.INVALID_INPUT, np.uint8), {}, None)
+            return _batch_failure(msg, Status.INVALID_INPUT,
+                                  f"{n_grasps} grasps exceed max_batch={settings.max_batch}"), True
+        try:
+            packed = batch_to_packed(msg)
+            conversion_s = time.perf_counter() - start
+            outcome = decide_in_chunks(
+                self._pool, packed, settings,
+                stop=lambda: goal.cancel.is_set() or self._stopping,
+                report=lambda progress: self._goal_feedback(goal, progress))
+            outcome.seconds["conversion_s"] = conversion_s
+            self._warn_invalid(outcome.verdicts)
+            reply = verdicts_to_array_msg(outcome.verdicts, msg)
+            self._stats.record(outcome.verdicts.status, outcome.seconds,
+                               time.perf_counter() - start)
+            self._stats.count_undecided(n_grasps - len(outcome.verdicts))
+            return reply, outcome.complete
+        except MalformedBatch as exc:
+            if self._may_log("malformed"):
+                self.get_logger().warning(f"label_grasps goal: {exc}")
+            self._stats.record(np.full(n_grasps, Status.INVALID_INPUT, np.uint8), {}, None)
+            return _batch_failure(msg, Status.INVALID_INPUT, str(exc)), True
+        except Exception as exc:  # noqa: BLE001 - the goal must still be answered
+            self._internal_error(f"a label_grasps goal of {n_grasps} grasps", exc)
+            self._stats.record_failures(n_grasps)
+            return _batch_failure(msg, Status.SOLVER_FAILURE, f"internal error: {exc}"), True
+
+    def _goal_feedback(self, goal: _Goal, progress: Progress):
+        counts = progress.counts.tolist()
+        try:
+            goal.handle.publish_feedback(LabelGrasps.Feedback(
+                done=progress.done, total=progress.total,
+                grasps_per_second=float(progress.grasps_per_second),
+                force_closure=counts[Status.FORCE_CLOSURE],
+                not_force_closure=counts[Status.NOT_FORCE_CLOSURE],
+                filtered_out=counts[Status.FILTERED_OUT],
+                invalid_input=counts[Status.INVALID_INPUT],
+                solver_failure=counts[Status.SOLVER_FAILURE]))
+        except Exception as exc:  # noqa: BLE001 - a lost feedback must not fail the goal
+            self._internal_error("label_grasps feedback", exc)
+
+    def _stop_action(self):
+        """End the queued goals (aborted, no verdicts), let the results go, stop serving.
+
+        Runs after the goal threads have ended theirs (aborted with their prefix).
+        """
+        if self._action_thread is None:
+            return
+        with self._lock:
+            queued, self._goals = list(self._goals), deque()
+            ending = bool(self._goal_records)  # goals whose results are still to go out
+        for goal in queued:
+            self._end_goal(goal, self._empty_goal_reply(goal), aborted=True)
+        deadline = time.monotonic() + SHUTDOWN_ACK_TIMEOUT_S
+        while self._goal_records and time.monotonic() < deadline:
+            time.sleep(0.01)
+        if self._goal_records:
+            self.get_logger().warning(
+                f"{len(self._goal_records)} label_grasps goals not ended at shutdown")
+        elif ending:
+            time.sleep(ACTION_RESULT_GRACE_S)
+        self._action_executor.shutdown()
+        self._action_thread.join()
+        self._action_server.destroy()
+        self._action_node.destroy_node()
 
     # --- parameters -------------------------------------------------------------------
 
@@ -667,6 +914,7 @@ class ForceClosureNode(Node):
             self._service_node.destroy_node()
         for thread in self._threads:
             thread.join()
+        self._stop_action()
         self._pool.close()
         with self._lock:
             singles, self._pending = list(self._pending), deque()
@@ -703,7 +951,9 @@ class ForceClosureNode(Node):
             with self._lock:
                 pending = {"pending_single_queries": len(self._pending),
                            "pending_batch_grasps": (self._queued_batch_grasps
-                                                    + self._busy_batch_grasps)}
+                                                    + self._busy_batch_grasps),
+                           "action_goals_queued": len(self._goals),
+                           "action_goals_running": self._running_goals}
             status = DiagnosticStatus(
                 level=DiagnosticStatus.WARN if failures else DiagnosticStatus.OK,
                 name=f"{self.get_fully_qualified_name()}: force-closure queries",

@@ -173,6 +173,30 @@ class EvaluationPool:
             for future in futures:
                 future.cancel()
 
+    @property
+    def chunk_contacts(self) -> int:
+        """Largest number of contacts :meth:`decide` sends to a worker at once."""
+        return self._chunk_contacts
+
+    def submit(self, chunk: PackedGrasps, settings: Settings,
+               priority: int = PRIORITY_BATCH) -> Future:
+        """Queue ``chunk`` for a worker, whole; a Future of its (verdicts, seconds).
+
+        For callers that pace their own chunks (the ``label_grasps`` action). Without
+        workers the chunk is decided at once in the calling thread (the Future is done
+        on return). A worker failure sets the Future's exception (RuntimeError).
+        """
+        future: Future = Future()
+        if not self._workers:
+            future.set_running_or_notify_cancel()
+            try:
+                future.set_result(evaluate(chunk, settings))
+            except Exception as exc:  # noqa: BLE001 - reported through the Future
+                future.set_exception(exc)
+            return future
+        self._tasks.put((priority, next(self._order), (future, chunk, settings)))
+        return future
+
     @staticmethod
     def _collect(futures: list[Future], cancelled: Callable[[], bool]
                  ) -> tuple[Verdicts, dict]:

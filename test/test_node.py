@@ -386,6 +386,10 @@ def test_diagnostics_report_exact_counter_changes(client, grasps):
             "pending_single_queries", "pending_batch_grasps", "conversion_time_total_s",
             "validation_time_total_s", "filter_time_total_s", "exact_time_total_s",
             "processing_time_mean_ms", "processing_time_p99_ms"}
+    # The label_grasps action's goal counters (test_action.py checks their values).
+    keys |= {"action_goals_received", "action_goals_succeeded", "action_goals_canceled",
+             "action_goals_aborted", "action_goals_queued", "action_goals_running",
+             "action_grasps_undecided"}
     assert set(after) == keys
     served = check_force_closure(positions[:3], normals[:3], DEFAULT_MU).status
     statuses = np.concatenate([expected, served])
@@ -402,6 +406,7 @@ def test_diagnostics_report_exact_counter_changes(client, grasps):
         "overloaded": 0,
         "pending_single_queries": 0,
         "pending_batch_grasps": 0,
+        **{key: 0 for key in keys if key.startswith("action_")},  # no goal was sent
     }
     for key in ("conversion_time_total_s", "validation_time_total_s", "filter_time_total_s",
                 "exact_time_total_s"):

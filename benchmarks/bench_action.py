@@ -1,0 +1,171 @@
+"""Action benchmark: the force_closure node's label_grasps action through DDS.
+
+The node runs from its console script in a namespace of its own (as in bench_ros.py);
+goals are sent with an rclpy ActionClient on a GraspClient's node. Prints
+
+1. feedback: messages per second over one goal of --goal-grasps grasps, and the
+   largest gap between two (target: at least 1 per second, i.e. gap <= 1 s);
+2. cancel latency: --cancels goals, each cancelled --cancel-after s after its first
+   progress; time from the cancel request to the result (median, max; target
+   <= 100 ms), and whether every returned prefix equals the core's verdicts (0 lost);
+3. throughput: goals of --goal-grasps against batches of the same grasps on the batch
+   topic, --rounds alternating rounds (median grasps/s each, and their ratio).
+
+The machine may be shared: rates and latencies vary from run to run; compare figures
+of one run.
+
+Usage: python benchmarks/bench_action.py [--goal-grasps N] [--cancels C]
+       [--cancel-after S] [--rounds R] [--object NAME]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import threading
+import time
+
+import numpy as np
+import rclpy
+from action_msgs.msg import GoalStatus
+from grasp_fc_msgs.action import LabelGrasps
+from rclpy.action import ActionClient
+
+from bench_ros import REPLY_TIMEOUT_S, start_node, stop_node  # noqa: E402
+from grasp_fc_ros.conversions import grasps_to_batch_msg, verdict_array_to_numpy
+from grasp_fc_ros.core import check_force_closure
+from grasp_fc_ros.objects import make_object, sample_grasps
+
+N_FINGERS = 6
+N_UNIQUE = 5000
+TARGET_FEEDBACK_GAP_S = 1.0
+TARGET_CANCEL_S = 0.1
+
+
+class TimedGoal:
+    """A goal, its feedback arrival times, and when its result came."""
+
+    def __init__(self, action: ActionClient, batch):
+        self.feedback_times: list[float] = []
+        self.done_reported = 0
+        self.sent = time.monotonic()
+        accepted = threading.Event()
+        future = action.send_goal_async(LabelGrasps.Goal(grasps=batch),
+                                        feedback_callback=self._on_feedback)
+        future.add_done_callback(lambda _: accepted.set())
+        if not accepted.wait(REPLY_TIMEOUT_S) or not future.result().accepted:
+            raise RuntimeError("goal not accepted")
+        self.handle = future.result()
+        self.ended = None
+        self._done = threading.Event()
+        self._result = self.handle.get_result_async()
+        self._result.add_done_callback(self._on_result)
+
+    def _on_feedback(self, msg):
+        self.feedback_times.append(time.monotonic())
+        self.done_reported = msg.feedback.done
+
+    def _on_result(self, _):
+        self.ended = time.monotonic()
+        self._done.set()
+
+    def result(self):
+        if not self._done.wait(REPLY_TIMEOUT_S):
+            raise RuntimeError("no result")
+        response = self._result.result()
+        return response.status, verdict_array_to_numpy(response.result.verdicts)
+
+
+def bench_feedback(action, batch, n_grasps):
+    goal = TimedGoal(action, batch)
+    status, verdicts = goal.result()
+    duration = goal.ended - goal.sent
+    gaps = np.diff([goal.sent] + goal.feedback_times + [goal.ended])
+    ok = status == GoalStatus.STATUS_SUCCEEDED and len(verdicts) == n_grasps
+    print(f"feedback: {len(goal.feedback_times)} messages over {duration:.2f} s = "
+          f"{len(goal.feedback_times) / duration:.1f} per s, largest gap {gaps.max():.3f} s "
+          f"(target <= {TARGET_FEEDBACK_GAP_S:.0f} s: "
+          f"{'meets target' if gaps.max() <= TARGET_FEEDBACK_GAP_S else 'BELOW target'})"
+          f"{'' if ok else '  INCOMPLETE'}")
+    return n_grasps / duration
+
+
+def bench_cancel(action, batch, expected, n_cancels, after_s):
+    latencies, lossless, prefixes = [], True, []
+    for _ in range(n_cancels):
+        goal = TimedGoal(action, batch)
+        while not goal.feedback_times or goal.done_reported == 0:
+            time.sleep(0.005)
+        time.sleep(after_s)
+        cancel_at = time.monotonic()
+        goal.handle.cancel_goal_async()
+        status, verdicts = goal.result()
+        latencies.append(goal.ended - cancel_at)
+        n = len(verdicts)
+        prefixes.append(n)
+        lossless &= (status == GoalStatus.STATUS_CANCELED and n >= goal.done_reported
+                     and np.array_equal(verdicts.ids, np.arange(n))
+                     and np.array_equal(verdicts.status, expected[:n]))
+    ms = np.array(latencies) * 1e3
+    print(f"cancel latency over {n_cancels} cancels: median {np.median(ms):.1f} ms, "
+          f"max {ms.max():.1f} ms (target <= {TARGET_CANCEL_S * 1e3:.0f} ms: "
+          f"{'meets target' if ms.max() <= TARGET_CANCEL_S * 1e3 else 'BELOW target'}); "
+          f"prefixes of {min(prefixes)}-{max(prefixes)} grasps, "
+          f"{'0 lost, all equal the core' if lossless else 'LOST OR WRONG verdicts'}")
+    return lossless
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description="Benchmark of the label_grasps action")
+    parser.add_argument("--goal-grasps", type=int, default=100_000,
+                        help="grasps per goal (at most the node's max_batch, 100,000)")
+    parser.add_argument("--cancels", type=int, default=10, help="goals cancelled")
+    parser.add_argument("--cancel-after", type=float, default=0.3,
+                        help="seconds after a goal's first progress to cancel it")
+    parser.add_argument("--rounds", type=int, default=3,
+                        help="alternating goal/batch rounds for the throughput")
+    parser.add_argument("--object", default="box", help="built-in object")
+    args = parser.parse_args(argv)
+
+    positions, normals = sample_grasps(make_object(args.object), min(N_UNIQUE, args.goal_grasps),
+                                       N_FINGERS, np.random.default_rng(0))
+    expected_unique = np.asarray(check_force_closure(positions, normals, 0.5).status)
+    reps = -(-args.goal_grasps // len(positions))
+    positions = np.concatenate([positions] * reps)[:args.goal_grasps]
+    normals = np.concatenate([normals] * reps)[:args.goal_grasps]
+    expected = np.concatenate([expected_unique] * reps)[:args.goal_grasps]
+    batch = grasps_to_batch_msg(np.arange(args.goal_grasps), positions, normals)
+
+    rclpy.init()
+    node, client = start_node("action")
+    try:
+        namespace = f"/grasp_fc_action_{os.getpid()}"  # as start_node("action") names it
+        action = ActionClient(client.node, LabelGrasps, f"{namespace}/label_grasps")
+        if not action.wait_for_server(timeout_sec=30.0):
+            raise RuntimeError("no label_grasps server")
+        print(f"{args.goal_grasps} {N_FINGERS}-finger grasps per goal on '{args.object}'; "
+              "the node has 2 workers; shared machine: figures vary between runs")
+        bench_feedback(action, batch, args.goal_grasps)
+        lossless = bench_cancel(action, batch, expected, args.cancels, args.cancel_after)
+        goal_rates, batch_rates = [], []
+        for _ in range(args.rounds):  # alternating, so that a busy spell hits both
+            start = time.perf_counter()
+            verdicts = client.check_batch(positions, normals, timeout=REPLY_TIMEOUT_S)
+            batch_rates.append(len(verdicts) / (time.perf_counter() - start))
+            start = time.perf_counter()
+            TimedGoal(action, batch).result()
+            goal_rates.append(args.goal_grasps / (time.perf_counter() - start))
+        goal_rate, batch_rate = statistics.median(goal_rates), statistics.median(batch_rates)
+        print(f"throughput (medians of {args.rounds} alternating rounds): action "
+              f"{goal_rate:.0f} grasps/s, batch topic {batch_rate:.0f} grasps/s, "
+              f"ratio {goal_rate / batch_rate:.2f}")
+    finally:
+        stop_node(node, client)
+        rclpy.try_shutdown()
+    return 0 if lossless else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
