@@ -149,6 +149,8 @@ def verdicts_to_array_msg(verdicts: Verdicts, query: ContactArrayBatch | None = 
     msg.messages = list(verdicts.messages)
     if verdicts.contact_forces is not None:
         msg.contact_forces = _to_field(_TYPECODE_FLOAT64, verdicts.contact_forces.reshape(-1))
+    if verdicts.contact_torques is not None:
+        msg.contact_torques = _to_field(_TYPECODE_FLOAT64, verdicts.contact_torques)
     if verdicts.separating_wrench is not None:
         msg.separating_wrenches = _to_field(_TYPECODE_FLOAT64,
                                             verdicts.separating_wrench.reshape(-1))
@@ -179,14 +181,18 @@ _NAN6 = (math.nan,) * 6
 
 
 def _set_certificates(reply: ForceClosureVerdict, forces: np.ndarray | None,
-                      wrench: np.ndarray | None, min_friction: float):
+                      torques: np.ndarray | None, wrench: np.ndarray | None,
+                      min_friction: float):
     """Fill the certificate fields of one verdict message.
 
-    ``forces`` (n, 3) are sent only for a FORCE_CLOSURE verdict (empty otherwise);
-    ``wrench`` (6,) or None (NaN); ``min_friction`` as it is (NaN: not computed).
+    ``forces`` (n, 3) and ``torques`` (n,) or None are sent only for a FORCE_CLOSURE
+    verdict (empty otherwise); ``wrench`` (6,) or None (NaN); ``min_friction`` as it is
+    (NaN: not computed).
     """
     if forces is not None and reply.status == ForceClosureVerdict.FORCE_CLOSURE:
         reply.contact_forces = _vectors(forces)
+        if torques is not None:
+            reply.contact_torques = torques.tolist()
     if wrench is None or np.isnan(wrench).any():
         _set_wrench(reply, _NAN6)
     else:
@@ -238,19 +244,22 @@ def _certificates_to_msgs(verdicts: Verdicts, queries: list[ContactArray] | None
                              "split into verdict messages")
         ends = np.cumsum([len(q.contacts) for q in queries])
         forces = np.split(verdicts.contact_forces, ends[:-1])
+    torques = ([None] * len(out) if verdicts.contact_torques is None
+               else np.split(verdicts.contact_torques, ends[:-1]))
     wrenches = (verdicts.separating_wrench if verdicts.separating_wrench is not None
                 else [None] * len(out))
     min_friction = (verdicts.min_friction.tolist() if verdicts.min_friction is not None
                     else [math.nan] * len(out))
-    for reply, f, w, m in zip(out, forces, wrenches, min_friction):
-        _set_certificates(reply, f, w, m)
+    for reply, f, t, w, m in zip(out, forces, torques, wrenches, min_friction):
+        _set_certificates(reply, f, t, w, m)
 
 
 def verdict_array_to_numpy(msg: ForceClosureVerdictArray) -> Verdicts:
     """Read a ForceClosureVerdictArray back into numpy arrays (client side).
 
-    The certificate fields become ``contact_forces`` (K, 3), ``separating_wrench``
-    (N, 6) and ``min_friction`` (N,), or None where the message carries none (empty).
+    The certificate fields become ``contact_forces`` (K, 3), ``contact_torques`` (K,),
+    ``separating_wrench`` (N, 6) and ``min_friction`` (N,), or None where the message
+    carries none (empty).
     """
     def optional(values, width):
         if not len(values):
@@ -265,6 +274,7 @@ def verdict_array_to_numpy(msg: ForceClosureVerdictArray) -> Verdicts:
         margin=_as_numpy(msg.margin, np.float64).copy(),
         messages=list(msg.messages),
         contact_forces=optional(msg.contact_forces, 3),
+        contact_torques=optional(msg.contact_torques, 0),
         separating_wrench=optional(msg.separating_wrenches, 6),
         min_friction=optional(msg.min_friction, 0),
     )
@@ -286,7 +296,8 @@ def verdict_msgs_to_numpy(replies: list[ForceClosureVerdict], counts) -> Verdict
     Verdicts
         With ``contact_forces`` (K, 3) (NaN rows for grasps without forces),
         ``separating_wrench`` (N, 6) and ``min_friction`` (N,) always set: single
-        verdicts carry NaN, not "absent", where there is none.
+        verdicts carry NaN, not "absent", where there is none; ``contact_torques`` (K,)
+        (NaN where there are none) when any verdict carries them, else None.
 
     Raises
     ------
@@ -297,6 +308,7 @@ def verdict_msgs_to_numpy(replies: list[ForceClosureVerdict], counts) -> Verdict
     if len(counts) != len(replies):
         raise ValueError(f"{len(counts)} contact counts for {len(replies)} verdicts")
     forces = np.full((int(counts.sum()), 3), np.nan)
+    torques = np.full(int(counts.sum()), np.nan)
     start = 0
     for k, (reply, count) in enumerate(zip(replies, counts.tolist())):
         if reply.contact_forces:
@@ -305,6 +317,12 @@ def verdict_msgs_to_numpy(replies: list[ForceClosureVerdict], counts) -> Verdict
                                  f"{len(reply.contact_forces)} contact forces for "
                                  f"{count} contacts")
             forces[start:start + count] = [(v.x, v.y, v.z) for v in reply.contact_forces]
+        if len(reply.contact_torques):
+            if len(reply.contact_torques) != count:
+                raise ValueError(f"verdict {k} (id {reply.id}) has "
+                                 f"{len(reply.contact_torques)} contact torques for "
+                                 f"{count} contacts")
+            torques[start:start + count] = reply.contact_torques
         start += count
     wrench = np.array([(r.separating_wrench.force.x, r.separating_wrench.force.y,
                         r.separating_wrench.force.z, r.separating_wrench.torque.x,
@@ -316,7 +334,9 @@ def verdict_msgs_to_numpy(replies: list[ForceClosureVerdict], counts) -> Verdict
         status=np.array([r.status for r in replies], dtype=np.uint8),
         margin=np.array([r.margin for r in replies], dtype=np.float64),
         messages=[r.message for r in replies],
-        contact_forces=forces, separating_wrench=wrench,
+        contact_forces=forces,
+        contact_torques=torques if any(len(r.contact_torques) for r in replies) else None,
+        separating_wrench=wrench,
         min_friction=np.array([r.min_friction for r in replies], dtype=np.float64))
 
 

@@ -163,6 +163,10 @@ class Verdicts:
         Certificates of FORCE_CLOSURE grasps: one internal force per contact (N per N of
         total grip), grasp after grasp in the query's contact order (K contacts in all);
         NaN rows for the contacts of other grasps. None: not computed.
+    contact_torques : (K,) float64 or None
+        With ``contact_forces`` where the query has soft-finger contacts: the moment
+        about each contact's normal (N m per N of total grip; 0 at hard contacts).
+        None: not computed, or every contact hard.
     separating_wrench : (N, 6) float64 or None
         Unit wrench (force N, torque N m about the origin) that FILTERED_OUT and
         NOT_FORCE_CLOSURE grasps cannot resist; NaN rows where there is none. None: not
@@ -178,6 +182,7 @@ class Verdicts:
     margin: np.ndarray
     messages: list[str]
     contact_forces: np.ndarray | None = None
+    contact_torques: np.ndarray | None = None
     separating_wrench: np.ndarray | None = None
     min_friction: np.ndarray | None = None
 
@@ -208,7 +213,7 @@ class Verdicts:
 
 
 # The optional per-grasp results of Verdicts, computed only when the settings ask.
-OPTIONAL_FIELDS = ("contact_forces", "separating_wrench", "min_friction")
+OPTIONAL_FIELDS = ("contact_forces", "contact_torques", "separating_wrench", "min_friction")
 
 
 def _concatenate_optional(arrays: list) -> np.ndarray | None:
@@ -332,6 +337,8 @@ def evaluate(packed: PackedGrasps, settings: Settings) -> tuple[Verdicts, dict]:
     seconds = {"validation_s": time.perf_counter() - start, "filter_s": 0.0, "exact_s": 0.0}
     if settings.certificates:
         verdicts.contact_forces = np.full((len(packed.positions), 3), np.nan)
+        if packed.torsional is not None:
+            verdicts.contact_torques = np.full(len(packed.positions), np.nan)
         verdicts.separating_wrench = np.full((n_grasps, 6), np.nan)
     if settings.compute_min_friction:
         verdicts.min_friction = np.full(n_grasps, np.nan)
@@ -358,6 +365,8 @@ def evaluate(packed: PackedGrasps, settings: Settings) -> tuple[Verdicts, dict]:
             seconds[key] += result.timing.get(key, 0.0)
         if settings.certificates:
             verdicts.contact_forces[rows] = result.contact_forces
+            if verdicts.contact_torques is not None:
+                verdicts.contact_torques[rows] = result.contact_torques
             verdicts.separating_wrench[group] = result.separating_wrench
         if settings.compute_min_friction:
             began = time.perf_counter()

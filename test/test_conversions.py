@@ -233,3 +233,52 @@ def test_min_friction_follows_the_query_proportions_and_is_nan_for_invalid():
                                     mu_star * (1 - 1e-3) * ratios)
         assert above.force_closure and not below.force_closure, f"grasp {g}: mu* {mu_star}"
     assert finite >= 20
+
+
+def soft_pairs(seed=8, n_grasps=30):
+    """Two-finger grasps on a sphere, nearly antipodal, soft or hard at random: only the
+    soft pairs can be force closure, and only with their torques."""
+    rng = np.random.default_rng(seed)
+    axis = rng.normal(size=(n_grasps, 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    other = -axis + 0.1 * rng.normal(size=(n_grasps, 3))
+    other /= np.linalg.norm(other, axis=1, keepdims=True)
+    positions = 0.04 * np.stack([axis, other], axis=1)
+    normals = -positions
+    gamma = np.where(rng.random(n_grasps) < 0.6, 0.004, 0.0)[:, None].repeat(2, axis=1)
+    return positions, normals, gamma
+
+
+def test_soft_certificates_carry_torques_in_both_verdict_kinds():
+    from grasp_fc_ros.core import verify_certificates
+    from grasp_fc_ros.conversions import verdict_msgs_to_numpy
+    from grasp_fc_ros.evaluation import Settings, evaluate
+
+    positions, normals, gamma = soft_pairs()
+    msg = grasps_to_batch_msg(np.arange(30), positions, normals, 0.5,
+                              torsional_friction=gamma)
+    reply = verdicts_to_array_msg(decide(msg, certificates=True), msg)
+    got = verdict_array_to_numpy(reply)
+    assert got.contact_torques.shape == (60,)
+    forces_ok, wrench_ok = verify_certificates(
+        positions, normals, 0.5, got.contact_forces.reshape(30, 2, 3),
+        got.separating_wrench, gamma, got.contact_torques.reshape(30, 2))
+    fc = got.status == Status.FORCE_CLOSURE
+    np.testing.assert_array_equal(forces_ok, fc)
+    assert fc.any() and not fc[gamma[:, 0] == 0].any()  # hard pairs never
+    # Rejected: a wrench that verifies, or none (NaN) for the hard pairs, whose rank < 6
+    # leaves only a zero-work wrench that rounding blurs (documented as marginal).
+    no_wrench = np.isnan(got.separating_wrench).all(axis=1)
+    assert (wrench_ok | no_wrench)[~fc].all()
+    assert wrench_ok[~fc & (gamma[:, 0] > 0)].all()
+    # The same grasps as single queries: torques only in the FORCE_CLOSURE verdicts.
+    queries = [grasp_to_contact_array(i, p, n, 0.5, torsional_friction=g)
+               for i, (p, n, g) in enumerate(zip(positions, normals, gamma))]
+    verdicts, _ = evaluate(contact_arrays_to_packed(queries), Settings(certificates=True))
+    singles = verdicts_to_msgs(verdicts, queries)
+    assert [len(v.contact_torques) for v in singles] == [2 * int(f) for f in fc]
+    back = verdict_msgs_to_numpy(singles, [2] * 30)
+    np.testing.assert_array_equal(back.contact_torques, got.contact_torques)
+    # An all-hard batch sends no torques at all.
+    hard = grasps_to_batch_msg(np.arange(30), positions, normals, 0.5)
+    assert len(verdicts_to_array_msg(decide(hard, certificates=True), hard).contact_torques) == 0
