@@ -46,6 +46,7 @@ import numpy as np
 
 from .certificates import grasp_maps, normalise_positions
 from .grasp_input import GraspBatch, prepare_grasps
+from .interior_point import CONVERGED, solve_fast
 from .stacked_socp import SOLVE_BATCH, BlockShape, solve_stacked, split_normal, tangent_bases
 from .tolerances import RANK_TOL
 
@@ -104,6 +105,11 @@ CERT_MARGIN = 1e-9
 #: work at that sub-grasp's contacts: only multipliers accurate far below CERT_MARGIN
 #: certify anything there.
 SOLVER_TOL = 1e-11
+
+#: Primal-dual gap of the fast stage's solves, relative to the trivial bound 1/sigma on
+#: the margin (so relative to lam, like SOLVER_TOL on Clarabel's scaled rows); what
+#: does not reach it goes to Clarabel.
+FAST_GAP = SOLVER_TOL
 
 #: Bisection steps for the largest L a wrench certifies: 2^-32 (~2e-10) of the bracket,
 #: far below REL_TOL.
@@ -216,12 +222,13 @@ def solve_minimum_friction(grasps: GraspBatch, margin: float = 0.0):
     for _ in range(MAX_SOLVES):
         if active.size == 0:
             break
-        # A grasp whose last solve improved neither bound is solved alone: a stacked
-        # solve stops on the batch's residuals, and near mu* one grasp may need more
-        # accuracy than its batch gave it.
+        # The fast stage solves every grasp; what it cannot converge goes to Clarabel in
+        # stacked solves. A grasp whose last solve improved neither bound is solved by
+        # Clarabel alone: a stacked solve stops on the batch's residuals, and near mu* one
+        # grasp may need more accuracy than its batch gave it.
         stalled = state.stalled[active]
-        chunks = [active[~stalled][start:start + SOLVE_BATCH]
-                  for start in range(0, int((~stalled).sum()), SOLVE_BATCH)]
+        slow = _step_fast(active[~stalled], state, unit, gmap, grasps, margin)
+        chunks = [slow[start:start + SOLVE_BATCH] for start in range(0, slow.size, SOLVE_BATCH)]
         for chunk in chunks + [active[k:k + 1] for k in np.flatnonzero(stalled)]:
             _step(chunk, state, gmap, grasps, margin)
         done = _resolved(state.lower[active], state.upper[active])
@@ -238,6 +245,41 @@ def _step(chunk, state, gmap, grasps, margin):
     ceiling = np.where(np.isfinite(state.upper[chunk]), state.upper[chunk], MU_CAP)
     lower = lower_certificate(wrench, gmap[chunk], normals, ratios, ceiling, margin)
     state.update(chunk, lam, depth - margin, slope, lower, upper)
+
+
+def _step_fast(chunk, state, unit, gmap, grasps, margin):
+    """One fast-stage solve for the grasps ``chunk`` (as :func:`_step`); returns those
+    (a subset of ``chunk``) it did not converge, for Clarabel, their state untouched."""
+    lam = state.lam[chunk]
+    normals, ratios = grasps.normals[chunk], grasps.mu[chunk]
+    codes, depth, _, _, forces, wrench = solve_fast(unit[chunk], normals, lam[:, None] * ratios,
+                                                    signed_gap=FAST_GAP)
+    done = codes == CONVERGED
+    slow = chunk[~done]
+    chunk, lam, normals, ratios = chunk[done], lam[done], normals[done], ratios[done]
+    forces, wrench, depth = forces[done].reshape(chunk.size, 3 * normals.shape[1]), wrench[done], depth[done]
+    upper = upper_certificate(forces, gmap[chunk], normals, ratios, margin)
+    ceiling = np.where(np.isfinite(state.upper[chunk]), state.upper[chunk], MU_CAP)
+    lower = lower_certificate(wrench, gmap[chunk], normals, ratios, ceiling, margin)
+    slope = _fast_slope(forces, wrench, gmap[chunk], normals, lam[:, None] * ratios, ratios)
+    state.update(chunk, lam, depth - margin, slope, lower, upper)
+    return slow
+
+
+def _fast_slope(forces, wrench, gmap, normals, friction, ratios):
+    """dt/dlam (K,) at the fast stage's optimum, by the envelope theorem.
+
+    The kernel's wrench w gives the cone multipliers' first components
+    y_i = (1 + d.w - a_n,i) / (sigma mu_i), a_n,i = Bn_i . w (they sum to one), and
+    dt/dlam = sum_i y_i r_i c_n,i for the witness' normal forces c_n,i.
+    """
+    work = np.einsum("gkv,gk->gv", gmap, wrench).reshape(normals.shape)
+    work_normal = (work * normals).sum(axis=2)
+    sigma = (1.0 / friction).sum(axis=1, keepdims=True)
+    d_w = (work_normal / friction).sum(axis=1, keepdims=True) / sigma
+    multiplier = (1.0 + d_w - work_normal) / (sigma * friction)
+    normal_force = (forces.reshape(normals.shape) * normals).sum(axis=2)
+    return (multiplier * ratios * normal_force).sum(axis=1)
 
 
 def _lifts_off(gmap, normals, ratios, full_rank):
