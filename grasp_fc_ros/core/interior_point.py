@@ -61,6 +61,10 @@ MIN_STEP = 1e-10
 
 _EPS = float(np.finfo(np.float64).eps)
 
+#: The signed mode also stops where its gap is this fraction of the margin's magnitude:
+#: far from mu*, the search's next step and the certificates need no more.
+SIGNED_RELATIVE_GAP = 1e-3
+
 #: Relative rounding allowance of the trivial bound t* <= 1 / sum_i (1/mu_i): the sum
 #: of n <= ~1e3 positive terms errs by far less than n eps.
 TRIVIAL_BOUND_SLACK = 1e-12
@@ -475,8 +479,9 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, force
             total_z0 = 0.0
             for i in range(n):
                 total_z0 += z[i, 0]
-            # Dual minus primal objective of the iterates, times sigma.
-            if d_w + total_z0 <= signed_gap:
+            # Dual minus primal objective of the iterates, times sigma: small against
+            # signed_gap, or against the margin itself (a search step needs no more).
+            if d_w + total_z0 <= max(signed_gap, SIGNED_RELATIVE_GAP * abs(1.0 - total_z0)):
                 return CONVERGED, t_lo, t_hi, iteration
         else:
             close = t_hi - max(t_lo, 0.0) <= MARGIN_ACCURACY

@@ -268,7 +268,7 @@ def _step_fast(chunk, state, unit, gmap, grasps, margin):
     friction = lam[:, None] * ratios
     codes, depth, _, _, forces, wrench = solve_fast(unit[chunk], normals, friction,
                                                     signed_gap=FAST_GAP)
-    forces = forces.reshape(chunk.size, -1)
+    forces = forces.reshape(chunk.size, 3 * normals.shape[1])
     slope, gap = _fast_slope_and_gap(forces, wrench, gmap[chunk], normals, friction, ratios,
                                      depth)
     with np.errstate(invalid="ignore"):
