@@ -61,8 +61,9 @@ MIN_STEP = 1e-10
 
 _EPS = float(np.finfo(np.float64).eps)
 
-#: The signed mode also stops where its gap is this fraction of the margin's magnitude:
-#: far from mu*, the search's next step and the certificates need no more.
+#: The signed mode also stops where its gap is this fraction of the margin's distance
+#: from the level searched for: far from mu*, the search's next step and the
+#: certificates need no more.
 SIGNED_RELATIVE_GAP = 1e-3
 
 #: Relative rounding allowance of the trivial bound t* <= 1 / sum_i (1/mu_i): the sum
@@ -343,14 +344,15 @@ def _max_step(x, dx):
     return best
 
 
-def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, forces_out,
-                 wrench_out, work3, work6, rows, a_mat, scalings, mats, work_n):
+def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signed_level,
+                 forces_out, wrench_out, work3, work6, rows, a_mat, scalings, mats, work_n):
     """Decide one unit-size grasp. Returns (code, t_lo, t_hi, iterations).
 
     ``signed_gap`` > 0 selects the signed mode (for :mod:`.minimum_friction`): no verdict;
     iterate until the primal-dual gap of the signed margin, (1 + d.w)/sigma - (1 - sum_i
     z0_i)/sigma, is at most ``signed_gap / sigma`` (relative to the trivial bound 1/sigma,
-    so relative to the friction scale), and return CONVERGED with the best witness in ``forces_out``
+    so relative to the friction scale) or at most SIGNED_RELATIVE_GAP of |t - signed_level|
+    (times sigma; the search's distance from its root), and return CONVERGED with the best witness in ``forces_out``
     and the last iterate's wrench in ``wrench_out`` (the optimum's multipliers).
 
     The remaining arguments are scratch space of the batch, reused from grasp to grasp
@@ -480,8 +482,10 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, force
             for i in range(n):
                 total_z0 += z[i, 0]
             # Dual minus primal objective of the iterates, times sigma: small against
-            # signed_gap, or against the margin itself (a search step needs no more).
-            if d_w + total_z0 <= max(signed_gap, SIGNED_RELATIVE_GAP * abs(1.0 - total_z0)):
+            # signed_gap, or against the margin's distance from signed_level (a search
+            # step needs no more).
+            distance = abs(1.0 - total_z0 - sigma * signed_level)
+            if d_w + total_z0 <= max(signed_gap, SIGNED_RELATIVE_GAP * distance):
                 return CONVERGED, t_lo, t_hi, iteration
         else:
             close = t_hi - max(t_lo, 0.0) <= MARGIN_ACCURACY
@@ -582,7 +586,7 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, force
     return UNDECIDED, t_lo, t_hi, iteration
 
 
-def _solve_all(unit, normals, mu, want_optimum, want_wrench, signed_gap):
+def _solve_all(unit, normals, mu, want_optimum, want_wrench, signed_gap, signed_level):
     n_grasps, n_contacts = mu.shape
     codes = np.empty(n_grasps, dtype=np.int8)
     t_lo = np.empty(n_grasps)
@@ -599,8 +603,8 @@ def _solve_all(unit, normals, mu, want_optimum, want_wrench, signed_gap):
     work_n = np.empty((2, n_contacts))
     for g in range(n_grasps):
         codes[g], t_lo[g], t_hi[g], iterations[g] = _solve_grasp(
-            unit[g], normals[g], mu[g], want_optimum, want_wrench, signed_gap, forces[g], wrench[g],
-            work3, work6, rows, a_mat, scalings, mats, work_n)
+            unit[g], normals[g], mu[g], want_optimum, want_wrench, signed_gap, signed_level,
+            forces[g], wrench[g], work3, work6, rows, a_mat, scalings, mats, work_n)
     return codes, t_lo, t_hi, iterations, forces, wrench
 
 
@@ -612,7 +616,7 @@ for _name in ("_frames", "_wrench_rows", "_gram", "_apply_grasp_map", "_cholesky
 
 def solve_fast(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray,
                want_optimum: bool = False, want_wrench: bool = False,
-               signed_gap: float = 0.0):
+               signed_gap: float = 0.0, signed_level: float = 0.0):
     """Run the fast exact stage on unit-size grasps.
 
     Parameters
@@ -630,6 +634,8 @@ def solve_fast(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray,
     signed_gap : float
         > 0: the signed mode of :func:`_solve_grasp` (codes CONVERGED or UNDECIDED, t_lo
         the signed depth of the witness, ``wrench`` the last iterate's); 0: verdicts.
+    signed_level : float
+        The signed mode's target margin: the gap may stay larger far from it.
 
     Returns
     -------
@@ -645,7 +651,7 @@ def solve_fast(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray,
     """
     return _solve_all(np.ascontiguousarray(unit), np.ascontiguousarray(normals),
                       np.ascontiguousarray(mu), bool(want_optimum), bool(want_wrench),
-                      float(signed_gap))
+                      float(signed_gap), float(signed_level))
 
 
 def warm_up() -> None:

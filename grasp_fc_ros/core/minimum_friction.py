@@ -267,7 +267,7 @@ def _step_fast(chunk, state, unit, gmap, grasps, margin):
     normals, ratios = grasps.normals[chunk], grasps.mu[chunk]
     friction = lam[:, None] * ratios
     codes, depth, _, _, forces, wrench = solve_fast(unit[chunk], normals, friction,
-                                                    signed_gap=FAST_GAP)
+                                                    signed_gap=FAST_GAP, signed_level=margin)
     forces = forces.reshape(chunk.size, 3 * normals.shape[1])
     slope, gap = _fast_slope_and_gap(forces, wrench, gmap[chunk], normals, friction, ratios,
                                      depth)
