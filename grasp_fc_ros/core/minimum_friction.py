@@ -13,7 +13,8 @@ with a signed margin,
     t(lam) = max t  s.t.  G f = 0,  sum_i f_n,i = 1,  (lam r_i f_n,i - t, f_t,i) in Q^3,
 
 positive above mu* and not positive below; a safeguarded Newton/secant search (see
-:class:`_RootState`) picks the next lam. Every solve yields two certificates, both
+:class:`_RootState`) picks the next lam. Each solve runs the fast exact stage in its
+signed mode (:func:`.interior_point.solve_fast`), Clarabel where that does not converge. Every solve yields two certificates, both
 checked in numpy, never taken on trust:
 
 * an upper bound: the solver's forces, projected exactly onto null(G), with every normal
