@@ -43,7 +43,8 @@ def test_results_equal_the_general_path(monkeypatch):
     monkeypatch.setattr(pipeline, "check_one", lambda *args: decided.append(check_one(*args))
                         or decided[-1])
     rng = np.random.default_rng(5)
-    cases = [(p, n) for size in (2, 3, 5, 6, 8, 20) for p, n in zip(*ellipsoid_grasps(rng, 40, size))]
+    cases = [(p, n) for size in (2, 3, 5, 6, 8, 20)
+             for p, n in zip(*ellipsoid_grasps(rng, 40, size))]
     cases += adversarial_grasps(rng) + adversarial_grasps(rng, n_contacts=4)
     for positions, normals in cases:
         positions, normals = np.asarray(positions, float), np.asarray(normals, float)

@@ -352,8 +352,9 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
     iterate until the primal-dual gap of the signed margin, (1 + d.w)/sigma - (1 - sum_i
     z0_i)/sigma, is at most ``signed_gap / sigma`` (relative to the trivial bound 1/sigma,
     so relative to the friction scale) or at most SIGNED_RELATIVE_GAP of |t - signed_level|
-    (times sigma; the search's distance from its root), and return CONVERGED with the best witness in ``forces_out``
-    and the last iterate's wrench in ``wrench_out`` (the optimum's multipliers).
+    (times sigma; the search's distance from its root), and return CONVERGED with the
+    best witness in ``forces_out`` and the last iterate's wrench in ``wrench_out`` (the
+    optimum's multipliers).
 
     The remaining arguments are scratch space of the batch, reused from grasp to grasp
     (allocating it per grasp cost ~25% of the run time): work3 (12, n, 3), work6 (14, 6),

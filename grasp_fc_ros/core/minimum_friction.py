@@ -14,8 +14,8 @@ with a signed margin,
 
 positive above mu* and not positive below; a safeguarded Newton/secant search (see
 :class:`_RootState`) picks the next lam. Each solve runs the fast exact stage in its
-signed mode (:func:`.interior_point.solve_fast`), Clarabel where that does not converge. Every solve yields two certificates, both
-checked in numpy, never taken on trust:
+signed mode (:func:`.interior_point.solve_fast`), Clarabel where that does not converge.
+Every solve yields two certificates, both checked in numpy, never taken on trust:
 
 * an upper bound: the solver's forces, projected exactly onto null(G), with every normal
   force positive, are inside every cone of friction ``U = max_i |f_t,i| / (r_i f_n,i)``
