@@ -72,21 +72,7 @@ def _prepare_one(positions, normals, mu, unit, directions, friction):
     return True
 
 
-def _check_one(positions, normals, mu, want_optimum):
-    """(valid, code, t_lo, t_hi) of one grasp; code from the fast stage."""
-    n = positions.shape[0]
-    unit = np.empty((1, n, 3))
-    directions = np.empty((1, n, 3))
-    friction = np.empty((1, n))
-    if not _prepare_one(positions, normals, mu, unit[0], directions[0], friction[0]):
-        return False, interior_point.UNDECIDED, np.nan, np.nan
-    codes, t_lo, t_hi, _, _, _ = interior_point._solve_all(unit, directions, friction,
-                                                           want_optimum, False, 0.0, 0.0)
-    return True, codes[0], t_lo[0], t_hi[0]
-
-
 _prepare_one = _jit(_prepare_one)
-_check_one = _jit(_check_one)
 
 
 def check_one(positions, normals, mu: float, want_optimum: bool):
@@ -104,10 +90,17 @@ def check_one(positions, normals, mu: float, want_optimum: bool):
     tuple (force_closure, t_lo, t_hi) or None
         None where the input is not valid or the fast stage did not decide the grasp.
     """
-    valid, code, t_lo, t_hi = _check_one(positions, normals, mu, want_optimum)
-    if not valid or code == interior_point.UNDECIDED:
+    n = positions.shape[0]
+    unit, directions, friction = np.empty((1, n, 3)), np.empty((1, n, 3)), np.empty((1, n))
+    if not _prepare_one(positions, normals, mu, unit[0], directions[0], friction[0]):
         return None
-    return code == interior_point.FORCE_CLOSURE, t_lo, t_hi
+    # A second compiled call rather than one kernel calling the other: numba would
+    # compile the whole exact stage again into that kernel (~40 s cold).
+    codes, t_lo, t_hi, _, _, _ = interior_point._solve_all(unit, directions, friction,
+                                                           want_optimum, False, 0.0, 0.0)
+    if codes[0] == interior_point.UNDECIDED:
+        return None
+    return codes[0] == interior_point.FORCE_CLOSURE, t_lo[0], t_hi[0]
 
 
 def warm_up() -> None:

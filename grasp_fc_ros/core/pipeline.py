@@ -139,7 +139,9 @@ def _one_grasp(positions, normals, mu, use_filter, origins, margin):
     """The result for one grasp of float64 arrays (n, 3) and a scalar mu, decided on the
     fast path of :mod:`.one_grasp` where the filter is not to run; else None."""
     if not (type(positions) is np.ndarray and type(normals) is np.ndarray
-            and isinstance(mu, (float, int, np.floating, np.integer))
+            and (isinstance(mu, (float, np.floating))
+                 # (a huge int would make float() raise: the general path words it)
+                 or (isinstance(mu, (int, np.integer)) and abs(mu) <= 2 ** 53))
             and positions.dtype == np.float64 and normals.dtype == np.float64
             and positions.ndim == 2 and positions.shape == normals.shape
             and positions.shape[1] == 3
