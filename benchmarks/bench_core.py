@@ -8,6 +8,7 @@ Figures are medians over ``--repeats`` runs in this one process.
 
     python benchmarks/bench_core.py                # full: 100,000 six-finger grasps
     python benchmarks/bench_core.py --quick        # a few seconds
+    python benchmarks/bench_core.py --peer 200     # also the 8-sided-pyramid Qhull peer
 """
 
 import os
@@ -21,10 +22,11 @@ import statistics  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from grasp_fc_ros.core import check_force_closure  # noqa: E402
+from grasp_fc_ros.core import check_force_closure, warm_up  # noqa: E402
 from grasp_fc_ros.core.grasp_input import prepare_grasps  # noqa: E402
 from grasp_fc_ros.core.pipeline import run_pipeline  # noqa: E402
 from grasp_fc_ros.core.torque_space_filter import passes_torque_filter  # noqa: E402
+from grasp_fc_ros.experiment.linearized_peer import linearized_force_closure  # noqa: E402
 from grasp_fc_ros.objects import OBJECT_NAMES, make_object, sample_grasps  # noqa: E402
 from timing import MU_PAPER, median_seconds  # noqa: E402
 
@@ -58,6 +60,19 @@ def measure(surface, n_fingers, n_grasps, exact_grasps, repeats, rng):
     }
 
 
+def peer_ratio(surface, n_grasps, peer_grasps, repeats, rng):
+    """The linearized peer (inscribed 8-sided pyramids, Qhull) on ``peer_grasps``
+    six-finger grasps against the paper's filtered pipeline and the exact test alone on
+    ``n_grasps``; ms per grasp. Returns (peer, filtered, exact)."""
+    positions, normals = sample_grasps(surface, n_grasps, 6, rng)
+    grasps = prepare_grasps(positions, normals, MU)
+    filtered_s = median_seconds(lambda: run_pipeline(grasps, use_filter=True), repeats)
+    exact_s = median_seconds(lambda: run_pipeline(grasps, use_filter=False), repeats)
+    peer_s = median_seconds(lambda: linearized_force_closure(
+        positions[:peer_grasps], normals[:peer_grasps], MU, 8), 1)
+    return (1e3 * peer_s / peer_grasps, 1e3 * filtered_s / n_grasps, 1e3 * exact_s / n_grasps)
+
+
 def print_table(rows, object_name, six_finger_grasps, sweep_grasps):
     print(f"\nobject {object_name!r}, mu = tan(10 deg) = {MU:.4f}; {six_finger_grasps} "
           f"six-finger grasps, {sweep_grasps} for other n; medians, one core")
@@ -84,12 +99,21 @@ def main(argv=None):
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--quick", action="store_true", help="small sizes, one repeat")
+    parser.add_argument("--peer", type=int, default=0, metavar="GRASPS",
+                        help="also time the linearized Qhull peer on this many six-finger "
+                             "grasps (~20 ms each) against the pipeline on --grasps")
     args = parser.parse_args(argv)
     if args.quick:
         args.grasps, args.sweep_grasps, args.repeats = 5_000, 1_000, 1
 
+    warm_up()
     rng = np.random.default_rng(args.seed)
     surface = make_object(args.object)
+    if args.peer:
+        peer, filtered, exact = peer_ratio(surface, args.grasps, args.peer, args.repeats, rng)
+        print(f"six fingers, 8-sided-pyramid Qhull peer {peer:.2f} ms per grasp; filtered "
+              f"pipeline {filtered:.4f} ms ({peer / filtered:.0f}x faster, target >= 1000x); "
+              f"exact test alone {exact:.4f} ms ({peer / exact:.0f}x)", flush=True)
     rows = []
     for n in args.fingers:
         size = args.grasps if n == 6 else args.sweep_grasps

@@ -4,7 +4,9 @@ For random n-finger grasps on a built-in object it measures, in this one process
 the exact force-closure test (the unit of cost), ``minimum_friction`` (margin 0 and
 margin MARGIN_TOL) with its SOCP solves per grasp, and ``optimal_contact_forces`` for a
 random unit wrench per grasp (mu = 0.5); grasps per second and cost ratios to one exact
-test. Figures are medians over ``--repeats`` runs after one warm-up.
+test. Figures are medians over ``--repeats`` runs after one warm-up, in CPU seconds of
+this process (single-threaded: BLAS and numba on one thread), so that other processes
+on a shared machine do not inflate them; on an idle core wall time is the same.
 
     python benchmarks/bench_quality.py             # 2000 six-finger box grasps
     python benchmarks/bench_quality.py --quick     # a few seconds
@@ -13,7 +15,7 @@ test. Figures are medians over ``--repeats`` runs after one warm-up.
 import os
 
 # One core, as the targets are stated: keep BLAS from spreading over both.
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
@@ -32,13 +34,13 @@ MU = 0.5
 
 
 def median_seconds(function, repeats):
-    """Median wall time of ``repeats`` calls after one untimed warm-up; and the last result."""
+    """Median CPU time of ``repeats`` calls after one untimed warm-up; and the last result."""
     result = function()
     times = []
     for _ in range(repeats):
-        start = time.perf_counter()
+        start = time.process_time()
         result = function()
-        times.append(time.perf_counter() - start)
+        times.append(time.process_time() - start)
     return statistics.median(times), result
 
 
@@ -69,7 +71,8 @@ def measure(surface, n_fingers, n_grasps, repeats, rng):
 
 
 def print_rows(rows, object_name):
-    print(f"\nobject {object_name!r}; medians, one core (exact test and s* at mu = {MU})")
+    print(f"\nobject {object_name!r}; medians of CPU time, one thread (exact test and s* at "
+          f"mu = {MU})")
     header = (f"{'n':>3} {'grasps':>7} {'exact ms':>9} {'mu* ms':>8} {'mu*/s':>7} {'x exact':>8} "
               f"{'solves mean/med/max':>20} {'mu*tol ms':>10} {'s* ms':>7} {'x exact':>8}")
     print(header)

@@ -18,3 +18,12 @@ def test_core_benchmark_prints_per_stage_figures():
     assert [row[0] for row in table] == ["6", "3"]
     assert all(float(value) > 0 for row in table for value in row[1:7])
     assert any(line.startswith("six fingers: filter") for line in lines)
+
+
+def test_core_benchmark_times_the_peer_on_request():
+    done = subprocess.run(
+        [sys.executable, str(SCRIPT), "--grasps", "300", "--repeats", "1", "--fingers", "6",
+         "--peer", "3"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    line = next(line for line in done.stdout.splitlines() if "Qhull peer" in line)
+    assert "x faster" in line and float(line.split("peer ")[1].split(" ms")[0]) > 0

@@ -1,6 +1,8 @@
 """The minimum friction coefficient: hand cases, the LP pyramid bracket, consistency with
 check_force_closure on both sides, invariances and input errors."""
 
+import importlib
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -36,6 +38,43 @@ def test_tilted_equator_grasp_needs_exactly_tan_tilt():
         result = minimum_friction_bounds(positions, normals)
         assert result.lower <= np.tan(tilt) * (1 + 1e-9) <= result.upper * (1 + 1e-9)
         assert result.value == pytest.approx(np.tan(tilt), rel=REL_TOL)
+
+
+def test_inf_means_not_force_closure_at_any_accepted_friction():
+    """mu* = inf exactly where check_force_closure says no even at the largest friction
+    it accepts: MU_CAP is that bound."""
+    assert MU_CAP == MAX_FRICTION_COEFFICIENT
+    for needed, expected in ((5e3, np.inf), (500.0, 500.0)):
+        positions, normals = equator_grasp(np.arctan(needed))
+        result = minimum_friction_bounds(positions, normals)
+        at_cap = check_force_closure(positions, normals, MAX_FRICTION_COEFFICIENT,
+                                     use_filter=False)
+        if expected == np.inf:
+            assert result.value == np.inf and result.lower >= MU_CAP
+            assert not at_cap.force_closure
+        else:
+            assert result.value == pytest.approx(expected, rel=REL_TOL)
+            assert at_cap.force_closure
+
+
+def test_fast_stage_search_matches_the_clarabel_search(monkeypatch):
+    """The search on the fast interior-point stage gives the same mu* (margin MARGIN_TOL,
+    where the boundary is sharp) as the search on Clarabel alone, and the fast stage
+    does nearly all of the solves."""
+    module = importlib.import_module("grasp_fc_ros.core.minimum_friction")
+    rng = np.random.default_rng(21)
+    positions, normals = ellipsoid_grasps(rng, 60, 6)
+    ratios = rng.uniform(0.5, 2.0, (60, 6))
+    to_clarabel = []
+    step = module._step
+    monkeypatch.setattr(module, "_step", lambda chunk, *args: (to_clarabel.append(chunk.size),
+                                                               step(chunk, *args)))
+    fast = minimum_friction_bounds(positions, normals, ratios, margin=MARGIN_TOL)
+    assert sum(to_clarabel) <= 0.05 * fast.solves.sum()
+    monkeypatch.setattr(module, "_step_fast", lambda chunk, *args: chunk)
+    slow = minimum_friction_bounds(positions, normals, ratios, margin=MARGIN_TOL)
+    assert np.isfinite(fast.value).all() and np.isfinite(slow.value).all()
+    np.testing.assert_allclose(fast.value, slow.value, rtol=2 * REL_TOL, atol=2 * ABS_TOL)
 
 
 def test_two_antipodal_fingers_are_never_force_closure():

@@ -14,6 +14,7 @@ Closure Grasp":
   6-vector wrench, deciding each grasp from certificates;
 * :mod:`.certificates` -- internal forces and bounding wrenches, checked in numpy;
 * :mod:`.pipeline` -- the filter, then the exact test on the survivors;
+* :mod:`.one_grasp` -- the compiled fast path of one grasp through the pipeline;
 * :mod:`.minimum_friction` -- the least friction coefficient that makes a grasp force
   closure (certified bounds);
 * :mod:`.grasp_forces` -- the least largest normal force that holds a given load;
@@ -36,7 +37,7 @@ True
 from .certificates import verify_certificates
 from .grasp_forces import optimal_contact_forces
 from .grasp_input import GraspValidation, validate_grasps
-from .interior_point import warm_up
+from .one_grasp import warm_up
 from .minimum_friction import MinimumFriction, minimum_friction, minimum_friction_bounds
 from .pipeline import ForceClosureResult, Status, check_force_closure, exact_force_closure
 from .torque_space_filter import ORIGIN_CHOICES, torque_filter

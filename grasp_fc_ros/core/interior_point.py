@@ -44,8 +44,8 @@ try:
 except ImportError:  # pragma: no cover - numba is a pinned runtime dependency
     numba = None
 
-#: Result codes of the kernel.
-FORCE_CLOSURE, NOT_FORCE_CLOSURE, UNDECIDED = 0, 1, 2
+#: Result codes of the kernel. CONVERGED: the signed mode's gap closed (no verdict).
+FORCE_CLOSURE, NOT_FORCE_CLOSURE, UNDECIDED, CONVERGED = 0, 1, 2, 3
 
 #: Iterations before a grasp is handed to the Clarabel path. On the box benchmark a
 #: verdict takes 0.8-1.7 iterations on average (at most 7), the margin to
@@ -60,6 +60,11 @@ STEP_FRACTION = 0.99
 MIN_STEP = 1e-10
 
 _EPS = float(np.finfo(np.float64).eps)
+
+#: The signed mode also stops where its gap is this fraction of the margin's distance
+#: from the level searched for: far from mu*, the search's next step and the
+#: certificates need no more.
+SIGNED_RELATIVE_GAP = 1e-3
 
 #: Relative rounding allowance of the trivial bound t* <= 1 / sum_i (1/mu_i): the sum
 #: of n <= ~1e3 positive terms errs by far less than n eps.
@@ -339,9 +344,17 @@ def _max_step(x, dx):
     return best
 
 
-def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, forces_out, wrench_out,
-                 work3, work6, rows, a_mat, scalings, mats, work_n):
+def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signed_level,
+                 forces_out, wrench_out, work3, work6, rows, a_mat, scalings, mats, work_n):
     """Decide one unit-size grasp. Returns (code, t_lo, t_hi, iterations).
+
+    ``signed_gap`` > 0 selects the signed mode (for :mod:`.minimum_friction`): no verdict;
+    iterate until the primal-dual gap of the signed margin, (1 + d.w)/sigma - (1 - sum_i
+    z0_i)/sigma, is at most ``signed_gap / sigma`` (relative to the trivial bound 1/sigma,
+    so relative to the friction scale) or at most SIGNED_RELATIVE_GAP of |t - signed_level|
+    (times sigma; the search's distance from its root), and return CONVERGED with the
+    best witness in ``forces_out`` and the last iterate's wrench in ``wrench_out`` (the
+    optimum's multipliers).
 
     The remaining arguments are scratch space of the batch, reused from grasp to grasp
     (allocating it per grasp cost ~25% of the run time): work3 (12, n, 3), work6 (14, 6),
@@ -379,7 +392,8 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, forces_out, wrenc
         for k in range(3):
             trial[k] -= normals[i, k]
     bound, separating = _bound(unit, normals, mu, trial, normal_work)
-    if bound < MARGIN_TOL and (separating or not want_wrench):
+    signed = signed_gap > 0.0
+    if bound < MARGIN_TOL and (separating or not want_wrench) and not signed:
         wrench_out[:] = trial
         return NOT_FORCE_CLOSURE, -np.inf, bound, 0
     _frames(normals, tangent, bitangent)
@@ -463,11 +477,24 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, forces_out, wrenc
                 wrench_out[:] = w
                 separated = separating
             t_hi = min(t_hi, bound)
-        close = t_hi - max(t_lo, 0.0) <= MARGIN_ACCURACY
-        if t_lo >= MARGIN_TOL and (close or not want_optimum):
-            return FORCE_CLOSURE, t_lo, t_hi, iteration
-        if t_hi < MARGIN_TOL and (separated or not want_wrench) and (close or not want_optimum):
-            return NOT_FORCE_CLOSURE, t_lo, t_hi, iteration
+        if signed:
+            wrench_out[:] = w
+            total_z0 = 0.0
+            for i in range(n):
+                total_z0 += z[i, 0]
+            # Dual minus primal objective of the iterates, times sigma: small against
+            # signed_gap, or against the margin's distance from signed_level (a search
+            # step needs no more).
+            distance = abs(1.0 - total_z0 - sigma * signed_level)
+            if d_w + total_z0 <= max(signed_gap, SIGNED_RELATIVE_GAP * distance):
+                return CONVERGED, t_lo, t_hi, iteration
+        else:
+            close = t_hi - max(t_lo, 0.0) <= MARGIN_ACCURACY
+            if t_lo >= MARGIN_TOL and (close or not want_optimum):
+                return FORCE_CLOSURE, t_lo, t_hi, iteration
+            if (t_hi < MARGIN_TOL and (separated or not want_wrench)
+                    and (close or not want_optimum)):
+                return NOT_FORCE_CLOSURE, t_lo, t_hi, iteration
         if iteration == MAX_ITERATIONS:
             break
 
@@ -553,14 +580,14 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, forces_out, wrenc
                 z[i, k] += alpha * dz[i, k]
         for r in range(6):
             w[r] += alpha * dw[r]
-    if t_lo >= MARGIN_TOL:
+    if t_lo >= MARGIN_TOL and not signed:
         return FORCE_CLOSURE, t_lo, t_hi, iteration
-    if t_hi < MARGIN_TOL:
+    if t_hi < MARGIN_TOL and not signed:
         return NOT_FORCE_CLOSURE, t_lo, t_hi, iteration
     return UNDECIDED, t_lo, t_hi, iteration
 
 
-def _solve_all(unit, normals, mu, want_optimum, want_wrench):
+def _solve_all(unit, normals, mu, want_optimum, want_wrench, signed_gap, signed_level):
     n_grasps, n_contacts = mu.shape
     codes = np.empty(n_grasps, dtype=np.int8)
     t_lo = np.empty(n_grasps)
@@ -577,8 +604,8 @@ def _solve_all(unit, normals, mu, want_optimum, want_wrench):
     work_n = np.empty((2, n_contacts))
     for g in range(n_grasps):
         codes[g], t_lo[g], t_hi[g], iterations[g] = _solve_grasp(
-            unit[g], normals[g], mu[g], want_optimum, want_wrench, forces[g], wrench[g],
-            work3, work6, rows, a_mat, scalings, mats, work_n)
+            unit[g], normals[g], mu[g], want_optimum, want_wrench, signed_gap, signed_level,
+            forces[g], wrench[g], work3, work6, rows, a_mat, scalings, mats, work_n)
     return codes, t_lo, t_hi, iterations, forces, wrench
 
 
@@ -589,7 +616,8 @@ for _name in ("_frames", "_wrench_rows", "_gram", "_apply_grasp_map", "_cholesky
 
 
 def solve_fast(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray,
-               want_optimum: bool = False, want_wrench: bool = False):
+               want_optimum: bool = False, want_wrench: bool = False,
+               signed_gap: float = 0.0, signed_level: float = 0.0):
     """Run the fast exact stage on unit-size grasps.
 
     Parameters
@@ -604,6 +632,11 @@ def solve_fast(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray,
     want_wrench : bool
         For not-force-closure grasps, iterate until the wrench meets the separation
         target (or the iteration limit).
+    signed_gap : float
+        > 0: the signed mode of :func:`_solve_grasp` (codes CONVERGED or UNDECIDED, t_lo
+        the signed depth of the witness, ``wrench`` the last iterate's); 0: verdicts.
+    signed_level : float
+        The signed mode's target margin: the gap may stay larger far from it.
 
     Returns
     -------
@@ -618,7 +651,8 @@ def solve_fast(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray,
         Wrench about the centroid of the unit-size grasp giving t_hi, NaN where none.
     """
     return _solve_all(np.ascontiguousarray(unit), np.ascontiguousarray(normals),
-                      np.ascontiguousarray(mu), bool(want_optimum), bool(want_wrench))
+                      np.ascontiguousarray(mu), bool(want_optimum), bool(want_wrench),
+                      float(signed_gap), float(signed_level))
 
 
 def warm_up() -> None:
@@ -628,3 +662,4 @@ def warm_up() -> None:
     for optimum in (False, True):
         for wrench in (False, True):
             solve_fast(unit, -unit / np.sqrt(3.0), np.full((1, 4), 0.5), optimum, wrench)
+    solve_fast(unit, -unit / np.sqrt(3.0), np.full((1, 4), 0.5), signed_gap=1e-11)

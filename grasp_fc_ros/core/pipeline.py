@@ -28,8 +28,9 @@ from enum import IntEnum
 import numpy as np
 
 from .certificates import normalise_positions, to_caller_wrench, verify_certificates
-from .exact_test import solve_exact
-from .grasp_input import GraspBatch, prepare_grasps
+from .exact_test import MARGIN_CHOICES, solve_exact
+from .grasp_input import MIN_CONTACTS, GraspBatch, prepare_grasps
+from .one_grasp import MAX_FAST_CONTACTS, check_one
 from .torque_space_filter import passes_torque_filter, resolve_use_filter
 
 
@@ -144,8 +145,42 @@ def check_force_closure(positions, normals, mu, use_filter: bool | str = "auto",
     ValueError
         On bad input, naming the grasp and contact.
     """
+    hard = torsional_friction is None or (type(torsional_friction) in (int, float)
+                                          and torsional_friction == 0)
+    quick = (_one_grasp(positions, normals, mu, use_filter, origins, margin)
+             if hard and not certificates else None)
+    if quick is not None:
+        return quick
     return run_pipeline(prepare_grasps(positions, normals, mu, torsional_friction), use_filter,
                         origins, margin, certificates)
+
+
+def _one_grasp(positions, normals, mu, use_filter, origins, margin):
+    """The result for one grasp of float64 arrays (n, 3) and a scalar mu, decided on the
+    fast path of :mod:`.one_grasp` where the filter is not to run; else None."""
+    if not (type(positions) is np.ndarray and type(normals) is np.ndarray
+            and (isinstance(mu, (float, np.floating))
+                 # (a huge int would make float() raise: the general path words it)
+                 or (isinstance(mu, (int, np.integer)) and abs(mu) <= 2 ** 53))
+            and positions.dtype == np.float64 and normals.dtype == np.float64
+            and positions.ndim == 2 and positions.shape == normals.shape
+            and positions.shape[1] == 3
+            and MIN_CONTACTS <= positions.shape[0] <= MAX_FAST_CONTACTS
+            and margin in MARGIN_CHOICES
+            and not resolve_use_filter(use_filter, positions.shape[0], origins)):
+        return None
+    start = time.perf_counter()
+    decided = check_one(np.ascontiguousarray(positions), np.ascontiguousarray(normals),
+                        float(mu), margin == "optimum")
+    if decided is None:
+        return None
+    force_closure, t_lo, t_hi = decided
+    return ForceClosureResult(
+        force_closure=np.bool_(force_closure), filtered_out=np.False_,
+        margin=np.float64(max(t_lo, 0.0)),
+        status=np.uint8(_FORCE_CLOSURE if force_closure else _NOT_FORCE_CLOSURE),
+        timing={"filter_s": 0.0, "exact_s": time.perf_counter() - start},
+        margin_upper=np.float64(t_hi))
 
 
 def run_pipeline(grasps: GraspBatch, use_filter: bool | str = True, origins: str = "seed",

@@ -13,8 +13,8 @@ has c . v >= 0 for every v in every set (all sets lie in one closed half-space).
   for some pair (v_i, v_j) of non-parallel boundary torques, c = v_i x v_j has all
   boundary torques on one closed side. If no pair is non-parallel the torques span a
   line at most and cannot span R^3.
-  That pair test costs O(K^3) for K boundary torques (and its broadcast form O(K^3)
-  memory). Two things bound it for many torques. First, a subset that spans proves
+  That pair test costs O(K^3) for K boundary torques (compiled with numba: a loop
+  over problems, no large intermediates). Two things bound it for many torques. First, a subset that spans proves
   that the whole set spans, and the torques extreme along 14 fixed directions usually
   do (a pair test on 14 vectors, whatever K). Second, what that leaves undecided from
   ``HULL_MIN_VECTORS`` torques on goes to the convex hull of the torques (Qhull,
@@ -24,29 +24,23 @@ has c . v >= 0 for every v in every set (all sets lie in one closed half-space).
 
 Every separating direction is checked against every torque before a problem is called
 non-spanning, so rounding (or a hull computed imprecisely) can only make a problem
-pass. Small problems are vectorised over the batch with no solver and no per-problem
-Python loop; large ones loop over problems, each costing far more than the loop.
+pass. Small problems are vectorised over the batch (the pair test compiled) with no
+solver and no per-problem Python loop; large ones loop over problems, each costing far
+more than the loop.
 """
 
 from __future__ import annotations
 
-from functools import lru_cache
-from itertools import combinations
-
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
+from .interior_point import _jit
 from .tolerances import PARALLEL_TOL, SPAN_TOL
 from .torque_sets import TorqueSetKind, TorqueSets, cross, dot
 
 # Plain integers for the hot path: comparing with an IntEnum member looks it up each time.
 _FAN = int(TorqueSetKind.FAN)
 _PLANE = int(TorqueSetKind.PLANE)
-
-#: Problems handled per vectorised pass of the pair test: long enough to amortise
-#: numpy's per-call overhead over the loop on triples, short enough that the
-#: (pairs, problems) intermediates stay in a core's cache.
-_PAIR_TEST_CHUNK = 4096
 
 #: From this many boundary torques per problem (fans-only case, after the extreme-subset
 #: proof) the convex-hull test replaces the pair test. Measured (benchmarks/
@@ -58,10 +52,6 @@ HULL_MIN_VECTORS = 36
 #: Probe directions of :func:`_extremes_span`: the 6 axes and the 8 diagonals.
 _PROBES = np.array([[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1)
                     if abs(x) + abs(y) + abs(z) in (1, 3)], dtype=float)
-
-#: Below this many problems the loop over triples costs more in numpy call overhead
-#: (about 1,400 calls for six fingers) than it saves in arithmetic; measured crossover.
-_TRIPLE_LOOP_MIN_PROBLEMS = 256
 
 
 def positively_spans(sets: TorqueSets, directions: bool = False):
@@ -126,17 +116,6 @@ def _spans_with_plane(sets: TorqueSets, directions: bool = False):
     return spans, np.where(spans, np.nan, sign * normal[:, 0])
 
 
-@lru_cache(maxsize=64)
-def _pairs_and_triples(n_vectors: int):
-    """Pairs (a < b) as two index arrays (P,), and every triple (a < b < c) as the pair
-    indices of (a, b), (a, c), (b, c) plus the index c: a list of 4-tuples."""
-    first, second = np.triu_indices(n_vectors, 1)
-    pair_index = {(a, b): p for p, (a, b) in enumerate(zip(first, second))}
-    triples = [(pair_index[a, b], pair_index[a, c], pair_index[b, c], c)
-               for a, b, c in combinations(range(n_vectors), 3)]
-    return first, second, triples
-
-
 def _fans_span(sets: TorqueSets, directions: bool = False):
     """Positive span for problems whose sets are fans or null sets. Shapes (m, B).
 
@@ -154,14 +133,8 @@ def _fans_span(sets: TorqueSets, directions: bool = False):
     if vectors.shape[1] >= HULL_MIN_VECTORS:
         for problem in undecided:
             found[:, problem] = _hull_direction(vectors[:, :, problem].T)
-    else:
-        pairs_and_triples = _pairs_and_triples(vectors.shape[1])
-        for start in range(0, undecided.size, _PAIR_TEST_CHUNK):
-            chunk = undecided[start:start + _PAIR_TEST_CHUNK]
-            test = (_pair_sides if chunk.size >= _TRIPLE_LOOP_MIN_PROBLEMS
-                    else _pair_sides_few)
-            part = vectors[:, :, chunk]
-            found[:, chunk] = _separating_pair(part, *test(part, *pairs_and_triples))
+    elif undecided.size:
+        found[:, undecided] = _pair_test(vectors[:, :, undecided])
     spans = np.isnan(found[0])
     return (spans, found) if directions else spans
 
@@ -209,95 +182,96 @@ def _extremes_span(vectors: np.ndarray) -> np.ndarray:
     """
     pick = np.einsum("dx,xkb->dkb", _PROBES, vectors).argmax(axis=1)  # (D, B)
     subset = vectors[:, pick, np.arange(pick.shape[1])]                # (3, D, B)
-    sides = (_pair_sides if subset.shape[2] >= _TRIPLE_LOOP_MIN_PROBLEMS
-             else _pair_sides_few)
-    found = _separating_pair(subset, *sides(subset, *_pairs_and_triples(_PROBES.shape[0])))
-    return np.isnan(found[0])
+    return np.isnan(_pair_test(subset)[0])
 
 
-def _pair_sides_few(vectors: np.ndarray, first: np.ndarray, second: np.ndarray,
-                    triples: list):
-    """:func:`_pair_sides` in a handful of numpy calls, for few problems.
+def _pair_test(vectors: np.ndarray) -> np.ndarray:
+    """The pair test's verdict as a separating direction per problem.
 
-    It computes every pair's side of every vector (K (K - 1) / 2 * K dot products), which
-    is more arithmetic but far less per-call overhead than the loop over triples.
-    """
-    del triples  # same signature as _pair_sides; only pairs are needed here
-    normals = cross(vectors[:, first], vectors[:, second])             # (3, P, B)
-    sides = np.einsum("xpb,xkb->pkb", normals, vectors)                # (P, K, B)
-    return normals, sides.min(axis=1), sides.max(axis=1)
-
-
-def _pair_sides(vectors: np.ndarray, first: np.ndarray, second: np.ndarray,
-                triples: list):
-    """Every pair's cross product and the lowest and highest side of any vector on it.
-
-    The side of v_c for the pair (v_a, v_b) is the triple product det(v_a, v_b, v_c),
-    and each triple product serves three pairs: (a, b) sees +det, (a, c) sees -det and
-    (b, c) sees +det. Computing each once costs 120 instead of 450 dot products for
-    six fingers (K = 10). A pair's own two vectors are on its plane (side 0).
+    A non-parallel pair (v_a, v_b) whose vectors all lie on one closed side of
+    c = v_a x v_b gives that side's unit normal (the first such pair, pairs in
+    ``np.triu_indices`` order). The side of v_c is the triple product det(v_a, v_b, v_c),
+    and each triple product serves three pairs: for a < b < c, (a, b) and (b, c) see
+    +det and (a, c) sees -det, det = (v_a x v_b) . v_c; a pair's own two vectors are on
+    its plane (side 0). If no pair is non-parallel, the vectors lie on a line (or are
+    zero) and any direction perpendicular to that line separates them.
 
     Parameters
     ----------
     vectors : ndarray, shape (3, K, B)
         K unit (or zero) vectors of each of B problems, component-first.
-    first, second : ndarray of int, shape (P,)
-        The pairs (a < b).
-    triples : list of (int, int, int, int)
-        Per triple a < b < c: the pair indices of (a, b), (a, c), (b, c), and c.
-
-    Returns
-    -------
-    normals : ndarray, shape (3, P, B)
-        v_a x v_b per pair.
-    lowest, highest : ndarray, shape (P, B)
-        min and max over the vectors of their side det(v_a, v_b, v).
-    """
-    normals = cross(vectors[:, first], vectors[:, second])             # (3, P, B)
-    lowest = np.zeros(normals.shape[1:])
-    highest = np.zeros(normals.shape[1:])
-    for ab, ac, bc, c in triples:
-        det = dot(normals[:, ab], vectors[:, c])
-        for pair, side in ((ab, det), (bc, det), (ac, -det)):
-            np.minimum(lowest[pair], side, out=lowest[pair])
-            np.maximum(highest[pair], side, out=highest[pair])
-    return normals, lowest, highest
-
-
-def _separating_pair(vectors: np.ndarray, normals: np.ndarray, lowest: np.ndarray,
-                     highest: np.ndarray) -> np.ndarray:
-    """The pair test's verdict as a separating direction per problem.
-
-    A non-parallel pair whose vectors all lie on one closed side of its cross product
-    gives that side's unit normal. If no pair is non-parallel, the vectors lie on a line
-    (or are zero) and any direction perpendicular to that line separates them.
-
-    Parameters
-    ----------
-    vectors : ndarray, shape (3, K, B)
-    normals : ndarray, shape (3, P, B)
-    lowest, highest : ndarray, shape (P, B)
-        From :func:`_pair_sides` or :func:`_pair_sides_few`.
 
     Returns
     -------
     ndarray, shape (3, B)
         Unit separating directions; NaN where the vectors positively span R^3.
     """
-    length = np.sqrt(dot(normals, normals))
-    slack = SPAN_TOL * length
-    is_pair = length > PARALLEL_TOL
-    above = (lowest >= -slack) & is_pair
-    below = (highest <= slack) & is_pair
-    one_side = above | below
-    pair = one_side.argmax(axis=0)                                     # (B,)
-    problem = np.arange(pair.size)
-    sign = np.where(above[pair, problem], 1.0, -1.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        found = sign * normals[:, pair, problem] / length[pair, problem]
-    on_a_line = ~is_pair.any(axis=0)
-    found[:, on_a_line] = _perpendicular(vectors[:, :, on_a_line])
-    return np.where(one_side.any(axis=0) | on_a_line, found, np.nan)
+    found, on_a_line = _pair_test_kernel(np.ascontiguousarray(vectors))
+    if on_a_line.any():
+        found[:, on_a_line] = _perpendicular(vectors[:, :, on_a_line])
+    return found
+
+
+def _pair_test_kernel(vectors):
+    """Compiled core of :func:`_pair_test`: directions (3, B) (NaN where none, and where
+    the problem's vectors are on a line) and the on-a-line flags (B,)."""
+    n_vectors, n_problems = vectors.shape[1], vectors.shape[2]
+    n_pairs = n_vectors * (n_vectors - 1) // 2
+    normals = np.empty((n_pairs, 3))
+    lowest = np.empty(n_pairs)
+    highest = np.empty(n_pairs)
+    found = np.full((3, n_problems), np.nan)
+    on_a_line = np.zeros(n_problems, dtype=np.bool_)
+    for problem in range(n_problems):
+        v = vectors[:, :, problem]
+        pair = 0
+        for a in range(n_vectors):
+            for b in range(a + 1, n_vectors):
+                # The same operations as torque_sets.cross.
+                normals[pair, 0] = v[1, a] * v[2, b] - v[2, a] * v[1, b]
+                normals[pair, 1] = v[2, a] * v[0, b] - v[0, a] * v[2, b]
+                normals[pair, 2] = v[0, a] * v[1, b] - v[1, a] * v[0, b]
+                lowest[pair] = 0.0
+                highest[pair] = 0.0
+                pair += 1
+        for a in range(n_vectors):
+            for b in range(a + 1, n_vectors):
+                ab = a * n_vectors - a * (a + 1) // 2 + b - a - 1
+                for c in range(b + 1, n_vectors):
+                    ac = a * n_vectors - a * (a + 1) // 2 + c - a - 1
+                    bc = b * n_vectors - b * (b + 1) // 2 + c - b - 1
+                    det = (normals[ab, 0] * v[0, c] + normals[ab, 1] * v[1, c]
+                           + normals[ab, 2] * v[2, c])
+                    lowest[ab] = min(lowest[ab], det)
+                    highest[ab] = max(highest[ab], det)
+                    lowest[bc] = min(lowest[bc], det)
+                    highest[bc] = max(highest[bc], det)
+                    lowest[ac] = min(lowest[ac], -det)
+                    highest[ac] = max(highest[ac], -det)
+        any_pair = False
+        for pair in range(n_pairs):
+            n0, n1, n2 = normals[pair, 0], normals[pair, 1], normals[pair, 2]
+            length = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+            if not length > PARALLEL_TOL:
+                continue
+            any_pair = True
+            slack = SPAN_TOL * length
+            if lowest[pair] >= -slack or highest[pair] <= slack:
+                sign = 1.0 if lowest[pair] >= -slack else -1.0
+                found[0, problem] = sign * n0 / length
+                found[1, problem] = sign * n1 / length
+                found[2, problem] = sign * n2 / length
+                break
+        on_a_line[problem] = not any_pair
+    return found, on_a_line
+
+
+_pair_test_kernel = _jit(_pair_test_kernel)
+
+
+def warm_up() -> None:
+    """Compile (or load from the cache) the pair test."""
+    _pair_test(np.eye(3)[:, :, None] * np.ones((1, 1, 2)))
 
 
 def _perpendicular(vectors: np.ndarray) -> np.ndarray:
