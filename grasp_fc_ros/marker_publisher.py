@@ -1,47 +1,63 @@
 """RViz markers of answered queries, built and published off the verdict path.
 
 The node hands every answered message (a single-grasp query, a service request, a
-batch) to :class:`MarkerPublisher` *after* its verdicts are out: :meth:`offer` only
-appends a reference to a bounded queue. A thread of its own converts the message,
-computes the separating wrench of the sampled rejected grasps with
+batch) to :class:`MarkerPublisher` *after* its verdicts are out: ``offer_*`` only append
+a reference to a bounded queue. A thread of the node's takes the oldest, converts its
+sampled grasps to numpy (:class:`MarkerPayload`) and passes them to a marker process
+(:class:`MarkerProcess`, ``python -m grasp_fc_ros.marker_publisher``), one at a time,
+which computes the separating wrench of the rejected grasps with
 ``check_force_closure(..., certificates=True)``, builds the markers with
-:func:`grasp_fc_ros.markers.grasp_markers` and publishes one
-``visualization_msgs/MarkerArray`` per message. Building markers costs several times
-a one-grasp core call, so when it falls behind the oldest queued marker work is
-dropped (and counted), never a verdict.
+:func:`grasp_fc_ros.markers.grasp_markers` (:func:`draw`) and publishes one
+``visualization_msgs/MarkerArray`` per message on ``markers`` from a node of its own,
+``<node name>_markers`` in the node's namespace.
+
+Why a process: building one grasp's markers costs several times a one-grasp core call
+(benchmarks/bench_markers.py), and on a thread of the node that work held the GIL
+while the next query waited for it: measured, markers on made the single-query round
+trip 1.7-2.3x longer. When the marker process falls behind, the oldest queued marker
+work is dropped (and counted), never a verdict.
 """
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
 import threading
-import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
+from builtin_interfaces.msg import Time
 from grasp_fc_msgs.msg import ContactArray, ContactArrayBatch, ForceClosureVerdictArray
-from rclpy.publisher import Publisher
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Header
 from visualization_msgs.msg import MarkerArray
 
 from grasp_fc_ros.conversions import MalformedBatch, batch_to_packed, contact_arrays_to_packed
 from grasp_fc_ros.core import Status, check_force_closure
-from grasp_fc_ros.evaluation import PackedGrasps
 from grasp_fc_ros.markers import DEFAULT_LIFETIME_S, delete_all_markers, grasp_markers
+from grasp_fc_ros.workers import _ONE_THREAD, _read, _write
 
 # Messages whose markers may wait to be built; beyond, the oldest are dropped. A few
 # seconds of work at most (a message holds at most MAX_MARKER_SAMPLE grasps).
 MARKER_QUEUE_LENGTH = 64
 # Upper bound of the marker_batch_sample parameter: one MarkerArray of 1,000 grasps is
-# ~0.5 s of marker work and ~10 MB of message.
+# ~1 s of marker work and ~10 MB of message.
 MAX_MARKER_SAMPLE = 1000
 DEFAULT_MARKER_SAMPLE = 10
 # The markers topic: reliable like RViz's MarkerArray display, a KEEP_LAST history so
-# that a slow viewer never blocks the node.
+# that a slow viewer never blocks the marker process.
 MARKER_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
                         history=HistoryPolicy.KEEP_LAST, depth=100)
+# Niceness added to the marker process: markers are best effort, so on a busy machine
+# the scheduler gives the CPU to the node (the verdict path) first.
+MARKER_PROCESS_NICENESS = 10
+# How long close() waits for the marker process to exit after its stdin closed (s).
+PROCESS_EXIT_TIMEOUT_S = 2.0
 # Verdicts whose grasps have a separating wrench to draw.
 _REJECTED = (Status.FILTERED_OUT, Status.NOT_FORCE_CLOSURE)
 
@@ -87,6 +103,36 @@ def decided_mu(mu: np.ndarray, default: float) -> np.ndarray:
 
 
 @dataclass
+class MarkerPayload:
+    """The grasps of one answered message that get markers, as numpy arrays (picklable).
+
+    Attributes
+    ----------
+    frame_id : str
+    stamp : (sec, nanosec) of the query's header
+    ids, counts : (G,) uint64 and int64: query id and contact count per drawn grasp
+    positions, normals : (K, 3) float64: their contacts, grasp after grasp (m)
+    mu : (K,) float64: friction coefficient per contact as decided (default substituted)
+    status : (G,) uint8 and margin : (G,) float64: the published verdicts
+    lifetime_s : float
+    """
+
+    frame_id: str
+    stamp: tuple[int, int]
+    ids: np.ndarray
+    counts: np.ndarray
+    positions: np.ndarray
+    normals: np.ndarray
+    mu: np.ndarray
+    status: np.ndarray
+    margin: np.ndarray
+    lifetime_s: float
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+
+@dataclass
 class _Job:
     """One answered message whose markers are still to be built.
 
@@ -107,28 +153,56 @@ class _Job:
         """How many grasps of this job get markers."""
         return min(len(self.status), self.limit)
 
-    def grasps(self) -> tuple[PackedGrasps, np.ndarray]:
-        """(the message's grasps, the indices of those that get markers)."""
+    def payload(self) -> MarkerPayload:
+        """The sampled grasps, converted (raises MalformedBatch for a mis-packed batch)."""
         if isinstance(self.queries, ContactArrayBatch):
             packed = batch_to_packed(self.queries)
         else:
             packed = contact_arrays_to_packed(list(self.queries))
-        return packed, sample_indices(len(packed), self.limit)
+        drawn = sample_indices(len(packed), self.limit)
+        starts = packed.starts[drawn]
+        counts = packed.counts[drawn]
+        rows = np.concatenate([np.arange(lo, lo + c) for lo, c in
+                               zip(starts.tolist(), counts.tolist())] or [np.empty(0, int)])
+        return MarkerPayload(
+            frame_id=self.header.frame_id,
+            stamp=(self.header.stamp.sec, self.header.stamp.nanosec),
+            ids=packed.ids[drawn], counts=counts, positions=packed.positions[rows],
+            normals=packed.normals[rows], mu=decided_mu(packed.mu[rows], self.default_mu),
+            status=np.asarray(self.status, np.uint8)[drawn],
+            margin=np.asarray(self.margin, np.float64)[drawn],
+            lifetime_s=self.settings.lifetime_s)
+
+
+class MarkerSink(Protocol):
+    """Where the marker thread sends its work (:class:`MarkerProcess`, or a test's)."""
+
+    def start(self) -> None:
+        """Get ready to draw (idempotent)."""
+
+    def draw(self, payload: MarkerPayload) -> int:
+        """Build and publish the payload's markers; return how many grasps were drawn."""
+
+    def clear(self) -> None:
+        """Publish a DELETEALL."""
+
+    def close(self) -> None:
+        """Release the sink's resources."""
 
 
 class MarkerPublisher:
-    """A bounded queue of answered messages and the thread that draws them.
+    """A bounded queue of answered messages and the thread that hands them to a sink.
 
     Parameters
     ----------
-    publisher : rclpy Publisher of visualization_msgs/MarkerArray
+    sink : MarkerSink
+        Builds and publishes; called from the thread only, one payload at a time.
     on_error : callable(what, exception)
         Told about marker work that failed (it never reaches the verdict path).
     """
 
-    def __init__(self, publisher: Publisher,
-                 on_error: Callable[[str, Exception], None]) -> None:
-        self._publisher = publisher
+    def __init__(self, sink: MarkerSink, on_error: Callable[[str, Exception], None]) -> None:
+        self._sink = sink
         self._on_error = on_error
         self._lock = threading.Condition()
         self._jobs: deque[_Job | None] = deque()  # None: publish a DELETEALL
@@ -175,6 +249,11 @@ class MarkerPublisher:
                          margin=list(reply.margin), default_mu=default_mu,
                          settings=settings, limit=settings.batch_sample))
 
+    def start(self) -> None:
+        """Start the sink now (the node does when publish_markers turns on), so that
+        viewers have discovered the marker topic before the first markers go out."""
+        self._sink.start()
+
     def clear(self) -> None:
         """Discard queued marker work and publish a DELETEALL (in that order)."""
         with self._lock:
@@ -188,10 +267,11 @@ class MarkerPublisher:
             return {"markers_published": self.published, "markers_dropped": self.dropped}
 
     def close(self) -> None:
-        """Stop the thread (queued marker work is discarded)."""
+        """Stop the thread and the sink (queued marker work is discarded)."""
         with self._lock:
             self._closing = True
             self._lock.notify_all()
+        self._sink.close()
         self._thread.join()
 
     def _queue(self, job: _Job) -> None:
@@ -215,13 +295,11 @@ class MarkerPublisher:
                 job = self._jobs.popleft()
             try:
                 if job is None:
-                    self._publisher.publish(delete_all_markers())
+                    self._sink.clear()
                     continue
-                markers = self._draw(job)
-                if markers.markers:
-                    self._publisher.publish(markers)
-                    with self._lock:
-                        self.published += job.n_drawn()
+                drawn = self._sink.draw(job.payload())
+                with self._lock:
+                    self.published += drawn
             except MalformedBatch:
                 pass  # every grasp of it is INVALID_INPUT and none can be placed
             except Exception as exc:  # noqa: BLE001 - markers must never stop the node
@@ -229,49 +307,152 @@ class MarkerPublisher:
                     return
                 self._on_error("markers", exc)
 
-    def _draw(self, job: _Job) -> MarkerArray:
-        """All markers of one job's sampled grasps, in one MarkerArray."""
-        packed, drawn = job.grasps()
-        starts, counts = packed.starts, packed.counts
-        mu = decided_mu(packed.mu, job.default_mu)
-        wrenches = self._separating_wrenches(packed, mu, drawn, job.status)
-        out = MarkerArray()
-        for index in drawn.tolist():
-            if self._closing:
-                break
-            lo, hi = int(starts[index]), int(starts[index] + counts[index])
-            out.markers.extend(grasp_markers(
-                packed.positions[lo:hi], packed.normals[lo:hi], mu[lo:hi],
-                job.status[index], query_id=int(packed.ids[index]),
-                frame_id=job.header.frame_id, stamp=job.header.stamp,
-                margin=job.margin[index], separating_wrench=wrenches.get(index),
-                lifetime_s=job.settings.lifetime_s).markers)
-            # Hand the GIL over between grasps: the verdict path may be waiting for it.
-            time.sleep(0)
-        return out
 
-    @staticmethod
-    def _separating_wrenches(packed: PackedGrasps, mu: np.ndarray, drawn: np.ndarray,
-                             status: list[int]) -> dict[int, np.ndarray]:
-        """Separating wrench (6,) of each drawn rejected grasp that has one, by index.
+# --- building the markers (in the marker process) ---------------------------------
 
-        One certificate core call per contact count; the verdict is not recomputed (the
-        published one colours the markers), only its wrench.
-        """
-        rejected = [i for i in drawn.tolist() if status[i] in _REJECTED]
-        by_count: dict[int, list[int]] = {}
-        for i in rejected:
-            by_count.setdefault(int(packed.counts[i]), []).append(i)
-        wrenches: dict[int, np.ndarray] = {}
-        starts = packed.starts
-        for count, indices in by_count.items():
-            rows = (starts[indices][:, None] + np.arange(count)).reshape(-1)
-            shape = (len(indices), count)
-            result = check_force_closure(
-                packed.positions[rows].reshape(*shape, 3), packed.normals[rows].reshape(*shape, 3),
-                mu[rows].reshape(shape), margin="bound", certificates=True)
-            for i, wrench, fc in zip(indices, result.separating_wrench, result.force_closure):
-                if not fc and np.isfinite(wrench).all():
-                    wrenches[i] = wrench
-        return wrenches
 
+def draw(payload: MarkerPayload) -> MarkerArray:
+    """All markers of one payload's grasps in one MarkerArray, with separating wrenches."""
+    starts = np.concatenate(([0], np.cumsum(payload.counts)[:-1])).astype(np.int64)
+    wrenches = separating_wrenches(payload, starts)
+    stamp = Time(sec=payload.stamp[0], nanosec=payload.stamp[1])
+    out = MarkerArray()
+    for i, (lo, count) in enumerate(zip(starts.tolist(), payload.counts.tolist())):
+        rows = slice(lo, lo + count)
+        out.markers.extend(grasp_markers(
+            payload.positions[rows], payload.normals[rows], payload.mu[rows],
+            int(payload.status[i]), query_id=int(payload.ids[i]), frame_id=payload.frame_id,
+            stamp=stamp, margin=float(payload.margin[i]),
+            separating_wrench=wrenches.get(i), lifetime_s=payload.lifetime_s).markers)
+    return out
+
+
+def separating_wrenches(payload: MarkerPayload, starts: np.ndarray) -> dict[int, np.ndarray]:
+    """Separating wrench (6,) of each rejected grasp of ``payload`` that has one, by index.
+
+    One certificate core call per contact count; the published verdict colours the
+    markers, only its wrench is computed here.
+    """
+    by_count: dict[int, list[int]] = {}
+    for i, status in enumerate(payload.status.tolist()):
+        if status in _REJECTED:
+            by_count.setdefault(int(payload.counts[i]), []).append(i)
+    wrenches: dict[int, np.ndarray] = {}
+    for count, indices in by_count.items():
+        rows = (starts[indices][:, None] + np.arange(count)).reshape(-1)
+        shape = (len(indices), count)
+        result = check_force_closure(
+            payload.positions[rows].reshape(*shape, 3), payload.normals[rows].reshape(*shape, 3),
+            payload.mu[rows].reshape(shape), margin="bound", certificates=True)
+        for i, wrench, fc in zip(indices, result.separating_wrench, result.force_closure):
+            if not fc and np.isfinite(wrench).all():
+                wrenches[i] = wrench
+    return wrenches
+
+
+class MarkerProcess:
+    """The marker process: started by :meth:`start` or the first payload, restarted if
+    it died.
+
+    ``python -m grasp_fc_ros.marker_publisher NAMESPACE NODE_NAME`` runs a node
+    ``NODE_NAME`` in ``NAMESPACE`` publishing on ``markers``; it reads pickled payloads
+    (None: DELETEALL) on stdin and answers each with the number of grasps drawn. It
+    ignores SIGINT (its owner decides) and ends when its stdin closes, so a killed node
+    leaves no marker process.
+
+    Parameters
+    ----------
+    namespace : str
+        The node's namespace (the topic is ``<namespace>/markers``).
+    node_name : str
+        Name of the marker process's node.
+    """
+
+    def __init__(self, namespace: str, node_name: str) -> None:
+        self._args = [namespace, node_name]
+        self._process: subprocess.Popen | None = None
+        self._closed = False
+        self._lock = threading.Lock()
+
+    def start(self) -> None:
+        self._running()
+
+    def draw(self, payload: MarkerPayload) -> int:
+        return int(self._call(payload))
+
+    def clear(self) -> None:
+        self._call(None)
+
+    def _running(self) -> subprocess.Popen:
+        with self._lock:
+            if self._closed:
+                raise RuntimeError("marker process closed")
+            if self._process is None or self._process.poll() is not None:
+                self._process = subprocess.Popen(
+                    [sys.executable, "-m", "grasp_fc_ros.marker_publisher", *self._args],
+                    stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                    env={**os.environ, **_ONE_THREAD})
+            return self._process
+
+    def _call(self, request: MarkerPayload | None) -> object:
+        process = self._running()
+        _write(process.stdin, request)
+        ok, answer = _read(process.stdout)
+        if not ok:
+            raise RuntimeError(f"marker process: {answer}")
+        return answer
+
+    def close(self) -> None:
+        with self._lock:
+            process, self._process, self._closed = self._process, None, True
+        if process is None:
+            return
+        process.stdin.close()  # the process ends at EOF
+        try:
+            process.wait(timeout=PROCESS_EXIT_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+
+
+def _serve(namespace: str, node_name: str) -> None:
+    """Marker process main loop: payloads in on stdin, (ok, grasps drawn) out on stdout."""
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+
+    from grasp_fc_ros.core import warm_up
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    os.nice(MARKER_PROCESS_NICENESS)
+    stdin, stdout = sys.stdin.buffer, sys.stdout.buffer
+    sys.stdout = sys.stderr  # anything else printed would corrupt the stream
+    rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
+    node = rclpy.create_node(node_name, namespace=namespace, use_global_arguments=False,
+                             start_parameter_services=False)
+    publisher = node.create_publisher(MarkerArray, "markers", MARKER_QOS)
+    warm_up()  # the compiled exact stage, for the separating wrenches
+    try:
+        while True:
+            try:
+                payload = _read(stdin)
+            except EOFError:
+                return  # the owner closed the pipe or died
+            try:
+                if payload is None:
+                    publisher.publish(delete_all_markers())
+                    answer: tuple[bool, object] = True, 0
+                else:
+                    markers = draw(payload)
+                    if markers.markers:
+                        publisher.publish(markers)
+                    answer = True, len(payload) if markers.markers else 0
+            except Exception as exc:  # noqa: BLE001 - reported to the owner, process goes on
+                answer = False, f"{type(exc).__name__}: {exc}"
+            _write(stdout, answer)
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    _serve(*sys.argv[1:3])

@@ -8,9 +8,10 @@ Interfaces (package ``grasp_fc_msgs``):
   ForceClosureVerdictArray per batch on ``verdicts_batch``;
 - serves ``check_force_closure`` (CheckForceClosure);
 - publishes ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) once a second;
-- with ``publish_markers``, publishes visualization_msgs/MarkerArray on ``markers`` for
-  answered queries (off the verdict path, :mod:`grasp_fc_ros.marker_publisher`) and
-  serves ``clear_markers`` (std_srvs/Empty: DELETEALL).
+- with ``publish_markers``, has visualization_msgs/MarkerArray published on ``markers``
+  for answered queries (off the verdict path, by a process of its own:
+  :mod:`grasp_fc_ros.marker_publisher`); serves ``clear_markers`` (std_srvs/Empty:
+  DELETEALL).
 
 The node is wiring only: messages are converted by :mod:`grasp_fc_ros.conversions`
 and decided by :mod:`grasp_fc_ros.evaluation`, large ones in worker processes
@@ -70,7 +71,6 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.signals import SignalHandlerOptions
 from std_srvs.srv import Empty
-from visualization_msgs.msg import MarkerArray
 
 from grasp_fc_ros.conversions import (
     MalformedBatch,
@@ -85,8 +85,8 @@ from grasp_fc_ros.core.tolerances import MAX_FRICTION_COEFFICIENT
 from grasp_fc_ros.evaluation import MIN_CONTACTS, Settings, Verdicts
 from grasp_fc_ros.marker_publisher import (
     DEFAULT_MARKER_SAMPLE,
-    MARKER_QOS,
     MAX_MARKER_SAMPLE,
+    MarkerProcess,
     MarkerPublisher,
     MarkerSettings,
 )
@@ -361,8 +361,8 @@ class ForceClosureNode(Node):
         # Compile (or load from numba's cache) the fast exact stage before any query can
         # arrive, so that none pays for it.
         warm_up()
-        # Users may set history, depth and reliability of the query, verdict and marker
-        # topics from parameters (qos_overrides.<topic>.<publisher|subscription>.<policy>).
+        # Users may set history, depth and reliability of the query and verdict topics
+        # from parameters (qos_overrides.<topic>.<publisher|subscription>.<policy>).
         # rclpy writes the overrides into the profile it is given: give it copies, or
         # one topic's override would change the module's profiles for every later one.
         overridable = QoSOverridingOptions.with_default_policies()
@@ -377,10 +377,13 @@ class ForceClosureNode(Node):
                                  copy.copy(QUERY_QOS), qos_overriding_options=overridable)
         self.create_subscription(ContactArrayBatch, "contacts_batch", self._on_batch,
                                  copy.copy(QUERY_QOS), qos_overriding_options=overridable)
+        # Markers are built and published by a process of its own, started when the
+        # first are due (see grasp_fc_ros.marker_publisher).
         self._markers = MarkerPublisher(
-            self.create_publisher(MarkerArray, "markers", copy.copy(MARKER_QOS),
-                                  qos_overriding_options=overridable),
+            MarkerProcess(self.get_namespace(), f"{self.get_name()}_markers"),
             self._internal_error)
+        if self._marker_settings.enabled:
+            self._markers.start()
         self.create_service(Empty, "clear_markers", self._on_clear_markers)
         self.create_timer(DIAGNOSTICS_PERIOD_S, self._on_timer)
         self._start_service()
@@ -441,6 +444,8 @@ class ForceClosureNode(Node):
                    if p.name in _MARKER_SETTINGS}
         if changes:
             self._marker_settings = replace(self._marker_settings, **changes)
+            if self._marker_settings.enabled and self._markers is not None:
+                self._markers.start()
 
     def _on_clear_markers(self, request, response):
         """std_srvs/Empty: publish a DELETEALL on ``markers`` (queued marker work goes)."""

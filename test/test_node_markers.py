@@ -26,6 +26,7 @@ from grasp_fc_ros.marker_publisher import (
     MARKER_QUEUE_LENGTH,
     MarkerPublisher,
     MarkerSettings,
+    draw,
     sample_indices,
 )
 from grasp_fc_ros.markers import (
@@ -33,6 +34,7 @@ from grasp_fc_ros.markers import (
     FORCE_ARROW_ID,
     STATUS_COLORS,
     TEXT_ID,
+    delete_all_markers,
     marker_namespace,
 )
 from grasp_fc_ros.node import QUERY_QOS, VERDICT_QOS
@@ -51,18 +53,23 @@ CAP = np.array([[0.6, 0, 0.8], [-0.6, 0, 0.8], [0, 0.6, 0.8], [0, -0.6, 0.8]]) *
 class MarkerListener:
     """Collects the MarkerArrays of one node's ``markers`` topic."""
 
-    def __init__(self, node, client):
+    def __init__(self, client, publishing: bool = True):
         self._lock = threading.Condition()
         self.arrays: list[MarkerArray] = []
         self._sub = client.node.create_subscription(MarkerArray, "markers", self._on_markers,
                                                     MARKER_QOS)
         self._clear = client.node.create_client(Empty, "clear_markers")
-        # Both sides matched: a volatile publisher drops what it sends before that.
-        node_pub, = (p for p in node.publishers if p.topic_name.endswith("/markers"))
+        if publishing:
+            self.wait_matched()
+
+    def wait_matched(self):
+        """Wait for the marker process's publisher (a volatile publisher drops what it
+        sends before it has matched this subscription)."""
         deadline = time.monotonic() + REPLY_TIMEOUT_S
-        while self._sub.get_publisher_count() == 0 or node_pub.get_subscription_count() == 0:
-            assert time.monotonic() < deadline, "markers topic not matched"
+        while self._sub.get_publisher_count() == 0:
+            assert time.monotonic() < deadline, "markers publisher not matched"
             time.sleep(0.05)
+        time.sleep(0.5)  # matching is not symmetric in time: let the publisher match too
 
     def _on_markers(self, msg):
         with self._lock:
@@ -117,7 +124,7 @@ def marker_node(own_node):
     """make(namespace, **parameters) -> (node, client, listener)."""
     def make(namespace, **parameters):
         node, _, client = own_node(namespace, workers=0, **parameters)
-        return node, client, MarkerListener(node, client)
+        return node, client, MarkerListener(client, parameters.get("publish_markers", False))
     return make
 
 
@@ -209,7 +216,9 @@ def test_off_means_no_marker_traffic_and_on_at_run_time_starts_it(marker_node):
     assert listener.quiet() == []
     assert node._markers.counts() == {"markers_published": 0, "markers_dropped": 0}
     from rclpy.parameter import Parameter
+    assert listener._sub.get_publisher_count() == 0  # no marker process while off
     assert node.set_parameters([Parameter("publish_markers", value=True)])[0].successful
+    listener.wait_matched()
     client.contacts_pub.publish(query(43, AROUND, "object"))
     array, = listener.wait_for(1)
     assert set(by_namespace(array)) == {marker_namespace(43)}
@@ -258,7 +267,6 @@ def test_qos_overrides_take_effect(own_node):
         f"qos_overrides.{ns}/contacts_batch.subscription.history": "keep_last",
         f"qos_overrides.{ns}/contacts_batch.subscription.depth": 3,
         f"qos_overrides.{ns}/verdicts.publisher.depth": 50,
-        f"qos_overrides.{ns}/markers.publisher.reliability": "best_effort",
     })
     subs = {s.topic_name: s.qos_profile for s in node.subscriptions}
     pubs = {p.topic_name: p.qos_profile for p in node.publishers}
@@ -268,7 +276,6 @@ def test_qos_overrides_take_effect(own_node):
     assert pubs[f"{ns}/verdicts"].depth == 50
     assert pubs[f"{ns}/verdicts"].reliability == ReliabilityPolicy.RELIABLE  # not overridden
     assert pubs[f"{ns}/verdicts_batch"].depth == 10_000  # the default VERDICT_QOS
-    assert pubs[f"{ns}/markers"].reliability == ReliabilityPolicy.BEST_EFFORT
     # The module's profiles, which clients use too, stay as they were.
     assert (QUERY_QOS.history, QUERY_QOS.depth) == (HistoryPolicy.KEEP_ALL, 1)
     assert VERDICT_QOS.depth == 10_000 and MARKER_QOS.reliability == ReliabilityPolicy.RELIABLE
@@ -286,14 +293,28 @@ def test_qos_overrides_are_not_reported_as_unknown_parameters(own_node, capfd):
 # --- the marker queue, without DDS -------------------------------------------------
 
 
-class RecordingPublisher:
+class RecordingSink:
+    """Draws in this process (as the marker process would) and records the arrays."""
+
     def __init__(self):
         self.published: list[MarkerArray] = []
         self.event = threading.Event()
 
-    def publish(self, msg):
-        self.published.append(msg)
+    def start(self):
+        pass
+
+    def draw(self, payload):
+        markers = draw(payload)
+        self.published.append(markers)
         self.event.set()
+        return len(payload)
+
+    def clear(self):
+        self.published.append(delete_all_markers())
+        self.event.set()
+
+    def close(self):
+        pass
 
 
 def test_sample_indices_are_bounded_spread_and_unique():
@@ -308,23 +329,23 @@ def test_sample_indices_are_bounded_spread_and_unique():
 
 def test_queue_drops_the_oldest_marker_work_when_full_and_keeps_a_clear(monkeypatch):
     started, release = threading.Event(), threading.Event()
-    draw = MarkerPublisher._draw
+    publisher = RecordingSink()
+    real_draw = publisher.draw
 
-    def blocked_draw(self, job):
+    def blocked_draw(payload):
         started.set()
         release.wait(REPLY_TIMEOUT_S)
-        return draw(self, job)
+        return real_draw(payload)
 
-    monkeypatch.setattr(MarkerPublisher, "_draw", blocked_draw)
-    publisher = RecordingPublisher()
+    publisher.draw = blocked_draw
     errors = []
     markers = MarkerPublisher(publisher, lambda what, exc: errors.append(exc))
     settings = MarkerSettings(enabled=True)
-    replies = [check_force_closure(AROUND, -AROUND, 0.5)]
+    result = check_force_closure(AROUND, -AROUND, 0.5)
 
     class Reply:
-        status = int(replies[0].status)
-        margin = float(replies[0].margin)
+        status = int(result.status)
+        margin = float(result.margin)
 
     try:
         markers.offer_singles([query(0, AROUND, "f")], [Reply()], settings, 0.5)
@@ -356,7 +377,7 @@ def test_marker_failures_are_reported_not_raised(monkeypatch):
         raise RuntimeError("no markers today")
 
     monkeypatch.setattr(marker_publisher_module, "grasp_markers", broken)
-    publisher = RecordingPublisher()
+    publisher = RecordingSink()
     errors = threading.Event()
     markers = MarkerPublisher(publisher, lambda what, exc: errors.set())
 
