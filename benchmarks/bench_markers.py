@@ -27,12 +27,16 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from grasp_fc_ros.core import check_force_closure
 from grasp_fc_ros.markers import grasp_markers
 from grasp_fc_ros.objects import make_object, sample_grasps
+
+if TYPE_CHECKING:
+    from rclpy.parameter_client import AsyncParameterClient
 
 CALLS, ROUNDS, FINGERS = 100, 7, 6
 # The issue's target: markers on add at most 10 % to the single-query latency.
@@ -91,7 +95,7 @@ def listen(topic: str) -> int:
     return 0
 
 
-def set_markers(parameters, on: bool) -> None:
+def set_markers(parameters: AsyncParameterClient, on: bool) -> None:
     """Set the node's publish_markers through its parameter service."""
     from rclpy.parameter import Parameter
 
@@ -141,7 +145,8 @@ def bench_node(queries: int, rounds: int) -> None:
             "service": lambda i: client.call(p[k(i):k(i) + 1], n[k(i):k(i) + 1], ids=[i],
                                              timeout=REPLY_TIMEOUT_S),
         }
-        times = {(kind, on): [] for kind in interfaces for on in (False, True)}
+        times: dict[tuple[str, bool], list[float]] = {
+            (kind, on): [] for kind in interfaces for on in (False, True)}
         next_id = 0
         for send in interfaces.values():  # warm-up: discovery, first calls
             round_trips_ms(send, 50, next_id)
@@ -167,11 +172,11 @@ def bench_node(queries: int, rounds: int) -> None:
         print(f"node: one 6-finger query at a time, {rounds} rounds of {queries} per "
               f"interface, publish_markers off/on alternating (shared, noisy machine)")
         for interface in interfaces:
-            off, on = (np.array(times[(interface, s)]) for s in (False, True))
-            ratio = np.median(on) / np.median(off)
-            print(f"  {interface:8s} off: p50 {np.median(off):6.3f} ms  p99 "
-                  f"{np.percentile(off, 99):6.3f} ms | on: p50 {np.median(on):6.3f} ms  p99 "
-                  f"{np.percentile(on, 99):6.3f} ms | on/off p50 {ratio:5.3f}  [target <= "
+            off_ms, on_ms = (np.array(times[(interface, s)]) for s in (False, True))
+            ratio = np.median(on_ms) / np.median(off_ms)
+            print(f"  {interface:8s} off: p50 {np.median(off_ms):6.3f} ms  p99 "
+                  f"{np.percentile(off_ms, 99):6.3f} ms | on: p50 {np.median(on_ms):6.3f} ms  p99 "
+                  f"{np.percentile(on_ms, 99):6.3f} ms | on/off p50 {ratio:5.3f}  [target <= "
                   f"{TARGET_RATIO:.2f}: {'met' if ratio <= TARGET_RATIO else 'NOT met'}]")
         sent_on = sum(len(times[(i, True)]) for i in interfaces)
         print(f"  marker arrays received by a listener process {received} for {sent_on} "
@@ -185,7 +190,7 @@ def bench_node(queries: int, rounds: int) -> None:
         rclpy.try_shutdown()
 
 
-def main(argv=None) -> int:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--queries", type=int, default=200,
                         help="round trips per interface and round")

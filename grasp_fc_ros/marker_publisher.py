@@ -344,6 +344,7 @@ def separating_wrenches(payload: MarkerPayload, starts: np.ndarray) -> dict[int,
         result = check_force_closure(
             payload.positions[rows].reshape(*shape, 3), payload.normals[rows].reshape(*shape, 3),
             payload.mu[rows].reshape(shape), margin="bound", certificates=True)
+        assert result.separating_wrench is not None  # certificates=True
         for i, wrench, fc in zip(indices, result.separating_wrench, result.force_closure):
             if not fc and np.isfinite(wrench).all():
                 wrenches[i] = wrench
@@ -378,7 +379,9 @@ class MarkerProcess:
         self._running()
 
     def draw(self, payload: MarkerPayload) -> int:
-        return int(self._call(payload))
+        drawn = self._call(payload)
+        assert isinstance(drawn, int)
+        return drawn
 
     def clear(self) -> None:
         self._call(None)
@@ -407,6 +410,7 @@ class MarkerProcess:
             process, self._process, self._closed = self._process, None, True
         if process is None:
             return
+        assert process.stdin is not None
         process.stdin.close()  # the process ends at EOF
         try:
             process.wait(timeout=PROCESS_EXIT_TIMEOUT_S)

@@ -385,7 +385,8 @@ def test_diagnostics_report_exact_counter_changes(client, grasps):
             "invalid_input", "solver_failures", "callback_errors", "overloaded",
             "pending_single_queries", "pending_batch_grasps", "conversion_time_total_s",
             "validation_time_total_s", "filter_time_total_s", "exact_time_total_s",
-            "processing_time_mean_ms", "processing_time_p99_ms"}
+            "processing_time_mean_ms", "processing_time_p99_ms",
+            "markers_published", "markers_dropped"}
     assert set(after) == keys
     served = check_force_closure(positions[:3], normals[:3], DEFAULT_MU).status
     statuses = np.concatenate([expected, served])
@@ -402,6 +403,8 @@ def test_diagnostics_report_exact_counter_changes(client, grasps):
         "overloaded": 0,
         "pending_single_queries": 0,
         "pending_batch_grasps": 0,
+        "markers_published": 0,  # publish_markers is off by default
+        "markers_dropped": 0,
     }
     for key in ("conversion_time_total_s", "validation_time_total_s", "filter_time_total_s",
                 "exact_time_total_s"):
