@@ -281,6 +281,36 @@ def test_qos_overrides_take_effect(own_node):
     assert VERDICT_QOS.depth == 10_000 and MARKER_QOS.reliability == ReliabilityPolicy.RELIABLE
 
 
+def test_qos_overrides_from_a_params_file_as_documented(tmp_path):
+    """The nested YAML of docs/params.md, read by rclpy in a context of its own."""
+    import rclpy
+    from rclpy.qos import HistoryPolicy
+
+    from grasp_fc_ros.node import ForceClosureNode
+
+    params = tmp_path / "qos.yaml"
+    params.write_text(
+        "/qos_file/force_closure:\n  ros__parameters:\n    workers: 0\n"
+        "    qos_overrides:\n      /qos_file/contacts:\n        subscription:\n"
+        "          history: keep_last\n          depth: 100\n"
+        "      /qos_file/verdicts:\n        publisher:\n          depth: 1000\n")
+    context = rclpy.Context()
+    rclpy.init(args=["test", "--ros-args", "--params-file", str(params)], context=context)
+    try:
+        node = ForceClosureNode(namespace="/qos_file", context=context)
+        try:
+            subs = {s.topic_name: s.qos_profile for s in node.subscriptions}
+            pubs = {p.topic_name: p.qos_profile for p in node.publishers}
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)
+    assert (subs["/qos_file/contacts"].history, subs["/qos_file/contacts"].depth) == (
+        HistoryPolicy.KEEP_LAST, 100)
+    assert subs["/qos_file/contacts_batch"].history == HistoryPolicy.KEEP_ALL
+    assert pubs["/qos_file/verdicts"].depth == 1000
+
+
 def test_qos_overrides_are_not_reported_as_unknown_parameters(own_node, capfd):
     own_node("/qos_warn", workers=0,
              **{"qos_overrides./qos_warn/contacts.subscription.depth": 5,
@@ -392,3 +422,18 @@ def test_marker_failures_are_reported_not_raised(monkeypatch):
     finally:
         markers.close()
     assert [m.action for m in publisher.published[0].markers] == [Marker.DELETEALL]
+
+
+def test_the_marker_process_starts_with_publish_markers_and_ends_with_the_node(ros):
+    from rclpy.parameter import Parameter
+
+    from grasp_fc_ros.node import ForceClosureNode
+
+    node = ForceClosureNode(namespace="/markers_process", parameter_overrides=[
+        Parameter("workers", value=0), Parameter("publish_markers", value=True)])
+    try:
+        process = node._markers._sink._process
+        assert process is not None and process.poll() is None
+    finally:
+        node.destroy_node()
+    assert process.wait(timeout=REPLY_TIMEOUT_S) == 0
