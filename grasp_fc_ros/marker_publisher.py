@@ -359,7 +359,8 @@ class MarkerProcess:
     ``NODE_NAME`` in ``NAMESPACE`` publishing on ``markers``; it reads pickled payloads
     (None: DELETEALL) on stdin and answers each with the number of grasps drawn. It
     ignores SIGINT (its owner decides) and ends when its stdin closes, so a killed node
-    leaves no marker process.
+    leaves no marker process. ``draw`` and ``clear`` are called from one thread (the
+    marker thread) at a time.
 
     Parameters
     ----------
@@ -372,6 +373,7 @@ class MarkerProcess:
     def __init__(self, namespace: str, node_name: str) -> None:
         self._args = [namespace, node_name]
         self._process: subprocess.Popen | None = None
+        self._ready = False  # the running process said it is ready
         self._closed = False
         self._lock = threading.Lock()
 
@@ -395,10 +397,16 @@ class MarkerProcess:
                     [sys.executable, "-m", "grasp_fc_ros.marker_publisher", *self._args],
                     stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                     env={**os.environ, **_ONE_THREAD})
+                self._ready = False
             return self._process
 
     def _call(self, request: MarkerPayload | None) -> object:
+        """Send one request and wait for its answer (and first for the process's
+        "ready", so that a request never waits in a pipe of a process still starting)."""
         process = self._running()
+        if not self._ready:
+            _read(process.stdout)
+            self._ready = True
         _write(process.stdin, request)
         ok, answer = _read(process.stdout)
         if not ok:
@@ -435,6 +443,7 @@ def _serve(namespace: str, node_name: str) -> None:
                              start_parameter_services=False)
     publisher = node.create_publisher(MarkerArray, "markers", MARKER_QOS)
     warm_up()  # the compiled exact stage, for the separating wrenches
+    _write(stdout, (True, "ready"))
     try:
         while True:
             try:

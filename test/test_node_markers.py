@@ -434,6 +434,9 @@ def test_the_marker_process_starts_with_publish_markers_and_ends_with_the_node(r
     try:
         process = node._markers._sink._process
         assert process is not None and process.poll() is None
+        # Once it has answered (it is up), it ends cleanly when its stdin closes; one
+        # still starting would be killed after PROCESS_EXIT_TIMEOUT_S.
+        node._markers._sink.clear()
     finally:
         node.destroy_node()
     assert process.wait(timeout=REPLY_TIMEOUT_S) == 0
