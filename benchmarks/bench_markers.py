@@ -8,8 +8,8 @@
    parameters) with ``publish_markers`` off and on: round trips of one 6-finger query
    at a time, on the ``contacts`` topic (GraspClient.submit) and the service; rounds of
    ``--queries`` round trips alternate off, on, off, on ... (the parameter is set at
-   run time), so both see the same machine load. A subscriber in this process receives
-   the markers, as RViz would, and counts them. Prints p50/p99 per setting and the
+   run time), so both see the same machine load. A subscriber in a process of its own
+   receives the markers (serialized, as RViz's C++ would cheaply) and counts them. Prints p50/p99 per setting and the
    ratio of the p50s (the issue's target: on <= 1.1 x off).
 
     .venv/bin/python benchmarks/bench_markers.py [--queries 200] [--rounds 6]
@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import os
+from pathlib import Path
 import signal
 import statistics
 import subprocess
@@ -75,7 +76,8 @@ def listen(topic: str) -> int:
     """--listen: subscribe to ``topic`` as RViz would; at SIGINT print the arrays counted.
 
     Run as a process of its own, so that receiving the markers costs the measuring
-    client nothing (RViz is a process of its own too).
+    client nothing (RViz is a process of its own too). It takes the serialized messages
+    (``raw=True``): RViz deserializes in C++, far cheaper than rclpy's Python messages.
     """
     import rclpy
     from visualization_msgs.msg import MarkerArray
@@ -86,7 +88,7 @@ def listen(topic: str) -> int:
     node = rclpy.create_node("bench_markers_listener")
     count = [0]
     node.create_subscription(MarkerArray, topic, lambda _: count.__setitem__(0, count[0] + 1),
-                             MARKER_QOS)
+                             MARKER_QOS, raw=True)
     try:
         rclpy.spin(node)
     except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
@@ -104,6 +106,25 @@ def set_markers(parameters: AsyncParameterClient, on: bool) -> None:
     future.add_done_callback(lambda _: done.set())
     if not done.wait(REPLY_TIMEOUT_S) or not future.result().results[0].successful:
         raise RuntimeError(f"could not set publish_markers to {on}")
+
+
+def cpu_s(pid: int) -> float:
+    """CPU seconds (user + system) used so far by process ``pid`` alone (Linux /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def marker_process_pid(node_pid: int) -> int | None:
+    """The pid of the node's marker process, if it runs."""
+    from bench_ros import process_tree
+
+    for pid in process_tree(node_pid):
+        try:
+            if "grasp_fc_ros.marker_publisher" in Path(f"/proc/{pid}/cmdline").read_text():
+                return pid
+        except OSError:
+            continue
+    return None
 
 
 def round_trips_ms(send: Callable[[int], object], n: int, first_id: int) -> list[float]:
@@ -131,6 +152,7 @@ def bench_node(queries: int, rounds: int) -> None:
     executor.add_node(helper)
     spinner = threading.Thread(target=executor.spin, daemon=True)
     spinner.start()
+    listener: subprocess.Popen | None = None
     try:
         namespace = f"/grasp_fc_markers_{os.getpid()}"  # as bench_ros.start_node names it
         listener = subprocess.Popen([sys.executable, __file__, "--listen",
@@ -157,13 +179,23 @@ def bench_node(queries: int, rounds: int) -> None:
                 raise RuntimeError("the marker listener did not come up")
             time.sleep(0.1)
         time.sleep(0.5)  # and let the node's publisher match it
+        # CPU seconds of the node's own process and of the marker process, per setting:
+        # unlike latencies these hardly depend on what else the machine runs.
+        node_cpu = {False: 0.0, True: 0.0}
+        marker_cpu = 0.0
         for r in range(rounds):
             on = r % 2 == 1
             set_markers(parameters, on)
-            time.sleep(0.2)
+            time.sleep(0.5)  # the marker process starts (first time) and goes idle
+            marker_pid = marker_process_pid(node.pid)
+            cpu_before = cpu_s(node.pid), cpu_s(marker_pid) if marker_pid else 0.0
             for interface, send in interfaces.items():
                 times[(interface, on)] += round_trips_ms(send, queries, next_id)
                 next_id += queries
+            time.sleep(0.5)  # let the marker process finish this round's work
+            node_cpu[on] += cpu_s(node.pid) - cpu_before[0]
+            if on and marker_pid:
+                marker_cpu += cpu_s(marker_pid) - cpu_before[1]
         set_markers(parameters, False)
         time.sleep(1.0)
         listener.send_signal(signal.SIGINT)
@@ -179,11 +211,18 @@ def bench_node(queries: int, rounds: int) -> None:
                   f"{np.percentile(on_ms, 99):6.3f} ms | on/off p50 {ratio:5.3f}  [target <= "
                   f"{TARGET_RATIO:.2f}: {'met' if ratio <= TARGET_RATIO else 'NOT met'}]")
         sent_on = sum(len(times[(i, True)]) for i in interfaces)
+        sent_off = sum(len(times[(i, False)]) for i in interfaces)
+        print(f"  CPU per query: node process off {1e3 * node_cpu[False] / sent_off:.3f} ms, "
+              f"on {1e3 * node_cpu[True] / sent_on:.3f} ms (ratio "
+              f"{node_cpu[True] / sent_on / (node_cpu[False] / sent_off):.2f}); marker "
+              f"process {1e3 * marker_cpu / sent_on:.3f} ms per query answered with markers on")
         print(f"  marker arrays received by a listener process {received} for {sent_on} "
               f"queries answered with "
               f"markers on; node: markers_published {diagnostics.get('markers_published')}, "
               f"markers_dropped {diagnostics.get('markers_dropped')}")
     finally:
+        if listener is not None and listener.poll() is None:
+            listener.kill()
         executor.shutdown()
         helper.destroy_node()
         stop_node(node, client)
