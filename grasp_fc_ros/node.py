@@ -377,8 +377,8 @@ class ForceClosureNode(Node):
                                  copy.copy(QUERY_QOS), qos_overriding_options=overridable)
         self.create_subscription(ContactArrayBatch, "contacts_batch", self._on_batch,
                                  copy.copy(QUERY_QOS), qos_overriding_options=overridable)
-        # Markers are built and published by a process of its own, started when the
-        # first are due (see grasp_fc_ros.marker_publisher).
+        # Markers are built and published by a process of its own, started when
+        # publish_markers turns on (see grasp_fc_ros.marker_publisher).
         self._markers = MarkerPublisher(
             MarkerProcess(self.get_namespace(), f"{self.get_name()}_markers"),
             self._internal_error)
@@ -445,7 +445,18 @@ class ForceClosureNode(Node):
         if changes:
             self._marker_settings = replace(self._marker_settings, **changes)
             if self._marker_settings.enabled and self._markers is not None:
-                self._markers.start()
+                try:
+                    self._markers.start()
+                except Exception as exc:  # noqa: BLE001 - the parameter stays set
+                    self._internal_error("markers (marker process not started)", exc)
+
+    def _offer_markers(self, offer, queries, replies):
+        """Queue the markers of an answered message; a failure here is only logged (its
+        verdicts are out and counted already)."""
+        try:
+            offer(queries, replies, self._marker_settings, self._settings.friction_coefficient)
+        except Exception as exc:  # noqa: BLE001
+            self._internal_error("markers", exc)
 
     def _on_clear_markers(self, request, response):
         """std_srvs/Empty: publish a DELETEALL on ``markers`` (queued marker work goes)."""
@@ -529,9 +540,8 @@ class ForceClosureNode(Node):
         try:
             response.verdicts = self._service_reply(request.grasps)
             if self._marker_settings.enabled:
-                self._markers.offer_service(request.grasps, response.verdicts,
-                                            self._marker_settings,
-                                            self._settings.friction_coefficient)
+                self._offer_markers(self._markers.offer_service, request.grasps,
+                                    response.verdicts)
         except Exception as exc:  # noqa: BLE001 - the response must still be sent
             # Only reachable if even the failure verdicts cannot be built: the client
             # then gets an empty verdict list rather than no response at all.
@@ -608,8 +618,7 @@ class ForceClosureNode(Node):
                 published += 1
             self._stats.record(verdicts.status, seconds, time.perf_counter() - start)
             if self._marker_settings.enabled:
-                self._markers.offer_singles(msgs, replies, self._marker_settings,
-                                            self._settings.friction_coefficient)
+                self._offer_markers(self._markers.offer_singles, msgs, replies)
         except Cancelled:
             with self._lock:  # the node is being destroyed: destroy_node answers them
                 self._pending.extendleft(reversed(msgs))
@@ -639,8 +648,7 @@ class ForceClosureNode(Node):
             reply = self._batch_reply(msg)
             self._batch_pub.publish(reply)
             if self._marker_settings.enabled:
-                self._markers.offer_batch(msg, reply, self._marker_settings,
-                                          self._settings.friction_coefficient)
+                self._offer_markers(self._markers.offer_batch, msg, reply)
         except Cancelled:
             with self._lock:  # the node is being destroyed: destroy_node answers it
                 self._batches.appendleft(msg)

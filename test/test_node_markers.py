@@ -224,6 +224,21 @@ def test_off_means_no_marker_traffic_and_on_at_run_time_starts_it(marker_node):
     assert set(by_namespace(array)) == {marker_namespace(43)}
 
 
+def test_a_failing_offer_costs_no_verdict(marker_node, monkeypatch):
+    node, client, listener = marker_node("/markers_fail", publish_markers=True)
+
+    def broken(*args):
+        raise RuntimeError("marker queue broken")
+
+    monkeypatch.setattr(node._markers, "offer_singles", broken)
+    client.contacts_pub.publish(query(71, AROUND, "object"))
+    verdict, = client.wait_for("verdicts", 1)
+    assert verdict.id == 71 and verdict.status == Status.FORCE_CLOSURE
+    values = client.diagnostics_after(time.time(), node_name="/markers_fail/force_closure")
+    assert values["callback_errors"] == "1" and values["answered"] == "1"
+    assert listener.quiet() == []
+
+
 def test_clear_markers_publishes_a_delete_all(marker_node):
     node, client, listener = marker_node("/markers_clear", publish_markers=True)
     client.contacts_pub.publish(query(51, AROUND, "object"))
