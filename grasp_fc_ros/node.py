@@ -10,7 +10,11 @@ Interfaces (package ``grasp_fc_msgs``):
   (ComputeContactForces);
 - serves the action ``label_grasps`` (LabelGrasps): a long batch with progress feedback
   and cancel (:meth:`ForceClosureNode._start_action`);
-- publishes ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) once a second.
+- publishes ``/diagnostics`` (diagnostic_msgs/DiagnosticArray) once a second;
+- with ``publish_markers``, has visualization_msgs/MarkerArray published on ``markers``
+  for answered queries (off the verdict path, by a process of its own:
+  :mod:`grasp_fc_ros.marker_publisher`); serves ``clear_markers`` (std_srvs/Empty:
+  DELETEALL).
 
 The node is wiring only: messages are converted by :mod:`grasp_fc_ros.conversions`
 and decided by :mod:`grasp_fc_ros.evaluation`, large ones in worker processes
@@ -32,6 +36,7 @@ Run it with ``grasp-fc-node`` or ``python -m grasp_fc_ros.node`` (``--help``).
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 import signal
@@ -53,7 +58,13 @@ from grasp_fc_msgs.msg import (
     ForceClosureVerdictArray,
 )
 from grasp_fc_msgs.srv import CheckForceClosure, ComputeContactForces
-from rcl_interfaces.msg import IntegerRange, ParameterDescriptor, ParameterType, SetParametersResult
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    ParameterType,
+    SetParametersResult,
+)
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.duration import Duration
 from rclpy.exceptions import ParameterException
@@ -63,8 +74,10 @@ from rclpy.executors import (
 )
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future as RclpyFuture
+from std_srvs.srv import Empty
 
 from grasp_fc_ros.conversions import (
     MalformedBatch,
@@ -85,6 +98,15 @@ from grasp_fc_ros.evaluation import (
     contact_forces_for_load,
 )
 from grasp_fc_ros.long_jobs import Progress, decide_in_chunks
+from grasp_fc_ros.evaluation import MIN_CONTACTS, Settings, Verdicts
+from grasp_fc_ros.marker_publisher import (
+    DEFAULT_MARKER_SAMPLE,
+    MAX_MARKER_SAMPLE,
+    MarkerProcess,
+    MarkerPublisher,
+    MarkerSettings,
+)
+from grasp_fc_ros.markers import DEFAULT_LIFETIME_S
 from grasp_fc_ros.workers import (
     PRIORITY_BATCH,
     PRIORITY_INTERACTIVE,
@@ -135,6 +157,12 @@ QUERY_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
 VERDICT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
                          history=HistoryPolicy.KEEP_LAST, depth=10_000)
 
+# Longest accepted marker_lifetime (s): a year; 0 already means forever.
+MAX_MARKER_LIFETIME_S = 365 * 24 * 3600.0
+# Parameters that users may set through QoSOverridingOptions, e.g.
+# qos_overrides./contacts.subscription.depth (rclpy declares them, read-only).
+QOS_OVERRIDES_PREFIX = "qos_overrides."
+
 # The wire status codes are the core's Status values.
 assert all(getattr(ForceClosureVerdict, s.name) == s.value for s in Status)
 
@@ -179,7 +207,23 @@ PARAMETERS = {
     "workers": (DEFAULT_WORKERS, _int_descriptor(
         "Worker processes deciding large batches and service requests (0: none, decide "
         "in the node's threads); set at start-up", 0, MAX_WORKERS, read_only=True)),
+    "publish_markers": (False, ParameterDescriptor(
+        type=ParameterType.PARAMETER_BOOL,
+        description="Publish visualization_msgs/MarkerArray on 'markers' for answered "
+                    "queries (built off the verdict path; dropped, never the verdicts, "
+                    "when they fall behind)")),
+    "marker_lifetime": (DEFAULT_LIFETIME_S, ParameterDescriptor(
+        type=ParameterType.PARAMETER_DOUBLE,
+        description="Seconds until RViz drops a query's markers (0: never)",
+        floating_point_range=[FloatingPointRange(from_value=0.0,
+                                                 to_value=MAX_MARKER_LIFETIME_S)])),
+    "marker_batch_sample": (DEFAULT_MARKER_SAMPLE, _int_descriptor(
+        "At most this many grasps of each batch and service request get markers "
+        "(evenly spread; single topic queries always do)", 0, MAX_MARKER_SAMPLE)),
 }
+# Marker parameter name -> MarkerSettings field.
+_MARKER_SETTINGS = {"publish_markers": "enabled", "marker_lifetime": "lifetime_s",
+                    "marker_batch_sample": "batch_sample"}
 
 _SETTING_NAMES = frozenset(f.name for f in fields(Settings))
 
@@ -190,6 +234,10 @@ def check_parameter(name: str, value) -> str:
         if not (math.isfinite(value) and 0 < value <= MAX_FRICTION_COEFFICIENT):
             return (f"friction_coefficient must be finite, > 0 and <= "
                     f"{MAX_FRICTION_COEFFICIENT:g}, got {value}")
+    elif name == "marker_lifetime" and not (math.isfinite(value)
+                                            and 0 <= value <= MAX_MARKER_LIFETIME_S):
+        return (f"marker_lifetime must be finite, >= 0 and <= {MAX_MARKER_LIFETIME_S:g} s, "
+                f"got {value}")
     elif name == "filter_origins" and value not in ORIGIN_CHOICES:
         return f"filter_origins must be one of {ORIGIN_CHOICES}, got {value!r}"
     return ""
@@ -361,8 +409,11 @@ class ForceClosureNode(Node):
         self._action_thread = None
         self._duplicate_warned = False
         self._settings = Settings(**{name: PARAMETERS[name][0] for name in _SETTING_NAMES})
+        self._marker_settings = MarkerSettings()
+        self._markers: MarkerPublisher | None = None
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
+        self.add_post_set_parameters_callback(self._after_set_marker_parameters)
         for name, (default, descriptor) in PARAMETERS.items():
             self.declare_parameter(name, default, descriptor)
         self._warn_unknown_overrides()
@@ -381,14 +432,30 @@ class ForceClosureNode(Node):
         # Compile (or load from numba's cache) the fast exact stage before any query can
         # arrive, so that none pays for it.
         warm_up()
+        # Users may set history, depth and reliability of the query and verdict topics
+        # from parameters (qos_overrides.<topic>.<publisher|subscription>.<policy>).
+        # rclpy writes the overrides into the profile it is given: give it copies, or
+        # one topic's override would change the module's profiles for every later one.
+        overridable = QoSOverridingOptions.with_default_policies()
         self._verdict_pub = self.create_publisher(ForceClosureVerdict, "verdicts",
-                                                  VERDICT_QOS)
+                                                  copy.copy(VERDICT_QOS),
+                                                  qos_overriding_options=overridable)
         self._batch_pub = self.create_publisher(ForceClosureVerdictArray, "verdicts_batch",
-                                                VERDICT_QOS)
+                                                copy.copy(VERDICT_QOS),
+                                                qos_overriding_options=overridable)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(ContactArray, "contacts", self._on_contacts, QUERY_QOS)
+        self.create_subscription(ContactArray, "contacts", self._on_contacts,
+                                 copy.copy(QUERY_QOS), qos_overriding_options=overridable)
         self.create_subscription(ContactArrayBatch, "contacts_batch", self._on_batch,
-                                 QUERY_QOS)
+                                 copy.copy(QUERY_QOS), qos_overriding_options=overridable)
+        # Markers are built and published by a process of its own, started when
+        # publish_markers turns on (see grasp_fc_ros.marker_publisher).
+        self._markers = MarkerPublisher(
+            MarkerProcess(self.get_namespace(), f"{self.get_name()}_markers"),
+            self._internal_error)
+        if self._marker_settings.enabled:
+            self._markers.start()
+        self.create_service(Empty, "clear_markers", self._on_clear_markers)
         self.create_timer(DIAGNOSTICS_PERIOD_S, self._on_timer)
         self._start_service()
         self._start_action()
@@ -642,6 +709,31 @@ class ForceClosureNode(Node):
         if changes:
             self._settings = replace(self._settings, **changes)
 
+    def _after_set_marker_parameters(self, parameters):
+        changes = {_MARKER_SETTINGS[p.name]: p.value for p in parameters
+                   if p.name in _MARKER_SETTINGS}
+        if changes:
+            self._marker_settings = replace(self._marker_settings, **changes)
+            if self._marker_settings.enabled and self._markers is not None:
+                try:
+                    self._markers.start()
+                except Exception as exc:  # noqa: BLE001 - the parameter stays set
+                    self._internal_error("markers (marker process not started)", exc)
+
+    def _offer_markers(self, offer, queries, replies):
+        """Queue the markers of an answered message; a failure here is only logged (its
+        verdicts are out and counted already)."""
+        try:
+            offer(queries, replies, self._marker_settings, self._settings.friction_coefficient)
+        except Exception as exc:  # noqa: BLE001
+            self._internal_error("markers", exc)
+
+    def _on_clear_markers(self, request, response):
+        """std_srvs/Empty: publish a DELETEALL on ``markers`` (queued marker work goes)."""
+        if self._markers is not None:
+            self._markers.clear()
+        return response
+
     def _warn_unknown_overrides(self):
         """Warn about parameter values given for this node that match no parameter.
 
@@ -649,7 +741,8 @@ class ForceClosureNode(Node):
         rclpy keeps the overrides in a private attribute: read it defensively.
         """
         overrides = getattr(self, "_parameter_overrides", {}) or {}
-        unknown = sorted(set(overrides) - set(PARAMETERS) - {"use_sim_time"})
+        unknown = sorted(name for name in set(overrides) - set(PARAMETERS) - {"use_sim_time"}
+                         if not name.startswith(QOS_OVERRIDES_PREFIX))
         if unknown:
             self.get_logger().warning(
                 f"ignoring unknown parameter(s) {', '.join(unknown)}; this node has "
@@ -716,6 +809,9 @@ class ForceClosureNode(Node):
     def _on_service(self, request, response):
         try:
             response.verdicts = self._service_reply(request.grasps)
+            if self._marker_settings.enabled:
+                self._offer_markers(self._markers.offer_service, request.grasps,
+                                    response.verdicts)
         except Exception as exc:  # noqa: BLE001 - the response must still be sent
             # Only reachable if even the failure verdicts cannot be built: the client
             # then gets an empty verdict list rather than no response at all.
@@ -812,10 +908,13 @@ class ForceClosureNode(Node):
                                                   PRIORITY_INTERACTIVE)
             seconds["conversion_s"] = conversion_s
             self._warn_invalid(verdicts)
-            for reply in verdicts_to_msgs(verdicts, msgs):
+            replies = verdicts_to_msgs(verdicts, msgs)
+            for reply in replies:
                 self._verdict_pub.publish(reply)
                 published += 1
             self._stats.record(verdicts.status, seconds, time.perf_counter() - start)
+            if self._marker_settings.enabled:
+                self._offer_markers(self._markers.offer_singles, msgs, replies)
         except Cancelled:
             with self._lock:  # the node is being destroyed: destroy_node answers them
                 self._pending.extendleft(reversed(msgs))
@@ -842,7 +941,10 @@ class ForceClosureNode(Node):
             self._queued_batch_grasps -= len(msg.ids)
             self._busy_batch_grasps = len(msg.ids)
         try:
-            self._batch_pub.publish(self._batch_reply(msg))
+            reply = self._batch_reply(msg)
+            self._batch_pub.publish(reply)
+            if self._marker_settings.enabled:
+                self._offer_markers(self._markers.offer_batch, msg, reply)
         except Cancelled:
             with self._lock:  # the node is being destroyed: destroy_node answers it
                 self._batches.appendleft(msg)
@@ -915,6 +1017,8 @@ class ForceClosureNode(Node):
         for thread in self._threads:
             thread.join()
         self._stop_action()
+        if self._markers is not None:
+            self._markers.close()
         self._pool.close()
         with self._lock:
             singles, self._pending = list(self._pending), deque()
@@ -954,6 +1058,8 @@ class ForceClosureNode(Node):
                                                     + self._busy_batch_grasps),
                            "action_goals_queued": len(self._goals),
                            "action_goals_running": self._running_goals}
+            if self._markers is not None:
+                pending.update(self._markers.counts())
             status = DiagnosticStatus(
                 level=DiagnosticStatus.WARN if failures else DiagnosticStatus.OK,
                 name=f"{self.get_fully_qualified_name()}: force-closure queries",

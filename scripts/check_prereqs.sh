@@ -3,12 +3,16 @@
 # what to do about anything missing.
 #
 # Usage: scripts/check_prereqs.sh PYTHON
-#   PYTHON: the interpreter the venv will be made with (default python3.11).
+#   PYTHON: the interpreter the venv will be made with (default python3.11); Python
+#   3.11 or 3.12 (the ROS 2 Jazzy wheels and every pin in constraints.txt exist for both;
+#   3.12 is checked by scripts/check_python312.sh).
 # Exits 1 after listing every missing prerequisite.
 set -uo pipefail
 
 python="${1:-python3.11}"
-required_python="3.11"
+required_python="3.11"            # the default, what the docs name
+supported_pythons=("3.11" "3.12")
+supported_text="3.11 or 3.12"
 # rosidl's CMake code of ROS 2 Jazzy asks for this version.
 required_cmake="3.20"
 problems=()
@@ -32,12 +36,12 @@ else
     if [ -z "$have_python" ]; then
         problems+=("'$python' is on PATH but does not run. Install Python $required_python or pass" \
             "  its path: make PYTHON=/path/to/python$required_python ...")
-    elif [ "$have_python" != "$required_python" ]; then
+    elif [[ ! " ${supported_pythons[*]} " =~ " $have_python " ]]; then
         problems+=("'$python' is Python $have_python; the pinned ROS 2 Jazzy wheels and" \
-            "  dependencies need Python $required_python. Pass one: make PYTHON=/path/to/python$required_python ...")
+            "  dependencies need Python $supported_text. Pass one: make PYTHON=/path/to/python$required_python ...")
     elif ! "$python" -c 'import venv, ensurepip' >/dev/null 2>&1; then
         problems+=("'$python' cannot create virtual environments (no venv/ensurepip module)." \
-            "  Debian/Ubuntu: apt-get install python$required_python-venv")
+            "  Debian/Ubuntu: apt-get install python$have_python-venv")
     fi
 fi
 
