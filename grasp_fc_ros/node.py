@@ -337,16 +337,20 @@ class ForceClosureNode(Node):
         executor that would hold up the topic queries and /diagnostics. Nor does the node
         need a multi-threaded executor then (measured: ~3.5x the CPU per single query of
         a single-threaded one). The helper, ``<name>_service``, lives in the node's
-        namespace, so the service has its usual name there; it ignores command-line
-        remappings (a ``__node`` remapping would give it the node's own name). It
-        serves one request at a time: a multi-threaded executor here crashed the process
-        (SIGSEGV) now and then on a Ctrl-C right after start.
+        (possibly remapped) namespace and takes no command-line arguments of its own (a
+        ``__node`` remapping would give it the node's own name); the service name is
+        resolved by the node itself instead, so that the node's remappings (``-r
+        check_force_closure:=...``, also ``force_closure:check_force_closure:=...``,
+        and ``__ns``) apply to it as to the topics. It serves one request at a time: a
+        multi-threaded executor here crashed the process (SIGSEGV) now and then on a
+        Ctrl-C right after start.
         """
         self._service_node = Node(f"{self.get_name()}_service", namespace=self.get_namespace(),
                                   context=self.context, use_global_arguments=False,
                                   start_parameter_services=False)
-        self._service_node.create_service(CheckForceClosure, "check_force_closure",
-                                          self._on_service)
+        self._service_node.create_service(
+            CheckForceClosure, self.resolve_service_name("check_force_closure"),
+            self._on_service)
         self._service_executor = SingleThreadedExecutor(context=self.context)
         self._service_executor.add_node(self._service_node)
         thread = threading.Thread(target=self._spin_service, daemon=True, name="service")
