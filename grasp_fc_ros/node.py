@@ -57,6 +57,7 @@ from rclpy.executors import (
 )
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
 from rclpy.signals import SignalHandlerOptions
 
 from grasp_fc_ros.conversions import (
@@ -67,6 +68,7 @@ from grasp_fc_ros.conversions import (
     verdicts_to_array_msg,
     verdicts_to_msgs,
 )
+from grasp_fc_ros import wire
 from grasp_fc_ros.core import ORIGIN_CHOICES, Status, warm_up
 from grasp_fc_ros.core.tolerances import MAX_FRICTION_COEFFICIENT
 from grasp_fc_ros.evaluation import MIN_CONTACTS, Settings, Verdicts
@@ -95,6 +97,10 @@ DEFAULT_WORKERS = 2
 SIGNAL_POLL_S = 0.05
 # How long shutdown waits for readers to acknowledge the answers it publishes (s).
 SHUTDOWN_ACK_TIMEOUT_S = 0.5
+# Serialized single-grasp queries taken per executor wake-up at most (the first one,
+# then whatever else the subscription holds): one wake-up, its wait set and callback
+# cost as much as deciding a query. A client keeps at most 2,000 in flight.
+MAX_TAKE = 2_000
 # Verdict message of queries still queued when the node is destroyed.
 SHUTDOWN_MESSAGE = "node shutting down: query not evaluated"
 
@@ -316,7 +322,13 @@ class ForceClosureNode(Node):
         self._batch_pub = self.create_publisher(ForceClosureVerdictArray, "verdicts_batch",
                                                 VERDICT_QOS)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(ContactArray, "contacts", self._on_contacts, QUERY_QOS)
+        # Serialized queries in, serialized verdicts out (grasp_fc_ros.wire), unless this
+        # rmw's layout is not the one wire reads.
+        self._raw_queries = wire.layout_matches()
+        self._contacts_sub = self.create_subscription(
+            ContactArray, "contacts",
+            self._on_raw_contacts if self._raw_queries else self._on_contacts, QUERY_QOS,
+            raw=self._raw_queries)
         self.create_subscription(ContactArrayBatch, "contacts_batch", self._on_batch,
                                  QUERY_QOS)
         self.create_timer(DIAGNOSTICS_PERIOD_S, self._on_timer)
@@ -405,6 +417,35 @@ class ForceClosureNode(Node):
                 self._refuse_single(msg, pending)
         except Exception as exc:  # noqa: BLE001
             self._internal_error("a single-grasp query", exc)
+
+    def _on_raw_contacts(self, raw: bytes):
+        """Queue serialized queries: this one and up to MAX_TAKE more already received."""
+        try:
+            raws = [raw] + self._take_raw(MAX_TAKE - 1)
+            self._stats.count_received(len(raws))
+            with self._lock:
+                pending = len(self._pending)
+                room = 0 if self._stopping else max(0, self._settings.max_batch - pending)
+                self._pending.extend(raws[:room])
+                pending = len(self._pending)
+                if room:
+                    self._lock.notify_all()
+            for refused in raws[room:]:
+                self._refuse_single(deserialize_message(refused, ContactArray), pending)
+        except Exception as exc:  # noqa: BLE001
+            self._internal_error("serialized single-grasp queries", exc)
+
+    def _take_raw(self, limit: int) -> list[bytes]:
+        """Up to ``limit`` more serialized queries the contacts subscription holds now."""
+        taken = []
+        subscription = self._contacts_sub
+        with subscription.handle:
+            while len(taken) < limit:
+                info = subscription.handle.take_message(ContactArray, True)
+                if info is None:
+                    break
+                taken.append(info[0])
+        return taken
 
     def _overloaded(self, what: str, n_queries: int) -> str:
         message = f"node overloaded: {what}"
@@ -512,6 +553,9 @@ class ForceClosureNode(Node):
 
     def _answer_single_queries(self, msgs: list[ContactArray]):
         """Decide ``msgs`` together; publish one verdict each, in order."""
+        if msgs and isinstance(msgs[0], bytes):
+            self._answer_raw_queries(msgs)
+            return
         start = time.perf_counter()
         published = 0
         try:
@@ -539,6 +583,68 @@ class ForceClosureNode(Node):
             rest = msgs[published:]
             self._stats.record_failures(len(rest))
             for reply in _failure_replies(rest, Status.SOLVER_FAILURE, f"internal error: {exc}"):
+                self._verdict_pub.publish(reply)
+
+    def _answer_raw_queries(self, raws: list[bytes]):
+        """Decide serialized queries; publish one serialized verdict each, in order.
+
+        Queries that :mod:`grasp_fc_ros.wire` does not decode (another layout) or with
+        soft contacts (a torsional_friction) take the message path, in runs, so that
+        verdicts still go out in arrival order.
+        """
+        start = time.perf_counter()
+        queries = wire.decode_contact_arrays(raws)
+        decoded = np.zeros(len(raws), dtype=bool)
+        decoded[queries.index] = True
+        soft = queries.torsional != 0
+        if soft.any():
+            owner = np.repeat(np.arange(len(queries.index)), queries.packed.counts)
+            decoded[queries.index[owner[soft]]] = False
+        if decoded.all():
+            self._answer_decoded(raws, queries, time.perf_counter() - start)
+            return
+        edges = np.flatnonzero(np.diff(decoded.astype(np.int8))) + 1
+        for first, last in zip([0, *edges.tolist()], [*edges.tolist(), len(raws)]):
+            part = raws[first:last]
+            if decoded[first]:
+                self._answer_decoded(part, wire.decode_contact_arrays(part), 0.0)
+            else:
+                self._answer_single_queries([deserialize_message(r, ContactArray)
+                                             for r in part])
+
+    def _answer_decoded(self, raws: list[bytes], queries: wire.ContactQueries,
+                        conversion_s: float):
+        """Decide decoded queries ``queries`` of ``raws``; publish their verdicts' bytes."""
+        start = time.perf_counter() - conversion_s
+        published = 0
+        try:
+            verdicts, seconds = self._pool.decide(queries.packed, self._settings,
+                                                  self._is_stopping, PRIORITY_INTERACTIVE)
+            seconds["conversion_s"] = conversion_s
+            self._warn_invalid(verdicts)
+            for reply in wire.encode_verdicts(queries.prefixes, verdicts.force_closure,
+                                              verdicts.status, verdicts.margin,
+                                              verdicts.messages):
+                self._verdict_pub.publish(reply)
+                published += 1
+            self._stats.record(verdicts.status, seconds, time.perf_counter() - start)
+        except Cancelled:
+            with self._lock:  # the node is being destroyed: destroy_node answers them
+                self._pending.extendleft(reversed(raws))
+            raise
+        except Exception as exc:  # noqa: BLE001
+            if not rclpy.ok(context=self.context):
+                raise
+            self._internal_error(f"{len(raws)} single-grasp queries", exc)
+            if published:
+                self._stats.record(verdicts.status[:published], {}, None)
+            # Queries already answered must not get a second verdict.
+            rest = queries.prefixes[published:]
+            self._stats.record_failures(len(rest))
+            for reply in wire.encode_verdicts(
+                    rest, np.zeros(len(rest), bool),
+                    np.full(len(rest), Status.SOLVER_FAILURE, np.uint8),
+                    np.full(len(rest), math.nan), [f"internal error: {exc}"] * len(rest)):
                 self._verdict_pub.publish(reply)
 
     def _next_batch(self):
@@ -627,6 +733,8 @@ class ForceClosureNode(Node):
         with self._lock:
             singles, self._pending = list(self._pending), deque()
             batches, self._batches = list(self._batches), deque()
+        singles = [deserialize_message(q, ContactArray) if isinstance(q, bytes) else q
+                   for q in singles]
         unanswered = len(singles) + sum(len(b.ids) for b in batches)
         try:
             if (singles or batches) and not rclpy.ok(context=self.context):
