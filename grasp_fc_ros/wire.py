@@ -235,3 +235,39 @@ def layout_matches() -> bool:
                 header=query.header, client_id=query.client_id, id=query.id, message=text))):
             return False
     return True
+
+
+# --- the client's side: queries out, verdicts in ---------------------------------------
+
+_STAMP = struct.Struct("<iI")
+_IDS = struct.Struct("<QQ")
+
+
+def encode_contact_array(query_id: int, client_id: int, contacts: np.ndarray,
+                         frame_id: str = "", stamp: tuple[int, int] = (0, 0)) -> bytes:
+    """A serialized ``ContactArray``.
+
+    Parameters
+    ----------
+    query_id, client_id : int
+        uint64 values.
+    contacts : (n, 8) float64
+        Per contact: position xyz (m), normal xyz, friction_coefficient,
+        torsional_friction (:data:`CONTACT_VALUES` columns).
+    frame_id : str
+    stamp : (int, int)
+        Header stamp: seconds (int32) and nanoseconds (uint32).
+    """
+    frame = frame_id.encode("utf-8") + b"\0"
+    head = CDR_LE + _STAMP.pack(*stamp) + struct.pack("<I", len(frame)) + frame
+    head += bytes(_align(len(head) - _ENCAPSULATION, 8) - (len(head) - _ENCAPSULATION))
+    contacts = np.ascontiguousarray(contacts, dtype="<f8").reshape(-1, CONTACT_VALUES)
+    # uint32 count, then 4 bytes of padding: the first contact is 8-aligned.
+    count = struct.pack("<I", len(contacts)) + (bytes(4) if len(contacts) else b"")
+    return head + _IDS.pack(client_id, query_id) + count + contacts.tobytes()
+
+
+def verdict_ids(raw: bytes) -> tuple[int, int]:
+    """(client_id, id) of a serialized ForceClosureVerdict (or ContactArray)."""
+    (frame,) = struct.unpack_from("<I", raw, _ENCAPSULATION + _FRAME_LENGTH_AT)
+    return _IDS.unpack_from(raw, _ENCAPSULATION + _align(_FRAME_AT + frame, 8))
