@@ -17,7 +17,8 @@ from grasp_fc_ros import wire
 UINT64 = st.integers(0, 2**64 - 1)
 FLOATS = st.floats(allow_nan=True, allow_infinity=True, width=64)
 # ROS strings are C strings: no NUL inside.
-TEXT = st.text(st.characters(blacklist_characters="\0"), max_size=12)
+TEXT = st.text(st.characters(blacklist_characters="\0", blacklist_categories=("Cs",)),
+               max_size=12)
 
 
 @st.composite
