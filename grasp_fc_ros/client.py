@@ -228,7 +228,8 @@ class GraspClient:
             self._cond.notify_all()
         for entry, data in entries:
             if entry is not None:
-                entry[1].set_result(deserialize_message(data, ForceClosureVerdict))
+                entry[1].set_result(wire.decode_verdict(data) if data[:4] == wire.CDR_LE
+                                    else deserialize_message(data, ForceClosureVerdict))
 
     def _take_raw_verdicts(self, limit: int) -> list[bytes]:
         taken = []

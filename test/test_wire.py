@@ -142,3 +142,25 @@ def test_encoded_query_equals_what_rclpy_reads(msg):
     verdict = ForceClosureVerdict(header=msg.header, client_id=msg.client_id, id=msg.id,
                                   message="why")
     assert wire.verdict_ids(serialize_message(verdict)) == (msg.client_id, msg.id)
+
+
+@settings(max_examples=60, deadline=None)
+@given(queries(), st.booleans(), st.integers(0, 255), FLOATS, TEXT,
+       st.lists(st.lists(FLOATS, min_size=3, max_size=3), max_size=4),
+       st.lists(FLOATS, min_size=7, max_size=7))
+def test_decoded_verdict_equals_rclpy_deserialization(query, fc, status, margin, text, forces,
+                                                      wrench):
+    from geometry_msgs.msg import Vector3
+
+    verdict = ForceClosureVerdict(header=query.header, client_id=query.client_id, id=query.id,
+                                  force_closure=fc, status=status, margin=margin, message=text,
+                                  contact_forces=[Vector3(x=x, y=y, z=z) for x, y, z in forces],
+                                  min_friction=wrench[6])
+    w = verdict.separating_wrench
+    w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z = wrench[:6]
+    raw = serialize_message(verdict)
+    ours, theirs = wire.decode_verdict(raw), deserialize_message(raw, ForceClosureVerdict)
+    # NaN != NaN: compare the bytes each serializes to, minus the padding (uninitialised).
+    assert repr(ours) == repr(theirs)
+    with pytest.raises(ValueError):
+        wire.decode_verdict(raw[:-8])
