@@ -154,7 +154,10 @@ def validate_grasps(positions, normals, mu) -> GraspValidation:
         Only if the shapes themselves are wrong or an argument is not real numbers;
         bad values are reported per grasp.
     """
-    return _validate(*_as_batch_arrays(positions, normals, mu)[:3])
+    p, nrm, m = _as_batch_arrays(positions, normals, mu)[:3]
+    if _all_valid(p, nrm, m):  # the common case, without the per-check bookkeeping
+        return GraspValidation(np.ones(p.shape[0], dtype=bool), [""] * p.shape[0])
+    return _validate(p, nrm, m)
 
 
 def _validate(p: np.ndarray, nrm: np.ndarray, m: np.ndarray) -> GraspValidation:
