@@ -38,7 +38,6 @@ from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 
 from grasp_fc_ros import wire
-
 from grasp_fc_ros.conversions import (
     grasp_to_contact_array,
     grasps_to_batch_msg,

@@ -60,6 +60,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from rclpy.signals import SignalHandlerOptions
 
+from grasp_fc_ros import wire
 from grasp_fc_ros.conversions import (
     MalformedBatch,
     batch_size,
@@ -68,7 +69,6 @@ from grasp_fc_ros.conversions import (
     verdicts_to_array_msg,
     verdicts_to_msgs,
 )
-from grasp_fc_ros import wire
 from grasp_fc_ros.core import ORIGIN_CHOICES, Status, warm_up
 from grasp_fc_ros.core.tolerances import MAX_FRICTION_COEFFICIENT
 from grasp_fc_ros.evaluation import MIN_CONTACTS, Settings, Verdicts

@@ -7,28 +7,31 @@ node's cost. This module reads many serialized queries at once with numpy into a
 :class:`~grasp_fc_ros.evaluation.PackedGrasps` and writes each verdict's bytes
 directly, copying the query's header, ``client_id`` and ``id`` bytes verbatim.
 
-The layout is the plain little-endian CDR (XCDR1) of rmw_fastrtps and rmw_cyclonedds:
-a 4-byte encapsulation header, then each field aligned to its own size, counted from
-after that header. :func:`layout_matches` checks it against rclpy's own serialization
-at start-up (the node takes the normal path if it does not match), and a query not in
-this layout (say big-endian, from another machine) is re-serialized by rclpy first.
+The layout is the plain little-endian CDR (XCDR1) that rmw_fastrtps writes (measured
+here; other rmws that write the same pass the check below too): a 4-byte encapsulation
+header, then each field aligned to its own size, counted from after that header.
+Padding bytes are not initialised by rclpy, so nothing here reads or compares them.
+:func:`layout_matches` checks the layout against rclpy's own serialization at start-up
+(the node and the client use rclpy's messages if it does not match); a query in another
+layout (say big-endian, from another machine) is listed as undecoded, for rclpy to read.
 
 Imports the message types only (for :func:`decode_verdict`), not rclpy.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import struct
 from dataclasses import dataclass
 
 import numpy as np
 from geometry_msgs.msg import Vector3
-from grasp_fc_msgs.msg import ForceClosureVerdict
+from grasp_fc_msgs.msg import Contact, ContactArray, ForceClosureVerdict
 
 from grasp_fc_ros.evaluation import PackedGrasps
 
-__all__ = ["ContactQueries", "canonical", "decode_contact_arrays", "decode_verdict",
+__all__ = ["ContactQueries", "decode_contact_arrays", "decode_verdict",
            "encode_contact_array", "encode_verdicts", "layout_matches", "verdict_ids"]
 
 # Encapsulation header of little-endian plain CDR (kind 0x0001, options 0).
@@ -102,7 +105,7 @@ def decode_contact_arrays(raws: list[bytes]) -> ContactQueries:
     -------
     ContactQueries
         Queries whose bytes are exactly the little-endian CDR layout are decoded; the
-        others are listed in ``undecoded`` (decode :func:`canonical` bytes of them).
+        others are listed in ``undecoded`` (for rclpy's ``deserialize_message``).
     """
     n = len(raws)
     lengths = np.fromiter(map(len, raws), dtype=np.int64, count=n)
@@ -190,18 +193,13 @@ def _message_tail(text: str) -> bytes:
     return tail + b"\0" * pad8 + _NAN * 7
 
 
-def canonical(raw: bytes) -> bytes:
-    """``raw`` ContactArray re-serialized by rclpy (this machine's layout)."""
-    from grasp_fc_msgs.msg import ContactArray
-    from rclpy.serialization import deserialize_message, serialize_message
-
-    return serialize_message(deserialize_message(raw, ContactArray))
-
-
+@functools.cache
 def layout_matches() -> bool:
     """True when this module reads rclpy's serialized sample queries and writes verdicts
-    that rclpy reads back as they were meant, in the same number of bytes."""
-    from grasp_fc_msgs.msg import Contact, ContactArray
+    that rclpy reads back as they were meant, in the same number of bytes.
+
+    Computed once per process: the rmw does not change.
+    """
     from rclpy.serialization import deserialize_message, serialize_message
 
     for frame_id, n_contacts, text in (("", 2, ""), ("world", 3, "x"), ("abcdefg", 0, "ab")):
@@ -283,8 +281,12 @@ def decode_verdict(raw: bytes) -> ForceClosureVerdict:
 
     Fills a message in Python, in place (the generated constructor builds a default
     header and wrench even when given them): measured ~2x cheaper than rclpy's
-    ``deserialize_message`` for this type (69 vs 139 us on a loaded machine). Raises ``ValueError`` for bytes that are not
-    a whole verdict in that layout.
+    ``deserialize_message`` for this type (69 vs 139 us on a loaded machine).
+
+    Raises
+    ------
+    ValueError
+        For bytes that are not a whole verdict in that layout.
     """
     if raw[:_ENCAPSULATION] != CDR_LE:
         raise ValueError("not little-endian plain CDR")

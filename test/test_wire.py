@@ -103,15 +103,6 @@ def test_damaged_queries_are_set_aside_and_the_others_decoded(msg, data):
     assert decoded.packed.counts.tolist() == [len(msg.contacts)] * 2
 
 
-def test_canonical_bytes_decode():
-    msg = ContactArray(id=5)
-    msg.contacts = [Contact(friction_coefficient=0.3)] * 2
-    raw = serialize_message(msg)
-    assert deserialize_message(wire.canonical(raw), ContactArray) == msg
-    decoded = wire.decode_contact_arrays([wire.canonical(raw)])
-    assert decoded.packed.ids.tolist() == [5] and decoded.packed.mu.tolist() == [0.3, 0.3]
-
-
 def test_no_queries():
     decoded = wire.decode_contact_arrays([])
     assert len(decoded.packed) == 0 and decoded.prefixes == []
