@@ -6,7 +6,8 @@ Prints
    (its window of unanswered queries is the only flow control); every id must come
    back exactly once, and the node must count as many answered as received;
 2. batch throughput, 6-finger grasps, two batches in flight, against the core alone
-   in this process on the same grasps (one process: the node's workers use more cores);
+   in this process on the same grasps (one process: the node's workers use more cores),
+   in alternating rounds (median ratio);
 3. service round trip p50/p99 for one 6-finger grasp, idle;
 4. the same while a large batch (--big-batch grasps) is being decided;
 5. the service round trip without core work (an invalid one-contact grasp).
@@ -20,7 +21,7 @@ The node is started from its console script (grasp-fc-node, next to this Python)
 namespace of its own, so other nodes on the same ROS domain do not interfere.
 
 Usage: python benchmarks/bench_ros.py [--queries N] [--batches B] [--batch-size S]
-       [--service-calls C] [--big-batch G] [--object NAME]
+       [--rounds R] [--service-calls C] [--big-batch G] [--object NAME]
 """
 
 from __future__ import annotations
@@ -183,6 +184,8 @@ def main(argv=None) -> int:
     parser.add_argument("--queries", type=int, default=10_000, help="single-grasp topic queries")
     parser.add_argument("--batches", type=int, default=10, help="number of batches")
     parser.add_argument("--batch-size", type=int, default=1000, help="grasps per batch")
+    parser.add_argument("--rounds", type=int, default=3,
+                        help="alternating rounds of the batches, core alone and node")
     parser.add_argument("--service-calls", type=int, default=500, help="service round trips")
     parser.add_argument("--big-batch", type=int, default=20_000,
                         help="grasps of the batch decided while the service is timed")
@@ -202,28 +205,41 @@ def main(argv=None) -> int:
     try:
         print(f"object {args.object}, {N_FINGERS}-finger random grasps; node in a separate "
               f"process, QoS reliable KEEP_ALL; {os.cpu_count()} CPUs")
-        cpu = tree_cpu_s(node.pid)
+        cpu, client_cpu = tree_cpu_s(node.pid), time.process_time()
         rate, lossless = bench_single(client, positions, normals, args.queries)
         single_cpu = (tree_cpu_s(node.pid) - cpu) / args.queries
+        client_cpu = (time.process_time() - client_cpu) / args.queries
         print(f"single-grasp topic: {rate:8.0f} queries/s over {args.queries} queries, "
               f"{'no loss, in order' if lossless else 'LOSS or miscount'}  "
               f"[target >= {TARGET_SINGLE_PER_S}/s: "
               f"{verdict(lossless and rate >= TARGET_SINGLE_PER_S)}]")
         print(f"    node CPU per query {1e3 * single_cpu:.3f} ms (node and workers) -> at most "
-              f"{os.cpu_count() / single_cpu:.0f} queries/s on {os.cpu_count()} idle cores")
+              f"{os.cpu_count() / single_cpu:.0f} queries/s on {os.cpu_count()} idle cores; "
+              f"client (this process) {1e3 * client_cpu:.3f} ms -> both on these cores at most "
+              f"{os.cpu_count() / (single_cpu + client_cpu):.0f} queries/s")
 
-        # Core alone before and after the ROS run, averaged: the machine's load drifts.
-        core_before, core_cpu = bench_core(batches)
-        cpu = tree_cpu_s(node.pid)
-        ros_rate, complete = bench_batches(client, batches)
-        node_cpu = (tree_cpu_s(node.pid) - cpu) / sum(len(p) for p, _ in batches)
-        core_after, _ = bench_core(batches)
-        core_rate = 0.5 * (core_before + core_after)
-        ratio = ros_rate / core_rate
-        print(f"batches of {args.batch_size}: {ros_rate:8.0f} grasps/s through the node, "
-              f"{core_rate:8.0f} grasps/s core alone in one process (mean of "
-              f"{core_before:.0f}, {core_after:.0f}) -> {ratio:.2f}x"
-              f"{'' if complete else ' (INCOMPLETE replies)'}  "
+        # Core alone and through the node in alternating rounds, the ratio taken per
+        # round and its median reported: the load of a shared machine drifts within
+        # seconds, which a core run before and after the node's cannot follow.
+        ratios, ros_rates, core_rates, complete, node_cpu, core_cpu = [], [], [], True, 0.0, 0.0
+        bench_core(batches[:1])  # loads the compiled exact stage: not part of round 1
+        for _ in range(args.rounds):
+            core_rate, cpu_per_grasp = bench_core(batches)
+            cpu = tree_cpu_s(node.pid)
+            ros_rate, done = bench_batches(client, batches)
+            node_cpu += (tree_cpu_s(node.pid) - cpu) / sum(len(p) for p, _ in batches)
+            core_cpu += cpu_per_grasp
+            complete &= done
+            ratios.append(ros_rate / core_rate)
+            ros_rates.append(ros_rate)
+            core_rates.append(core_rate)
+        node_cpu, core_cpu = node_cpu / args.rounds, core_cpu / args.rounds
+        ratio = float(np.median(ratios))
+        print(f"batches of {args.batch_size}: median of {args.rounds} rounds "
+              f"{ratio:.2f}x the core alone in one process (rounds: "
+              + ", ".join(f"{r:.0f}/{c:.0f} grasps/s = {r / c:.2f}x"
+                          for r, c in zip(ros_rates, core_rates))
+              + f"){'' if complete else ' (INCOMPLETE replies)'}  "
               f"[target >= {TARGET_BATCH_RATIO}x: {verdict(complete and ratio >= TARGET_BATCH_RATIO)}]")
         if node_cpu > 0:
             print(f"    CPU per grasp: node and workers {1e3 * node_cpu:.3f} ms, core alone "

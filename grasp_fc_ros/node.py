@@ -75,10 +75,12 @@ from rclpy.executors import (
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
+from rclpy.serialization import deserialize_message
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future as RclpyFuture
 from std_srvs.srv import Empty
 
+from grasp_fc_ros import wire
 from grasp_fc_ros.conversions import (
     MalformedBatch,
     batch_size,
@@ -142,6 +144,10 @@ ACTION_RESULT_TIMEOUT_S = 30
 # After the last goal ended at shutdown, time for the action's executor to send its
 # result response (s).
 ACTION_RESULT_GRACE_S = 0.05
+# Serialized single-grasp queries taken per executor wake-up at most (the first one,
+# then whatever else the subscription holds): one wake-up, its wait set and callback
+# cost as much as deciding a query. A client keeps at most 2,000 in flight.
+MAX_TAKE = 2_000
 # Verdict message of queries still queued when the node is destroyed.
 SHUTDOWN_MESSAGE = "node shutting down: query not evaluated"
 
@@ -444,8 +450,13 @@ class ForceClosureNode(Node):
                                                 copy.copy(VERDICT_QOS),
                                                 qos_overriding_options=overridable)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(ContactArray, "contacts", self._on_contacts,
-                                 copy.copy(QUERY_QOS), qos_overriding_options=overridable)
+        # Serialized queries in, serialized verdicts out (grasp_fc_ros.wire), unless this
+        # rmw's layout is not the one wire reads.
+        self._raw_queries = wire.layout_matches()
+        self._contacts_sub = self.create_subscription(
+            ContactArray, "contacts",
+            self._on_raw_contacts if self._raw_queries else self._on_contacts,
+            copy.copy(QUERY_QOS), qos_overriding_options=overridable, raw=self._raw_queries)
         self.create_subscription(ContactArrayBatch, "contacts_batch", self._on_batch,
                                  copy.copy(QUERY_QOS), qos_overriding_options=overridable)
         # Markers are built and published by a process of its own, started when
@@ -477,18 +488,23 @@ class ForceClosureNode(Node):
         executor that would hold up the topic queries and /diagnostics. Nor does the node
         need a multi-threaded executor then (measured: ~3.5x the CPU per single query of
         a single-threaded one). The helper, ``<name>_service``, lives in the node's
-        namespace, so the service has its usual name there; it ignores command-line
-        remappings (a ``__node`` remapping would give it the node's own name). It
-        serves one request at a time: a multi-threaded executor here crashed the process
-        (SIGSEGV) now and then on a Ctrl-C right after start.
+        (possibly remapped) namespace and takes no command-line arguments of its own (a
+        ``__node`` remapping would give it the node's own name); the service name is
+        resolved by the node itself instead, so that the node's remappings (``-r
+        check_force_closure:=...``, also ``force_closure:check_force_closure:=...``,
+        and ``__ns``) apply to it as to the topics. It serves one request at a time: a
+        multi-threaded executor here crashed the process (SIGSEGV) now and then on a
+        Ctrl-C right after start.
         """
         self._service_node = Node(f"{self.get_name()}_service", namespace=self.get_namespace(),
                                   context=self.context, use_global_arguments=False,
                                   start_parameter_services=False)
-        self._service_node.create_service(CheckForceClosure, "check_force_closure",
-                                          self._on_service)
-        self._service_node.create_service(ComputeContactForces, "compute_contact_forces",
-                                          self._on_contact_forces)
+        self._service_node.create_service(
+            CheckForceClosure, self.resolve_service_name("check_force_closure"),
+            self._on_service)
+        self._service_node.create_service(
+            ComputeContactForces, self.resolve_service_name("compute_contact_forces"),
+            self._on_contact_forces)
         self._service_executor = SingleThreadedExecutor(context=self.context)
         self._service_executor.add_node(self._service_node)
         thread = threading.Thread(target=self._spin_service, daemon=True, name="service")
@@ -764,6 +780,35 @@ class ForceClosureNode(Node):
         except Exception as exc:  # noqa: BLE001
             self._internal_error("a single-grasp query", exc)
 
+    def _on_raw_contacts(self, raw: bytes):
+        """Queue serialized queries: this one and up to MAX_TAKE more already received."""
+        try:
+            raws = [raw] + self._take_raw(MAX_TAKE - 1)
+            self._stats.count_received(len(raws))
+            with self._lock:
+                pending = len(self._pending)
+                room = 0 if self._stopping else max(0, self._settings.max_batch - pending)
+                self._pending.extend(raws[:room])
+                pending = len(self._pending)
+                if room:
+                    self._lock.notify_all()
+            for refused in raws[room:]:
+                self._refuse_single(deserialize_message(refused, ContactArray), pending)
+        except Exception as exc:  # noqa: BLE001
+            self._internal_error("serialized single-grasp queries", exc)
+
+    def _take_raw(self, limit: int) -> list[bytes]:
+        """Up to ``limit`` more serialized queries the contacts subscription holds now."""
+        taken = []
+        subscription = self._contacts_sub
+        with subscription.handle:
+            while len(taken) < limit:
+                info = subscription.handle.take_message(ContactArray, True)
+                if info is None:
+                    break
+                taken.append(info[0])
+        return taken
+
     def _overloaded(self, what: str, n_queries: int) -> str:
         message = f"node overloaded: {what}"
         self._stats.count_overloaded(n_queries)
@@ -899,6 +944,9 @@ class ForceClosureNode(Node):
 
     def _answer_single_queries(self, msgs: list[ContactArray]):
         """Decide ``msgs`` together; publish one verdict each, in order."""
+        if msgs and isinstance(msgs[0], bytes):
+            self._answer_raw_queries(msgs)
+            return
         start = time.perf_counter()
         published = 0
         try:
@@ -929,6 +977,78 @@ class ForceClosureNode(Node):
             rest = msgs[published:]
             self._stats.record_failures(len(rest))
             for reply in _failure_replies(rest, Status.SOLVER_FAILURE, f"internal error: {exc}"):
+                self._verdict_pub.publish(reply)
+
+    def _answer_raw_queries(self, raws: list[bytes]):
+        """Decide serialized queries; publish one serialized verdict each, in order.
+
+        Queries that :mod:`grasp_fc_ros.wire` does not decode (another layout) or with
+        soft contacts (a torsional_friction) take the message path, in runs, so that
+        verdicts still go out in arrival order.
+        """
+        if self._needs_messages():
+            self._answer_single_queries([deserialize_message(r, ContactArray) for r in raws])
+            return
+        start = time.perf_counter()
+        queries = wire.decode_contact_arrays(raws)
+        decoded = np.zeros(len(raws), dtype=bool)
+        decoded[queries.index] = True
+        soft = queries.torsional != 0
+        if soft.any():
+            owner = np.repeat(np.arange(len(queries.index)), queries.packed.counts)
+            decoded[queries.index[owner[soft]]] = False
+        if decoded.all():
+            self._answer_decoded(raws, queries, time.perf_counter() - start)
+            return
+        edges = np.flatnonzero(np.diff(decoded.astype(np.int8))) + 1
+        for first, last in zip([0, *edges.tolist()], [*edges.tolist(), len(raws)]):
+            part = raws[first:last]
+            if decoded[first]:
+                self._answer_decoded(part, wire.decode_contact_arrays(part), 0.0)
+            else:
+                self._answer_single_queries([deserialize_message(r, ContactArray)
+                                             for r in part])
+
+    def _needs_messages(self) -> bool:
+        """Whether single verdicts need more than :mod:`grasp_fc_ros.wire` encodes:
+        certificates, minimum friction, or markers (built from the messages)."""
+        settings = self._settings
+        return (settings.certificates or settings.compute_min_friction
+                or self._marker_settings.enabled)
+
+    def _answer_decoded(self, raws: list[bytes], queries: wire.ContactQueries,
+                        conversion_s: float):
+        """Decide decoded queries ``queries`` of ``raws``; publish their verdicts' bytes."""
+        start = time.perf_counter() - conversion_s
+        published = 0
+        try:
+            verdicts, seconds = self._pool.decide(queries.packed, self._settings,
+                                                  self._is_stopping, PRIORITY_INTERACTIVE)
+            seconds["conversion_s"] = conversion_s
+            self._warn_invalid(verdicts)
+            for reply in wire.encode_verdicts(queries.prefixes, verdicts.force_closure,
+                                              verdicts.status, verdicts.margin,
+                                              verdicts.messages):
+                self._verdict_pub.publish(reply)
+                published += 1
+            self._stats.record(verdicts.status, seconds, time.perf_counter() - start)
+        except Cancelled:
+            with self._lock:  # the node is being destroyed: destroy_node answers them
+                self._pending.extendleft(reversed(raws))
+            raise
+        except Exception as exc:  # noqa: BLE001
+            if not rclpy.ok(context=self.context):
+                raise
+            self._internal_error(f"{len(raws)} single-grasp queries", exc)
+            if published:
+                self._stats.record(verdicts.status[:published], {}, None)
+            # Queries already answered must not get a second verdict.
+            rest = queries.prefixes[published:]
+            self._stats.record_failures(len(rest))
+            for reply in wire.encode_verdicts(
+                    rest, np.zeros(len(rest), bool),
+                    np.full(len(rest), Status.SOLVER_FAILURE, np.uint8),
+                    np.full(len(rest), math.nan), [f"internal error: {exc}"] * len(rest)):
                 self._verdict_pub.publish(reply)
 
     def _next_batch(self):
@@ -1023,6 +1143,8 @@ class ForceClosureNode(Node):
         with self._lock:
             singles, self._pending = list(self._pending), deque()
             batches, self._batches = list(self._batches), deque()
+        singles = [deserialize_message(q, ContactArray) if isinstance(q, bytes) else q
+                   for q in singles]
         unanswered = len(singles) + sum(len(b.ids) for b in batches)
         try:
             if (singles or batches) and not rclpy.ok(context=self.context):

@@ -44,6 +44,11 @@ CHUNK_CONTACTS = 4096
 # test (Clarabel path) measured 0.13-0.65 ms per grasp of 3-6 fingers against the fast
 # stage's 0.004-0.04 (benchmarks/bench_soft.py), so a chunk stays near 10-30 ms.
 SOFT_CHUNK_DIVISOR = 16
+# A request of fewer chunks than workers is split into one chunk per worker, as equal as
+# grasps allow, down to chunks of this many contacts (~170 6-finger grasps, where the
+# core's cost per grasp is within ~15% of its best, per the figures above): a 1,000-grasp
+# batch went as chunks of 682 and 318 grasps, leaving one worker idle a third of the time.
+MIN_CHUNK_CONTACTS = 1024
 # Requests up to this many grasps are decided inline (one core call, ~0.1-0.2 ms): a
 # service call or a trickle of single queries does not wait behind batch chunks.
 INLINE_GRASPS = 4
@@ -124,6 +129,17 @@ class _Worker:
                 future.set_exception(RuntimeError(answer))
 
 
+def chunk_size(total_contacts: int, workers: int, chunk_contacts: int = CHUNK_CONTACTS) -> int:
+    """Contacts per chunk for a request of ``total_contacts`` on ``workers`` processes.
+
+    At most ``chunk_contacts``; the chunks as equal as possible, and at least one per
+    worker while each keeps :data:`MIN_CHUNK_CONTACTS`.
+    """
+    n_chunks = max(-(-total_contacts // chunk_contacts),
+                   min(workers, total_contacts // MIN_CHUNK_CONTACTS), 1)
+    return max(1, -(-total_contacts // n_chunks))
+
+
 class EvaluationPool:
     """Decide packed grasps, large ones in chunks on ``workers`` processes.
 
@@ -163,7 +179,8 @@ class EvaluationPool:
         # (benchmarks/bench_soft.py): smaller chunks keep one chunk's delay as short.
         limit = (self._chunk_contacts if packed.torsional is None
                  else max(1, self._chunk_contacts // SOFT_CHUNK_DIVISOR))
-        for chunk in packed.chunks(limit):
+        size = chunk_size(int(packed.counts.sum()), len(self._workers), limit)
+        for chunk in packed.chunks(size):
             future: Future = Future()
             self._tasks.put((priority, next(self._order), (future, chunk, settings)))
             futures.append(future)

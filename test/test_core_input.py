@@ -213,3 +213,22 @@ def test_quick_all_valid_check_agrees_with_the_per_grasp_validation(seed):
         else:
             positions[g, c, rng.integers(3)] = value
     assert _all_valid(positions, normals, mu) == _validate(positions, normals, mu).valid.all()
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 4), st.integers(2, 5), st.data())
+def test_validate_grasps_shortcut_reports_as_the_full_check(n_grasps, n_contacts, data):
+    """validate_grasps skips its per-check bookkeeping for good input: same answer."""
+    from grasp_fc_ros.core.grasp_input import _validate
+
+    values = st.sampled_from([0.0, 1.0, -2.5, 1e-320, 1e300, 1e302, np.inf, np.nan])
+    p = np.array(data.draw(st.lists(values, min_size=n_grasps * n_contacts * 3,
+                                    max_size=n_grasps * n_contacts * 3))).reshape(
+        n_grasps, n_contacts, 3)
+    nrm = np.array(data.draw(st.lists(values, min_size=p.size, max_size=p.size))).reshape(p.shape)
+    m = np.array(data.draw(st.lists(st.sampled_from([0.5, 0.0, -1.0, 2000.0, np.nan]),
+                                    min_size=n_grasps * n_contacts,
+                                    max_size=n_grasps * n_contacts))).reshape(p.shape[:2])
+    fast, full = validate_grasps(p, nrm, m), _validate(p, nrm, m)
+    np.testing.assert_array_equal(fast.valid, full.valid)
+    assert fast.reasons == full.reasons

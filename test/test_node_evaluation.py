@@ -17,7 +17,7 @@ from grasp_fc_ros.evaluation import (
     find_invalid,
 )
 from grasp_fc_ros.objects import make_object, sample_grasps
-from grasp_fc_ros.workers import EvaluationPool
+from grasp_fc_ros.workers import EvaluationPool, chunk_size
 
 # The exact test's margin depends on which grasps share a solver call, to solver accuracy.
 MARGIN_ABS_TOL = 1e-6
@@ -144,6 +144,19 @@ def test_chunks_partition_the_grasps_in_order(sizes, bound):
         # A chunk holds at most `bound` contacts, unless it is a single larger grasp.
         assert c.counts.sum() <= bound or len(c) == 1
         assert len(c.positions) == c.counts.sum()
+
+
+@pytest.mark.parametrize("total, workers, expected", [
+    (6000, 2, 3000),     # 1,000 6-finger grasps: two equal chunks, not 4096 + 1904
+    (10_000, 2, 3334),   # three chunks within the bound, as equal as possible
+    (100_000, 2, 4000),  # 25 chunks
+    (1500, 2, 1500),     # splitting would leave chunks under MIN_CHUNK_CONTACTS
+    (2048, 2, 1024),
+    (6000, 0, 3000),     # no workers: the bound alone
+    (0, 2, 1),
+])
+def test_chunks_are_balanced_over_the_workers(total, workers, expected):
+    assert chunk_size(total, workers, 4096) == expected
 
 
 def test_worker_pool_gives_the_inline_verdicts_in_order():

@@ -174,8 +174,12 @@ def validate_grasps(positions, normals, mu, torsional_friction=0.0) -> GraspVali
         bad values are reported per grasp.
     """
     p, nrm, m, single = _as_batch_arrays(positions, normals, mu)
-    return _validate(p, nrm, m, _per_contact(torsional_friction, "torsional_friction",
-                                             single, m.shape))
+    gamma = (None if _all_hard(torsional_friction) else
+             _per_contact(torsional_friction, "torsional_friction", single, m.shape))
+    if _all_valid(p, nrm, m) and (gamma is None or torsional_all_valid(gamma)):
+        # the common case, without the per-check bookkeeping
+        return GraspValidation(np.ones(p.shape[0], dtype=bool), [""] * p.shape[0])
+    return _validate(p, nrm, m, gamma)
 
 
 def _validate(p: np.ndarray, nrm: np.ndarray, m: np.ndarray,

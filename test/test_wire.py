@@ -1,0 +1,157 @@
+"""grasp_fc_ros.wire against rclpy's own (de)serialization, on random messages."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from grasp_fc_msgs.msg import Contact, ContactArray, ForceClosureVerdict
+from rclpy.serialization import deserialize_message, serialize_message
+
+from grasp_fc_ros import wire
+
+UINT64 = st.integers(0, 2**64 - 1)
+FLOATS = st.floats(allow_nan=True, allow_infinity=True, width=64)
+# ROS strings are C strings: no NUL inside.
+TEXT = st.text(st.characters(blacklist_characters="\0", blacklist_categories=("Cs",)),
+               max_size=12)
+
+
+@st.composite
+def queries(draw):
+    msg = ContactArray(client_id=draw(UINT64), id=draw(UINT64))
+    msg.header.frame_id = draw(TEXT)
+    msg.header.stamp.sec = draw(st.integers(-2**31, 2**31 - 1))
+    msg.header.stamp.nanosec = draw(st.integers(0, 2**32 - 1))
+    contacts = []
+    for _ in range(draw(st.integers(0, 7))):
+        values = draw(st.lists(FLOATS, min_size=8, max_size=8))
+        contact = Contact(friction_coefficient=values[6], torsional_friction=values[7])
+        contact.position.x, contact.position.y, contact.position.z = values[0:3]
+        contact.normal.x, contact.normal.y, contact.normal.z = values[3:6]
+        contacts.append(contact)
+    msg.contacts = contacts
+    return msg
+
+
+def contact_values(msg: ContactArray) -> list[list[float]]:
+    return [[c.position.x, c.position.y, c.position.z, c.normal.x, c.normal.y, c.normal.z,
+             c.friction_coefficient, c.torsional_friction] for c in msg.contacts]
+
+
+def test_layout_matches_this_rmw():
+    assert wire.layout_matches()
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(queries(), max_size=6))
+def test_decode_equals_rclpy_deserialization(msgs):
+    raws = [serialize_message(m) for m in msgs]
+    decoded = wire.decode_contact_arrays(raws)
+    assert decoded.index.tolist() == list(range(len(msgs)))
+    assert decoded.undecoded.tolist() == []
+    packed = decoded.packed
+    assert packed.name_by_id
+    assert packed.ids.tolist() == [deserialize_message(r, ContactArray).id for r in raws]
+    assert decoded.client_ids.tolist() == [m.client_id for m in msgs]
+    assert packed.counts.tolist() == [len(m.contacts) for m in msgs]
+    expected = np.array([v for m in msgs for v in contact_values(m)]).reshape(-1, 8)
+    got = np.concatenate([packed.positions, packed.normals, packed.mu[:, None],
+                          decoded.torsional[:, None]], axis=1)
+    np.testing.assert_array_equal(got, expected)  # NaN equal to NaN, bit-exact otherwise
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(queries(), st.booleans(), st.integers(0, 4), FLOATS, TEXT),
+                min_size=1, max_size=5))
+def test_encoded_verdicts_equal_rclpy_serialization(cases):
+    msgs = [c[0] for c in cases]
+    decoded = wire.decode_contact_arrays([serialize_message(m) for m in msgs])
+    ours = wire.encode_verdicts(decoded.prefixes, [c[1] for c in cases], [c[2] for c in cases],
+                                [c[3] for c in cases], [c[4] for c in cases])
+    for raw, (query, fc, status, margin, text) in zip(ours, cases):
+        verdict = deserialize_message(raw, ForceClosureVerdict)
+        assert (verdict.header.frame_id, verdict.header.stamp.sec, verdict.header.stamp.nanosec,
+                verdict.client_id, verdict.id) == (
+            query.header.frame_id, query.header.stamp.sec, query.header.stamp.nanosec,
+            query.client_id, query.id)
+        assert (verdict.force_closure, verdict.status, verdict.message) == (fc, status, text)
+        assert verdict.margin == margin or (math.isnan(margin) and math.isnan(verdict.margin))
+        assert list(verdict.contact_forces) == []
+        wrench = verdict.separating_wrench
+        assert all(math.isnan(v) for v in (wrench.force.x, wrench.force.y, wrench.force.z,
+                                           wrench.torque.x, wrench.torque.y, wrench.torque.z,
+                                           verdict.min_friction))
+        # As long as rclpy's own (its padding bytes are uninitialised memory, so the
+        # bytes cannot be compared).
+        assert len(serialize_message(verdict)) == len(raw)
+
+
+@settings(max_examples=40, deadline=None)
+@given(queries(), st.data())
+def test_damaged_queries_are_set_aside_and_the_others_decoded(msg, data):
+    good = serialize_message(msg)
+    cut = data.draw(st.integers(0, len(good) - 1))
+    damaged = [good[:cut], b"\x01" + good[1:], good + bytes(8)]
+    decoded = wire.decode_contact_arrays([good] + damaged + [good])
+    assert decoded.index.tolist() == [0, 4]
+    assert decoded.undecoded.tolist() == [1, 2, 3]
+    assert decoded.packed.counts.tolist() == [len(msg.contacts)] * 2
+
+
+def test_no_queries():
+    decoded = wire.decode_contact_arrays([])
+    assert len(decoded.packed) == 0 and decoded.prefixes == []
+    assert wire.encode_verdicts([], [], [], [], []) == []
+
+
+@pytest.mark.parametrize("frame_id", ["", "a", "abc", "abcd", "abcdefgh"])
+def test_every_frame_id_alignment(frame_id):
+    msg = ContactArray(id=1, client_id=2)
+    msg.header.frame_id = frame_id
+    msg.contacts = [Contact(friction_coefficient=0.5)]
+    decoded = wire.decode_contact_arrays([serialize_message(msg)])
+    assert decoded.packed.ids.tolist() == [1] and decoded.client_ids.tolist() == [2]
+
+
+@settings(max_examples=60, deadline=None)
+@given(queries())
+def test_encoded_query_equals_what_rclpy_reads(msg):
+    contacts = np.array(contact_values(msg)).reshape(-1, 8)
+    stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
+    raw = wire.encode_contact_array(msg.id, msg.client_id, contacts, msg.header.frame_id, stamp)
+    back = deserialize_message(raw, ContactArray)
+    assert (back.header.frame_id, back.header.stamp.sec, back.header.stamp.nanosec,
+            back.client_id, back.id) == (msg.header.frame_id, *stamp, msg.client_id, msg.id)
+    np.testing.assert_array_equal(np.array(contact_values(back)).reshape(-1, 8), contacts)
+    assert len(raw) == len(serialize_message(msg))
+    assert wire.verdict_ids(raw) == (msg.client_id, msg.id)
+    verdict = ForceClosureVerdict(header=msg.header, client_id=msg.client_id, id=msg.id,
+                                  message="why")
+    assert wire.verdict_ids(serialize_message(verdict)) == (msg.client_id, msg.id)
+
+
+@settings(max_examples=60, deadline=None)
+@given(queries(), st.booleans(), st.integers(0, 255), FLOATS, TEXT,
+       st.lists(st.lists(FLOATS, min_size=3, max_size=3), max_size=4),
+       st.lists(FLOATS, min_size=7, max_size=7))
+def test_decoded_verdict_equals_rclpy_deserialization(query, fc, status, margin, text, forces,
+                                                      wrench):
+    from geometry_msgs.msg import Vector3
+
+    verdict = ForceClosureVerdict(header=query.header, client_id=query.client_id, id=query.id,
+                                  force_closure=fc, status=status, margin=margin, message=text,
+                                  contact_forces=[Vector3(x=x, y=y, z=z) for x, y, z in forces],
+                                  min_friction=wrench[6])
+    w = verdict.separating_wrench
+    w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z = wrench[:6]
+    raw = serialize_message(verdict)
+    ours, theirs = wire.decode_verdict(raw), deserialize_message(raw, ForceClosureVerdict)
+    # NaN != NaN: compare the bytes each serializes to, minus the padding (uninitialised).
+    assert repr(ours) == repr(theirs)
+    with pytest.raises(ValueError):
+        wire.decode_verdict(raw[:-8])
