@@ -26,6 +26,7 @@ import struct
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 from geometry_msgs.msg import Vector3
 from grasp_fc_msgs.msg import Contact, ContactArray, ForceClosureVerdict
 
@@ -155,7 +156,8 @@ def _contact_values(buffer: np.ndarray, first: np.ndarray, counts: np.ndarray) -
     return data.view("<f8").reshape(-1, CONTACT_VALUES).astype(np.float64, copy=False)
 
 
-def encode_verdicts(prefixes: list, force_closure, status, margin, messages) -> list[bytes]:
+def encode_verdicts(prefixes: list[bytes], force_closure: ArrayLike, status: ArrayLike,
+                    margin: ArrayLike, messages: list[str]) -> list[bytes]:
     """Serialized ``ForceClosureVerdict`` messages, one per query, without certificates.
 
     Parameters

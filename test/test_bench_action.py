@@ -13,7 +13,7 @@ SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_action.py"
 
 def test_action_benchmark_prints_every_figure_and_loses_nothing():
     done = subprocess.run(
-        [sys.executable, str(SCRIPT), "--goal-grasps", "20000", "--cancels", "2",
+        [sys.executable, str(SCRIPT), "--goal-grasps", "100000", "--cancels", "2",
          "--cancel-after", "0.05", "--rounds", "1"],
         capture_output=True, text=True, timeout=240, env=dict(os.environ))
     assert done.returncode == 0, done.stdout + done.stderr
