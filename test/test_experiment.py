@@ -127,3 +127,33 @@ def test_cli_adds_mesh_files_as_objects(tmp_path):
     surfaces = cli.load_objects(args)
     assert [s.name for s in surfaces] == ["box", "part"]
     assert all(len(s) == 300 for s in surfaces)
+
+
+def test_quick_run_friction_labels(quick_run):
+    rows = _rows(quick_run / report.FRICTION_LABELS_CSV)
+    assert len(rows) == len(cli.DEFAULT_OBJECTS) * cli.QUICK["label_grasps"]
+    mu_star = np.array([float(r["mu_star"]) for r in rows])
+    certified = mu_star[~np.isnan(mu_star)]
+    assert certified.size >= 0.9 * mu_star.size
+    assert np.all(certified >= 0.0)
+    text = (quick_run / report.REPORT_MD).read_text()
+    assert "Grasp quality: minimum friction and soft fingers" in text
+
+
+def test_quick_run_soft_sweep(quick_run):
+    rows = _rows(quick_run / report.SOFT_SWEEP_CSV)
+    by_grasps = {}
+    for r in rows:
+        key = (r["object"], int(r["fingers"]))
+        by_grasps.setdefault(key, []).append((float(r["gamma_over_size"]),
+                                              int(r["force_closure"])))
+    assert len(by_grasps) == len(cli.DEFAULT_OBJECTS) * 3
+    for (name, fingers), counts in by_grasps.items():
+        counts.sort()
+        assert counts[0][0] == 0.0
+        if fingers == 2:
+            assert counts[0][1] == 0, f"two hard fingers are never force closure ({name})"
+        # a soft cone contains the hard one and grows with gamma: the same grasps can
+        # only gain force closure as gamma grows
+        fc = [count for _, count in counts]
+        assert fc == sorted(fc), (name, fingers, counts)

@@ -30,9 +30,9 @@ EXAMPLE_GRASPS = 400
 
 # Full-size defaults, and the --quick ones (explicit flags override both).
 FULL = {"grasps": 100_000, "points": 5000, "peer_grasps": 500, "sides_grasps": 50,
-        "sides_pool": 1000, "sweep_grasps": 500}
+        "sides_pool": 1000, "sweep_grasps": 500, "label_grasps": 2000, "soft_grasps": 1000}
 QUICK = {"grasps": 300, "points": 1000, "peer_grasps": 20, "sides_grasps": 4,
-         "sides_pool": 100, "sweep_grasps": 30}
+         "sides_pool": 100, "sweep_grasps": 30, "label_grasps": 20, "soft_grasps": 20}
 
 
 def _finger_count(text):
@@ -99,6 +99,12 @@ def build_parser():
                         help="grasps per object and finger count in the throughput sweep "
                              f"over n = {FINGER_RANGE[0]}..{FINGER_RANGE[1]} "
                              f"(default {FULL['sweep_grasps']})")
+    parser.add_argument("--label-grasps", type=positive_int,
+                        help="grasps per object labelled with their minimum friction mu* "
+                             f"(default {FULL['label_grasps']})")
+    parser.add_argument("--soft-grasps", type=positive_int,
+                        help="grasps per object and finger count in the soft-finger sweep "
+                             f"(default {FULL['soft_grasps']})")
     return parser
 
 
@@ -184,7 +190,7 @@ def run(args):
     problems : list of str
         Soundness violations found (the filter changed a verdict); empty when sound.
     """
-    from . import measure, plots, report
+    from . import measure, plots, quality, report
 
     start = time.perf_counter()
     surfaces = load_objects(args)
@@ -197,7 +203,13 @@ def run(args):
     sides_rows = measure.sides_sweep(surfaces, args.fingers, args.mu, args.sides_sweep,
                                      args.sides_grasps, args.sides_pool, _stream(args.seed, 2))
 
+    print("minimum friction labels, soft fingers ...", file=sys.stderr, flush=True)
+    labels = quality.friction_labels(surfaces, args.label_grasps, _stream(args.seed, 4))
+    soft_rows = quality.soft_sweep(surfaces, args.soft_grasps, _stream(args.seed, 5))
+
     out = args.out
+    report.write_csv(out / report.FRICTION_LABELS_CSV, report.friction_label_rows(labels))
+    report.write_csv(out / report.SOFT_SWEEP_CSV, [report.soft_row(r) for r in soft_rows])
     report.write_csv(out / report.RESULTS_CSV, [report.result_row(r) for r in results])
     report.write_csv(out / report.FINGERS_CSV, [report.finger_row(r) for r in finger_rows])
     report.write_csv(out / report.PEER_SIDES_CSV,
@@ -207,6 +219,8 @@ def run(args):
     plots.plot_specificity(results, out / names["specificity"])
     plots.plot_finger_sweep(finger_rows, out / names["fingers"])
     plots.plot_peer_sides(sides_rows, out / names["peer_sides"])
+    plots.plot_friction_labels(labels, out / names["friction_labels"])
+    plots.plot_soft_sweep(soft_rows, out / names["soft_sweep"])
     example = pick_example(surfaces, args.fingers, args.mu, args.seed)
     if example is None:
         del names["grasp_example"]
@@ -216,7 +230,8 @@ def run(args):
     text = report.markdown_report(results, finger_rows, sides_rows,
                                   {"command": report.command_line(), "seed": args.seed,
                                    "jobs": args.jobs},
-                                  total, names)
+                                  total, names,
+                                  report.quality_section(labels, soft_rows, quality.SOFT_SWEEP_MU))
     path = out / report.REPORT_MD
     path.write_text(text)
     problems = report.soundness_problems(results)

@@ -169,3 +169,45 @@ def plot_grasp_example(surface, fc_grasp, rejected_grasp, mu, path):
     fig.subplots_adjust(left=0.0, right=1.0, bottom=0.0, top=0.88, wspace=0.0)
     fig.savefig(path, dpi=DPI)
     plt.close(fig)
+
+
+# mu* histogram range: GraspNet labels grasps on mu = 0.1 .. 1.0.
+LABEL_MU_MAX = 1.2
+LABEL_BIN_WIDTH = 0.05
+
+
+def plot_friction_labels(labels, path):
+    """Histogram of the minimum friction coefficient mu* per object."""
+    columns = min(3, len(labels))
+    rows = -(-len(labels) // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(3.3 * columns, 2.6 * rows),
+                             squeeze=False, sharex=True)
+    bins = np.arange(0.0, LABEL_MU_MAX + LABEL_BIN_WIDTH / 2, LABEL_BIN_WIDTH)
+    for ax, label in zip(axes.flat, labels):
+        mu_star = label.mu_star
+        shown = mu_star[np.isfinite(mu_star) & (mu_star <= LABEL_MU_MAX)]
+        beyond = int(np.count_nonzero(~np.isfinite(mu_star) | (mu_star > LABEL_MU_MAX)))
+        ax.hist(shown, bins=bins, color=SEED_COLOUR)
+        ax.set_title(f"{label.name}: {beyond} of {mu_star.size} above {LABEL_MU_MAX}",
+                     fontsize=9)
+        ax.set_xlabel("mu*")
+    for ax in axes.flat[len(labels):]:
+        ax.set_visible(False)
+    fig.suptitle(f"Minimum friction coefficient of random {labels[0].n_fingers}-finger grasps")
+    _save(fig, path)
+
+
+def plot_soft_sweep(rows, path):
+    """Force-closure share against the torsional friction, one line per finger count."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for n_fingers in sorted({r.n_fingers for r in rows}):
+        mine = [r for r in rows if r.n_fingers == n_fingers]
+        fractions = sorted({r.gamma_fraction for r in mine})
+        shares = [sum(r.force_closure for r in mine if r.gamma_fraction == f)
+                  / sum(r.grasps for r in mine if r.gamma_fraction == f) for f in fractions]
+        ax.plot(fractions, shares, marker="o", label=f"{n_fingers} fingers")
+    ax.set_xlabel("torsional friction gamma / object size (0: hard contacts)")
+    ax.set_ylabel("force-closure share (all objects)")
+    ax.set_title("Soft against hard fingers on the same random grasps")
+    ax.legend(fontsize=8)
+    _save(fig, path)

@@ -8,6 +8,8 @@ import sys
 from importlib import metadata
 from pathlib import Path
 
+import numpy as np
+
 from .paper import (PAPER_AVG_FALSE_POSITIVES, PAPER_AVG_FC, PAPER_AVG_FILTERED_S,
                     PAPER_AVG_SPECIFICITY, PAPER_AVG_SPEEDUP, PAPER_AVG_UNFILTERED_S,
                     PAPER_EXACT_MS, PAPER_FILTER_MS, PAPER_GRASPS, PAPER_IMPLIED_PASSED_MS,
@@ -17,6 +19,8 @@ from .paper import (PAPER_AVG_FALSE_POSITIVES, PAPER_AVG_FC, PAPER_AVG_FILTERED_
 RESULTS_CSV = "results.csv"
 FINGERS_CSV = "fingers.csv"
 PEER_SIDES_CSV = "peer_sides.csv"
+FRICTION_LABELS_CSV = "friction_labels.csv"
+SOFT_SWEEP_CSV = "soft_sweep.csv"
 REPORT_MD = "report.md"
 PLOTS = {
     "speedup": "speedup.png",
@@ -24,7 +28,11 @@ PLOTS = {
     "fingers": "throughput_vs_fingers.png",
     "peer_sides": "peer_vs_sides.png",
     "grasp_example": "grasp_example.png",
+    "friction_labels": "friction_labels.png",
+    "soft_sweep": "soft_vs_hard.png",
 }
+# Friction values at which the report gives the share of force-closure grasps (mu* below).
+LABEL_MU_LEVELS = (0.1, 0.2, 0.5, 1.0)
 
 
 def exact_ms_split(r):
@@ -111,6 +119,54 @@ def sides_row(row):
     }
 
 
+def friction_label_rows(labels):
+    """One row per labelled grasp: the object and its mu*."""
+    return [{"object": label.name, "fingers": label.n_fingers, "grasp": i, "mu_star": mu}
+            for label in labels for i, mu in enumerate(label.mu_star.tolist())]
+
+
+def soft_row(row):
+    return {"object": row.name, "fingers": row.n_fingers,
+            "gamma_over_size": row.gamma_fraction, "gamma": f"{row.gamma:.6g}",
+            "grasps": row.grasps, "force_closure": row.force_closure}
+
+
+def quality_section(labels, soft_rows, soft_mu):
+    """Markdown lines of the grasp-quality part: mu* labels and the soft-finger sweep."""
+    levels = LABEL_MU_LEVELS
+    fractions = sorted({r.gamma_fraction for r in soft_rows})
+    fingers = sorted({r.n_fingers for r in soft_rows})
+
+    def share(n_fingers, fraction):
+        mine = [r for r in soft_rows if r.n_fingers == n_fingers and r.gamma_fraction == fraction]
+        return sum(r.force_closure for r in mine) / sum(r.grasps for r in mine)
+
+    return [
+        "## Grasp quality: minimum friction and soft fingers",
+        "",
+        f"mu* (`minimum_friction`) of {labels[0].mu_star.size:,} random "
+        f"{labels[0].n_fingers}-finger grasps per object: the GraspNet-style label, certified "
+        "instead of scanned on a grid. A grasp is force closure at friction mu exactly when "
+        "mu > mu*.",
+        "",
+        _table(["object", "median mu*"] + [f"FC at mu = {m}" for m in levels]
+               + ["no mu (inf)", "not certified", "grasps/s"],
+               [[lab.name, f"{np.median(lab.mu_star):.3f}"]
+                + [f"{lab.share_at_most(m):.3f}" for m in levels]
+                + [int(np.count_nonzero(np.isposinf(lab.mu_star))),
+                   int(np.count_nonzero(np.isnan(lab.mu_star))),
+                   f"{lab.mu_star.size / lab.seconds:,.0f}"] for lab in labels]),
+        "",
+        f"Soft fingers (torsional friction gamma, a length) against hard ones on the same "
+        f"random grasps, mu = {soft_mu}; force-closure share over all objects "
+        "(gamma = 0 are hard contacts; two hard fingers are never force closure):",
+        "",
+        _table(["fingers"] + [f"gamma/size = {f:g}" for f in fractions],
+               [[n] + [f"{share(n, f):.3f}" for f in fractions] for n in fingers]),
+        "",
+    ]
+
+
 def write_csv(path, rows):
     with open(path, "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
@@ -172,8 +228,10 @@ def soundness_problems(results):
             if stats.unsound or stats.verdict_mismatches]
 
 
-def markdown_report(results, finger_rows, sides_rows, settings, total_s, plots):
-    """The report as markdown text."""
+def markdown_report(results, finger_rows, sides_rows, settings, total_s, plots,
+                    quality_lines=()):
+    """The report as markdown text; ``quality_lines`` (from :func:`quality_section`) go
+    before the plots."""
     r0 = results[0]
     pipeline_ms = [1e3 * r.seed.wall_s / r.grasps for r in results]
     filter_ms = [1e3 * r.seed.filter_s / r.grasps for r in results]
@@ -317,6 +375,7 @@ def markdown_report(results, finger_rows, sides_rows, settings, total_s, plots):
                  f"{f.force_closure / f.grasps:.3f}", f"{f.specificity:.3f}"]
                 for f in finger_rows]),
         "",
+        *quality_lines,
         "## Plots",
         "",
     ]
