@@ -33,12 +33,14 @@ from typing import Protocol
 import numpy as np
 from builtin_interfaces.msg import Time
 from grasp_fc_msgs.msg import ContactArray, ContactArrayBatch, ForceClosureVerdictArray
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
 from std_msgs.msg import Header
 from visualization_msgs.msg import MarkerArray
 
 from grasp_fc_ros.conversions import MalformedBatch, batch_to_packed, contact_arrays_to_packed
 from grasp_fc_ros.core import Status, check_force_closure
+from grasp_fc_ros.evaluation import Verdicts
 from grasp_fc_ros.markers import DEFAULT_LIFETIME_S, delete_all_markers, grasp_markers
 from grasp_fc_ros.workers import _ONE_THREAD, _read, _write
 
@@ -50,9 +52,13 @@ MARKER_QUEUE_LENGTH = 64
 MAX_MARKER_SAMPLE = 1000
 DEFAULT_MARKER_SAMPLE = 10
 # The markers topic: reliable like RViz's MarkerArray display, a KEEP_LAST history so
-# that a slow viewer never blocks the marker process.
+# that a slow viewer never blocks the marker process, and transient local: a viewer that
+# subscribes so (RViz: Durability Policy "Transient Local") gets the last 100 arrays
+# when it joins, including those sent before discovery had matched it (a volatile
+# publisher drops them: seen with a busy participant); volatile viewers match as well.
 MARKER_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
-                        history=HistoryPolicy.KEEP_LAST, depth=100)
+                        history=HistoryPolicy.KEEP_LAST, depth=100,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # Niceness added to the marker process: markers are best effort, so on a busy machine
 # the scheduler gives the CPU to the node (the verdict path) first.
 MARKER_PROCESS_NICENESS = 10
@@ -137,12 +143,13 @@ class _Job:
     """One answered message whose markers are still to be built.
 
     ``queries`` is either ContactArray messages (a single query or a service request;
-    one per verdict) or one ContactArrayBatch; ``status`` and ``margin`` hold one
-    verdict per grasp.
+    one per verdict), a serialized ContactArray (a single query the node took as bytes:
+    deserialized here, on the marker thread, off the verdict path; ``header`` None) or
+    one ContactArrayBatch; ``status`` and ``margin`` hold one verdict per grasp.
     """
 
-    header: Header
-    queries: Sequence[ContactArray] | ContactArrayBatch
+    header: Header | None
+    queries: Sequence[ContactArray] | Sequence[bytes] | ContactArrayBatch
     status: list[int]
     margin: list[float]
     default_mu: float
@@ -157,16 +164,20 @@ class _Job:
         """The sampled grasps, converted (raises MalformedBatch for a mis-packed batch)."""
         if isinstance(self.queries, ContactArrayBatch):
             packed = batch_to_packed(self.queries)
+            header: Header = self.queries.header
         else:
-            packed = contact_arrays_to_packed(list(self.queries))
+            queries = [deserialize_message(q, ContactArray) if isinstance(q, bytes) else q
+                       for q in self.queries]
+            header = self.header if self.header is not None else queries[0].header
+            packed = contact_arrays_to_packed(queries)
         drawn = sample_indices(len(packed), self.limit)
         starts = packed.starts[drawn]
         counts = packed.counts[drawn]
         rows = np.concatenate([np.arange(lo, lo + c) for lo, c in
                                zip(starts.tolist(), counts.tolist())] or [np.empty(0, int)])
         return MarkerPayload(
-            frame_id=self.header.frame_id,
-            stamp=(self.header.stamp.sec, self.header.stamp.nanosec),
+            frame_id=header.frame_id,
+            stamp=(header.stamp.sec, header.stamp.nanosec),
             ids=packed.ids[drawn], counts=counts, positions=packed.positions[rows],
             normals=packed.normals[rows], mu=decided_mu(packed.mu[rows], self.default_mu),
             status=np.asarray(self.status, np.uint8)[drawn],
@@ -226,6 +237,15 @@ class MarkerPublisher:
             self._queue(_Job(header=query.header, queries=[query], status=[reply.status],
                              margin=[reply.margin], default_mu=default_mu,
                              settings=settings, limit=1))
+
+    def offer_serialized_singles(self, raws: Sequence[bytes], verdicts: Verdicts,
+                                 settings: MarkerSettings, default_mu: float) -> None:
+        """:meth:`offer_singles` for queries the node took serialized (``raws``, one per
+        verdict of ``verdicts``); they are deserialized on the marker thread."""
+        for raw, status, margin in zip(raws, verdicts.status.tolist(),
+                                       verdicts.margin.tolist()):
+            self._queue(_Job(header=None, queries=[raw], status=[status], margin=[margin],
+                             default_mu=default_mu, settings=settings, limit=1))
 
     def offer_service(self, grasps: Sequence[ContactArray], replies: Sequence,
                       settings: MarkerSettings, default_mu: float) -> None:

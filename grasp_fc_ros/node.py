@@ -1011,10 +1011,8 @@ class ForceClosureNode(Node):
 
     def _needs_messages(self) -> bool:
         """Whether single verdicts need more than :mod:`grasp_fc_ros.wire` encodes:
-        certificates, minimum friction, or markers (built from the messages)."""
-        settings = self._settings
-        return (settings.certificates or settings.compute_min_friction
-                or self._marker_settings.enabled)
+        certificates or minimum friction."""
+        return self._settings.certificates or self._settings.compute_min_friction
 
     def _answer_decoded(self, raws: list[bytes], queries: wire.ContactQueries,
                         conversion_s: float):
@@ -1032,6 +1030,8 @@ class ForceClosureNode(Node):
                 self._verdict_pub.publish(reply)
                 published += 1
             self._stats.record(verdicts.status, seconds, time.perf_counter() - start)
+            if self._marker_settings.enabled:
+                self._offer_markers(self._markers.offer_serialized_singles, raws, verdicts)
         except Cancelled:
             with self._lock:  # the node is being destroyed: destroy_node answers them
                 self._pending.extendleft(reversed(raws))

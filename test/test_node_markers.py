@@ -63,8 +63,8 @@ class MarkerListener:
             self.wait_matched()
 
     def wait_matched(self):
-        """Wait for the marker process's publisher (a volatile publisher drops what it
-        sends before it has matched this subscription)."""
+        """Wait for the marker process's publisher (MARKER_QOS is transient local, so
+        what it sent before it matched this subscription arrives too)."""
         deadline = time.monotonic() + REPLY_TIMEOUT_S
         while self._sub.get_publisher_count() == 0:
             assert time.monotonic() < deadline, "markers publisher not matched"
@@ -231,6 +231,8 @@ def test_a_failing_offer_costs_no_verdict(marker_node, monkeypatch):
         raise RuntimeError("marker queue broken")
 
     monkeypatch.setattr(node._markers, "offer_singles", broken)
+    monkeypatch.setattr(node._markers, "offer_serialized_singles", broken)
+    monkeypatch.setattr(node._markers, "offer_serialized_singles", broken)
     client.contacts_pub.publish(query(71, AROUND, "object"))
     verdict, = client.wait_for("verdicts", 1)
     assert verdict.id == 71 and verdict.status == Status.FORCE_CLOSURE
