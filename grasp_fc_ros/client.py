@@ -275,38 +275,49 @@ class GraspClient:
     # --- batches ------------------------------------------------------------------------
 
     def submit_batch(self, positions, normals, mu=None, counts=None, ids=None,
-                     frame_id: str = "") -> Future:
+                     frame_id: str = "", torsional_friction=None) -> Future:
         """Send grasps as one ContactArrayBatch; return a Future of their :class:`Verdicts`.
 
         ``positions``, ``normals``: (N, n, 3), or stacked (K, 3) with ``counts`` (N,);
         ``mu``: None (node default), a scalar or one value per contact; ``ids``: (N,),
-        default 0..N-1.
+        default 0..N-1; ``torsional_friction``: None (hard contacts), a scalar or one
+        value per contact (m).
         """
+        msg = self._batch_message(positions, normals, mu, counts, ids, frame_id,
+                                  torsional_friction)
+        future: Future = Future()
+        with self._cond:
+            self._batches[msg.request_id] = (msg, future)
+        self._batch_pub.publish(msg)
+        return future
+
+    def _batch_message(self, positions, normals, mu, counts, ids, frame_id: str = "",
+                       torsional_friction=None) -> ContactArrayBatch:
+        """One stamped ContactArrayBatch of this client, with the next request id."""
         n_grasps = len(counts) if counts is not None else len(positions)
         ids = np.arange(n_grasps) if ids is None else ids
         with self._cond:
             request_id, self._next_request = self._next_request, self._next_request + 1
         msg = grasps_to_batch_msg(ids, positions, normals, mu, counts,
-                                  client_id=self.client_id, request_id=request_id)
+                                  client_id=self.client_id, request_id=request_id,
+                                  torsional_friction=torsional_friction)
         msg.header.frame_id = frame_id
         msg.header.stamp = self.node.get_clock().now().to_msg()
-        future: Future = Future()
-        with self._cond:
-            self._batches[request_id] = (msg, future)
-        self._batch_pub.publish(msg)
-        return future
+        return msg
 
     def check_batch(self, positions, normals, mu=None, counts=None, ids=None,
-                    timeout: float = DEFAULT_TIMEOUT_S) -> Verdicts:
+                    timeout: float = DEFAULT_TIMEOUT_S, torsional_friction=None) -> Verdicts:
         """:meth:`submit_batch` and wait for its verdicts (TimeoutError after ``timeout``).
 
         With the node's ``certificates`` parameter on, the verdicts carry
         ``contact_forces`` (K, 3), grasp after grasp in the order sent (reshape to
         (N, n, 3) for equal sizes; NaN rows unless FORCE_CLOSURE) and
         ``separating_wrench`` (N, 6); with ``compute_min_friction``, ``min_friction``
-        (N,); each is None when the node sent none.
+        (N,); each is None when the node sent none; soft contacts add
+        ``contact_torques`` (K,).
         """
-        return self.submit_batch(positions, normals, mu, counts, ids).result(timeout)
+        return self.submit_batch(positions, normals, mu, counts, ids,
+                                 torsional_friction=torsional_friction).result(timeout)
 
     def _on_batch(self, msg: ForceClosureVerdictArray):
         if msg.client_id != self.client_id:
@@ -459,12 +470,7 @@ class GraspClient:
         """
         deadline = None if timeout is None else time.monotonic() + timeout
         n_grasps = len(counts) if counts is not None else len(positions)
-        ids = np.arange(n_grasps) if ids is None else ids
-        with self._cond:
-            request_id, self._next_request = self._next_request, self._next_request + 1
-        batch = grasps_to_batch_msg(ids, positions, normals, mu, counts,
-                                    client_id=self.client_id, request_id=request_id)
-        batch.header.stamp = self.node.get_clock().now().to_msg()
+        batch = self._batch_message(positions, normals, mu, counts, ids)
         wait_s = DEFAULT_TIMEOUT_S if deadline is None else max(deadline - time.monotonic(), 0)
         if not self._label_action.wait_for_server(timeout_sec=wait_s):
             raise TimeoutError(f"no label_grasps action server within {wait_s:.1f} s")

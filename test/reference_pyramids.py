@@ -105,16 +105,7 @@ def pyramid_minimum_friction(positions, normals, ratios=1.0, sides=8, inscribed=
     ratios = np.broadcast_to(np.asarray(ratios, float), (len(positions),))
     def fc(mu):
         return pyramid_is_force_closure(positions, normals, mu * ratios, sides, inscribed)
-    if not fc(high):
-        return np.inf, np.inf
-    low = 0.0
-    for _ in range(steps):
-        middle = np.sqrt(max(low, 1e-9) * high) if high > 4 * max(low, 1e-9) else 0.5 * (low + high)
-        if fc(middle):
-            high = middle
-        else:
-            low = middle
-    return low, high
+    return _bisect_friction(fc, high, steps)
 
 
 def pyramid_min_max_force(positions, normals, mu, wrench, sides=8, inscribed=True,
@@ -258,6 +249,13 @@ def soft_pyramid_minimum_friction(positions, normals, torsional, points=32, insc
     def fc(mu):
         return soft_pyramid_is_force_closure(positions, normals, mu, torsional, points,
                                              inscribed)
+    return _bisect_friction(fc, high, steps)
+
+
+def _bisect_friction(fc, high, steps):
+    """(low, high): not FC at low (or low = 0), FC at high, after ``steps`` bisections of
+    the predicate ``fc(mu)``, geometric while the bracket spans orders of magnitude;
+    (inf, inf) if not FC at ``high``."""
     if not fc(high):
         return np.inf, np.inf
     low = 0.0

@@ -117,3 +117,23 @@ def test_node_decides_a_soft_antipodal_grasp_on_both_topics(system):
     verdicts = client.call([grasp_to_contact_array(5, positions[1], normals[1],
                                                    torsional_friction=GAMMA)])
     assert verdicts[0].force_closure
+
+
+def test_client_batch_of_soft_pairs_with_certificates(own_node):
+    """GraspClient.check_batch sends gamma; the node's certificates verify with torques."""
+    from grasp_fc_ros.client import GraspClient
+    from grasp_fc_ros.core import verify_certificates
+
+    axis = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.6, 0.8, 0.0]])
+    positions = 0.03 * np.stack([axis, -axis], axis=1)
+    normals = -positions
+    gamma = np.array([[0.004, 0.004], [0.0, 0.0], [0.004, 0.004]])
+    own_node("/soft_client", certificates=True, workers=0)
+    with GraspClient("/soft_client/force_closure") as client:
+        assert client.wait_for_node(timeout=20.0)
+        got = client.check_batch(positions, normals, 0.5, torsional_friction=gamma)
+    assert got.force_closure.tolist() == [True, False, True]  # two hard fingers never
+    forces_ok, _ = verify_certificates(positions, normals, 0.5,
+                                       got.contact_forces.reshape(3, 2, 3), None, gamma,
+                                       got.contact_torques.reshape(3, 2))
+    assert forces_ok.tolist() == [True, False, True]
