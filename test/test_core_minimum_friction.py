@@ -5,7 +5,7 @@ import importlib
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from grasp_cases import ellipsoid_grasps, random_rotation
@@ -201,6 +201,8 @@ def test_batch_answers_match_lone_answers():
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n_contacts=st.integers(3, 7),
        scale=st.floats(1e-3, 1e3), ratio_scale=st.floats(0.1, 10.0))
+# A search step where the fast stage resolved no grasp of its chunk (it crashed once).
+@example(seed=666315, n_contacts=4, scale=1.0, ratio_scale=1.0)
 def test_invariant_under_rigid_motion_and_scaling(seed, n_contacts, scale, ratio_scale):
     """mu* is unchanged by rotation, translation and uniform scaling of the grasp, and
     multiplying every ratio by c divides it by c."""
@@ -271,7 +273,11 @@ def test_certificates_from_arbitrary_wrenches_and_forces_are_sound(seed, n_conta
     normals = np.cos(angle) * away + np.sin(angle) * side
     lower = lower_certificate(wrench, gmap, normals, ratios, np.full(8, 50.0))
     expected = (1 / np.tan(angle[..., 0]) / ratios).min(axis=1)
-    np.testing.assert_allclose(lower, np.minimum(expected, 50.0), rtol=1e-6)
+    # L proves a margin of at most CERT_MARGIN, not exactly 0, so it may pass the exact
+    # boundary by ~CERT_MARGIN / slope (documented in minimum_friction_bounds): seen
+    # 1.6e-6 relative (seed 131859, 6 contacts); it is never below it.
+    assert np.all(lower >= np.minimum(expected, 50.0) * (1 - 1e-9))
+    np.testing.assert_allclose(lower, np.minimum(expected, 50.0), rtol=1e-5)
     COVERAGE["lower"] += int((lower > 0).sum())
     # The exact test (batch accuracy ~1e-8) finds no margin there.
     at = check_force_closure(positions, normals, lower[:, None] * ratios, use_filter=False)

@@ -296,6 +296,8 @@ def _step_fast(chunk, state, unit, gmap, grasps, margin):
     """One fast-stage solve for the grasps ``chunk`` (as :func:`_step`); returns those
     (a subset of ``chunk``) it did not solve accurately enough, for Clarabel, their
     state untouched."""
+    if chunk.size == 0:
+        return chunk
     lam = state.lam[chunk]
     normals, ratios = grasps.normals[chunk], grasps.mu[chunk]
     friction = lam[:, None] * ratios
@@ -307,6 +309,8 @@ def _step_fast(chunk, state, unit, gmap, grasps, margin):
     with np.errstate(invalid="ignore"):
         done = (codes == CONVERGED) | (gap <= FAST_ACCEPT)
     slow = chunk[~done]
+    if not done.any():  # the certificates below need at least one grasp
+        return slow
     chunk, lam, normals, ratios = chunk[done], lam[done], normals[done], ratios[done]
     forces, wrench, depth, slope = forces[done], wrench[done], depth[done], slope[done]
     upper = upper_certificate(forces, gmap[chunk], normals, ratios, margin)
