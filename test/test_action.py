@@ -120,12 +120,16 @@ def action_client(served):
 
 @pytest.fixture(scope="module")
 def long_goal(grasps, action_client):
-    """Grasps in a goal that takes about LONG_GOAL_S here, from a measured goal."""
+    """Grasps in a goal that takes about LONG_GOAL_S here, from measured goals: the
+    fastest of three, since the first goals of a fresh checkout are slowed by one-off
+    work (numba loading or compiling in the worker; a cold CI run sized the goal 1.4 s)."""
     positions, normals, _ = grasps
-    goal = Goal(action_client, batch_msg(positions, normals))
-    goal.result()
-    rate = len(positions) / (goal.ended_at - goal.sent_at)
-    return int(np.clip(rate * LONG_GOAL_S, *LONG_GOAL_RANGE))
+    rates = []
+    for _ in range(3):
+        goal = Goal(action_client, batch_msg(positions, normals))
+        goal.result()
+        rates.append(len(positions) / (goal.ended_at - goal.sent_at))
+    return int(np.clip(max(rates) * LONG_GOAL_S, *LONG_GOAL_RANGE))
 
 
 def batch_msg(positions, normals, ids=None):
