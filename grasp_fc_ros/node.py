@@ -141,11 +141,16 @@ ACTION_THREADS = 4
 # 100,000-grasp goal that long; clients ask for the result as soon as a goal is
 # accepted (GraspClient does), so they get it when the goal ends.
 ACTION_RESULT_TIMEOUT_S = 30
-# After the last goal ended at shutdown, time for the action's executor to send its
-# result response and for DDS to deliver it before the process goes (s): 0.05 s lost the
-# aborted goal's result once in a clean-clone CI run; rclpy has no acknowledgement to
-# wait for on a service response.
-ACTION_RESULT_GRACE_S = 0.5
+# At shutdown, how long the goals ended then may take to have their result responses
+# sent (s): the action's executor sends each one when the goal's client has asked for it
+# (GraspClient asks at acceptance), so this is only waited out in full for a client that
+# never asks.
+ACTION_RESULT_SEND_TIMEOUT_S = 2.0
+# After the last of those responses was sent, time for DDS to deliver it before the
+# process goes (s): rclpy has no acknowledgement to wait for on a service response. A fixed
+# 0.05 s and then 0.5 s after the goals ended (not after the send) each lost an aborted
+# goal's result once in a clean-clone CI run.
+ACTION_RESULT_DELIVERY_S = 0.25
 # Serialized single-grasp queries taken per executor wake-up at most (the first one,
 # then whatever else the subscription holds): one wake-up, its wait set and callback
 # cost as much as deciding a query. A client keeps at most 2,000 in flight.
@@ -395,6 +400,24 @@ class _Goal:
         self.aborted = False
 
 
+class _ResultReportingActionServer(ActionServer):
+    """An ActionServer that reports each result response it has sent.
+
+    Shutdown waits for the results of the goals it ends to have been sent. rclpy offers
+    no public hook for that; ``_send_result_response`` is the method (rclpy 7, Jazzy)
+    that sends one, and its response holds the very Result object the execute callback
+    returned.
+    """
+
+    def __init__(self, *args, on_result_sent, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._on_result_sent = on_result_sent
+
+    def _send_result_response(self, request_header, future):
+        super()._send_result_response(request_header, future)
+        self._on_result_sent(future.result().result)
+
+
 class ForceClosureNode(Node):
     """Answers force-closure queries on topics and a service; see the module docstring."""
 
@@ -413,6 +436,9 @@ class ForceClosureNode(Node):
         # ended, by goal id; goals being decided.
         self._goals: deque[_Goal] = deque()
         self._goal_records: dict[bytes, _Goal] = {}
+        # Results of goals ended at shutdown, by id, until sent; when the last was sent.
+        self._unsent_results: dict[int, LabelGrasps.Result] = {}
+        self._last_result_sent: float | None = None
         self._running_goals = 0
         self._action_thread = None
         self._duplicate_warned = False
@@ -534,10 +560,10 @@ class ForceClosureNode(Node):
         self._action_node = Node(f"{self.get_name()}_action", namespace=self.get_namespace(),
                                  context=self.context, use_global_arguments=False,
                                  start_parameter_services=False)
-        self._action_server = ActionServer(
+        self._action_server = _ResultReportingActionServer(
             self._action_node, LabelGrasps, "label_grasps", self._execute_goal,
             goal_callback=self._on_goal, cancel_callback=self._on_cancel,
-            result_timeout=ACTION_RESULT_TIMEOUT_S)
+            result_timeout=ACTION_RESULT_TIMEOUT_S, on_result_sent=self._on_result_sent)
         self._action_executor = SingleThreadedExecutor(context=self.context)
         self._action_executor.add_node(self._action_node)
         self._action_thread = threading.Thread(target=self._spin_action, daemon=True,
@@ -607,12 +633,21 @@ class ForceClosureNode(Node):
     def _end_goal(self, goal: _Goal, reply: ForceClosureVerdictArray, aborted: bool):
         """Hand a goal's verdicts to its execute coroutine (from any thread)."""
         goal.aborted = aborted
-        goal.finished.set_result(LabelGrasps.Result(verdicts=reply))
+        result = LabelGrasps.Result(verdicts=reply)
+        with self._lock:
+            if self._stopping:  # shutdown waits until this result has been sent
+                self._unsent_results[id(result)] = result
+        goal.finished.set_result(result)
         # The executor resumes waiting coroutines when it wakes up: wake it now.
         try:
             self._action_executor.wake()
         except Exception:  # noqa: BLE001 - rclpy shut down: no result can be sent anyway
             pass
+
+    def _on_result_sent(self, result: LabelGrasps.Result):
+        with self._lock:
+            if self._unsent_results.pop(id(result), None) is not None:
+                self._last_result_sent = time.monotonic()
 
     def _empty_goal_reply(self, goal: _Goal) -> ForceClosureVerdictArray:
         """The answer of a goal ended before any grasp was decided: no verdicts."""
@@ -691,23 +726,27 @@ class ForceClosureNode(Node):
     def _stop_action(self):
         """End the queued goals (aborted, no verdicts), let the results go, stop serving.
 
-        Runs after the goal threads have ended theirs (aborted with their prefix).
+        Runs after the goal threads have ended theirs (aborted with their prefix). Waits,
+        for a bounded time, until the results of the goals ended at shutdown have been
+        sent, then a moment for DDS to deliver them.
         """
         if self._action_thread is None:
             return
         with self._lock:
             queued, self._goals = list(self._goals), deque()
-            ending = bool(self._goal_records)  # goals whose results are still to go out
         for goal in queued:
             self._end_goal(goal, self._empty_goal_reply(goal), aborted=True)
-        deadline = time.monotonic() + SHUTDOWN_ACK_TIMEOUT_S
-        while self._goal_records and time.monotonic() < deadline:
+        deadline = time.monotonic() + ACTION_RESULT_SEND_TIMEOUT_S
+        while ((self._goal_records or self._unsent_results)
+               and time.monotonic() < deadline):
             time.sleep(0.01)
-        if self._goal_records:
+        if self._goal_records or self._unsent_results:
             self.get_logger().warning(
-                f"{len(self._goal_records)} label_grasps goals not ended at shutdown")
-        elif ending:
-            time.sleep(ACTION_RESULT_GRACE_S)
+                f"label_grasps at shutdown: {len(self._goal_records)} goals not ended, "
+                f"{len(self._unsent_results)} results not sent (not asked for?)")
+        if self._last_result_sent is not None:
+            time.sleep(max(0.0, self._last_result_sent + ACTION_RESULT_DELIVERY_S
+                           - time.monotonic()))
         self._action_executor.shutdown()
         self._action_thread.join()
         self._action_server.destroy()
