@@ -44,6 +44,7 @@ import sys
 import threading
 import time
 from collections import deque
+from collections.abc import Callable, Sequence
 from dataclasses import fields, replace
 
 import numpy as np
@@ -95,12 +96,12 @@ from grasp_fc_ros.core.tolerances import MAX_FRICTION_COEFFICIENT
 from grasp_fc_ros.evaluation import (
     MIN_CONTACTS,
     ContactForces,
+    PackedGrasps,
     Settings,
     Verdicts,
     contact_forces_for_load,
 )
 from grasp_fc_ros.long_jobs import Progress, decide_in_chunks
-from grasp_fc_ros.evaluation import MIN_CONTACTS, Settings, Verdicts
 from grasp_fc_ros.marker_publisher import (
     DEFAULT_MARKER_SAMPLE,
     MAX_MARKER_SAMPLE,
@@ -988,36 +989,57 @@ class ForceClosureNode(Node):
         if msgs and isinstance(msgs[0], bytes):
             self._answer_raw_queries(msgs)
             return
-        start = time.perf_counter()
+        self._publish_single_verdicts(
+            msgs, time.perf_counter(),
+            pack=lambda: contact_arrays_to_packed(msgs, name_by_id=True),
+            encode=lambda verdicts: verdicts_to_msgs(verdicts, msgs),
+            encode_failures=lambda first, message: _failure_replies(
+                msgs[first:], Status.SOLVER_FAILURE, message),
+            offer=lambda replies, _: self._offer_markers(self._markers.offer_singles,
+                                                         msgs, replies))
+
+    def _publish_single_verdicts(self, queries: list, start: float,
+                                 pack: Callable[[], PackedGrasps],
+                                 encode: Callable[[Verdicts], Sequence],
+                                 encode_failures: Callable[[int, str], Sequence],
+                                 offer: Callable[[Sequence, Verdicts], None]):
+        """Decide single-grasp ``queries`` (messages or bytes) and publish their verdicts.
+
+        ``pack()`` converts them, ``encode(verdicts)`` makes the replies and
+        ``encode_failures(first, message)`` the SOLVER_FAILURE replies of
+        ``queries[first:]``; ``offer(replies, verdicts)`` queues their markers. If
+        anything fails, the queries not answered yet get a failure verdict (none a second
+        one); if the node is being destroyed, they go back to the queue for
+        :meth:`destroy_node` to answer.
+        """
         published = 0
+        verdicts = None
         try:
-            packed = contact_arrays_to_packed(msgs, name_by_id=True)
+            packed = pack()
             conversion_s = time.perf_counter() - start
             verdicts, seconds = self._pool.decide(packed, self._settings, self._is_stopping,
                                                   PRIORITY_INTERACTIVE)
             seconds["conversion_s"] = conversion_s
             self._warn_invalid(verdicts)
-            replies = verdicts_to_msgs(verdicts, msgs)
+            replies = encode(verdicts)
             for reply in replies:
                 self._verdict_pub.publish(reply)
                 published += 1
             self._stats.record(verdicts.status, seconds, time.perf_counter() - start)
             if self._marker_settings.enabled:
-                self._offer_markers(self._markers.offer_singles, msgs, replies)
+                offer(replies, verdicts)
         except Cancelled:
-            with self._lock:  # the node is being destroyed: destroy_node answers them
-                self._pending.extendleft(reversed(msgs))
+            with self._lock:
+                self._pending.extendleft(reversed(queries))
             raise
         except Exception as exc:  # noqa: BLE001
             if not rclpy.ok(context=self.context):
                 raise
-            self._internal_error(f"{len(msgs)} single-grasp queries", exc)
-            if published:
+            self._internal_error(f"{len(queries)} single-grasp queries", exc)
+            if published and verdicts is not None:
                 self._stats.record(verdicts.status[:published], {}, None)
-            # Queries already answered must not get a second verdict.
-            rest = msgs[published:]
-            self._stats.record_failures(len(rest))
-            for reply in _failure_replies(rest, Status.SOLVER_FAILURE, f"internal error: {exc}"):
+            self._stats.record_failures(len(queries) - published)
+            for reply in encode_failures(published, f"internal error: {exc}"):
                 self._verdict_pub.publish(reply)
 
     def _answer_raw_queries(self, raws: list[bytes]):
@@ -1058,39 +1080,22 @@ class ForceClosureNode(Node):
     def _answer_decoded(self, raws: list[bytes], queries: wire.ContactQueries,
                         conversion_s: float):
         """Decide decoded queries ``queries`` of ``raws``; publish their verdicts' bytes."""
-        start = time.perf_counter() - conversion_s
-        published = 0
-        try:
-            verdicts, seconds = self._pool.decide(queries.packed, self._settings,
-                                                  self._is_stopping, PRIORITY_INTERACTIVE)
-            seconds["conversion_s"] = conversion_s
-            self._warn_invalid(verdicts)
-            for reply in wire.encode_verdicts(queries.prefixes, verdicts.force_closure,
-                                              verdicts.status, verdicts.margin,
-                                              verdicts.messages):
-                self._verdict_pub.publish(reply)
-                published += 1
-            self._stats.record(verdicts.status, seconds, time.perf_counter() - start)
-            if self._marker_settings.enabled:
-                self._offer_markers(self._markers.offer_serialized_singles, raws, verdicts)
-        except Cancelled:
-            with self._lock:  # the node is being destroyed: destroy_node answers them
-                self._pending.extendleft(reversed(raws))
-            raise
-        except Exception as exc:  # noqa: BLE001
-            if not rclpy.ok(context=self.context):
-                raise
-            self._internal_error(f"{len(raws)} single-grasp queries", exc)
-            if published:
-                self._stats.record(verdicts.status[:published], {}, None)
-            # Queries already answered must not get a second verdict.
-            rest = queries.prefixes[published:]
-            self._stats.record_failures(len(rest))
-            for reply in wire.encode_verdicts(
-                    rest, np.zeros(len(rest), bool),
-                    np.full(len(rest), Status.SOLVER_FAILURE, np.uint8),
-                    np.full(len(rest), math.nan), [f"internal error: {exc}"] * len(rest)):
-                self._verdict_pub.publish(reply)
+        def encode_failures(first: int, message: str) -> list[bytes]:
+            rest = queries.prefixes[first:]
+            return wire.encode_verdicts(
+                rest, np.zeros(len(rest), bool),
+                np.full(len(rest), Status.SOLVER_FAILURE, np.uint8),
+                np.full(len(rest), math.nan), [message] * len(rest))
+
+        self._publish_single_verdicts(
+            raws, time.perf_counter() - conversion_s,
+            pack=lambda: queries.packed,
+            encode=lambda verdicts: wire.encode_verdicts(
+                queries.prefixes, verdicts.force_closure, verdicts.status, verdicts.margin,
+                verdicts.messages),
+            encode_failures=encode_failures,
+            offer=lambda _, verdicts: self._offer_markers(
+                self._markers.offer_serialized_singles, raws, verdicts))
 
     def _next_batch(self):
         """Decide the oldest queued batch (on the workers) and publish its verdicts."""
