@@ -15,23 +15,19 @@ Usage: python benchmarks/bench_certificates.py [--batches B] [--batch-size S]
 from __future__ import annotations
 
 import argparse
-import os
-import subprocess
 
 import numpy as np
 import rclpy
 from bench_ros import (
-    CONNECT_TIMEOUT_S,
     N_FINGERS,
     bench_batches,
     bench_single,
-    node_command,
+    start_node,
     stop_node,
     tree_cpu_s,
 )
 from rclpy.serialization import serialize_message
 
-from grasp_fc_ros.client import GraspClient
 from grasp_fc_ros.conversions import verdicts_to_array_msg
 from grasp_fc_ros.objects import make_object, sample_grasps
 
@@ -43,19 +39,8 @@ SETTINGS = {
 }
 
 
-def start(tag: str, parameters: list[str]):
-    namespace = f"/grasp_fc_cert_{tag}_{os.getpid()}"
-    node = subprocess.Popen(node_command(namespace) + parameters)
-    client = GraspClient(f"{namespace}/force_closure")
-    if not client.wait_for_node(CONNECT_TIMEOUT_S):
-        client.close()
-        node.kill()
-        raise RuntimeError("node did not come up")
-    return node, client
-
-
 def measure(tag, parameters, batches, positions, normals, n_queries):
-    node, client = start(tag.replace("+", "_"), parameters)
+    node, client = start_node("cert_" + tag.replace("+", "_"), parameters)
     try:
         warm = client.check_batch(*batches[0], timeout=600.0)
         cpu = tree_cpu_s(node.pid)

@@ -33,6 +33,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -158,10 +159,11 @@ def verdict(ok: bool) -> str:
     return "meets target" if ok else "BELOW target"
 
 
-def start_node(tag: str):
-    """(node process, connected client) for a node in a namespace of its own."""
+def start_node(tag: str, parameters: Sequence[str] = ()):
+    """(node process, connected client) for a node in a namespace of its own, started
+    with extra ``--ros-args`` ``parameters`` (e.g. ``["-p", "certificates:=true"]``)."""
     namespace = f"/grasp_fc_{tag}_{os.getpid()}"
-    node = subprocess.Popen(node_command(namespace))
+    node = subprocess.Popen(node_command(namespace) + list(parameters))
     client = GraspClient(f"{namespace}/force_closure")
     if not client.wait_for_node(CONNECT_TIMEOUT_S):
         client.close()

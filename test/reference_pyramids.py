@@ -116,12 +116,21 @@ def pyramid_min_max_force(positions, normals, mu, wrench, sides=8, inscribed=Tru
     f_i = sum_j lam_ij e_ij with unit edges e_ij; minimise s subject to
     sum_i (f_i, p_i x f_i) + wrench = 0, n_i . f_i <= s, n_i . f_i <= limit_i, lam >= 0.
     """
+    frictions = np.broadcast_to(np.asarray(mu, float), (len(positions),))
+    edges = [pyramid_edges(n, m, sides, inscribed) for n, m in zip(normals, frictions)]
+    return _min_max_force_lp(positions, normals, edges, [np.zeros(len(e)) for e in edges],
+                             wrench, max_normal_force)
+
+
+def _min_max_force_lp(positions, normals, edges, twists, wrench, max_normal_force=None):
+    """The LP of the pyramid s*: contact i's wrench is sum_j lam_ij (e_ij, p_i x e_ij +
+    tau_ij n_i) over its ``edges[i]`` (k_i, 3) and ``twists[i]`` (k_i,), lam >= 0;
+    minimise s subject to equilibrium with ``wrench``, n_i . f_i <= s and the limits."""
     n_contacts = len(positions)
-    frictions = np.broadcast_to(np.asarray(mu, float), (n_contacts,))
     columns, normal_parts, owner = [], [], []
-    for i, (p, n, m) in enumerate(zip(positions, normals, frictions)):
-        for f in pyramid_edges(n, m, sides, inscribed):
-            columns.append(np.concatenate([f, np.cross(p, f)]))
+    for i, (p, n) in enumerate(zip(positions, normals)):
+        for f, tau in zip(edges[i], twists[i]):
+            columns.append(np.concatenate([f, np.cross(p, f) + tau * n]))
             normal_parts.append(f @ n)
             owner.append(i)
     wrenches, normal_parts, owner = np.array(columns).T, np.array(normal_parts), np.array(owner)
@@ -210,35 +219,20 @@ def soft_pyramid_min_max_force(positions, normals, mu, torsional, wrench, points
     n_contacts = len(positions)
     frictions = np.broadcast_to(np.asarray(mu, float), (n_contacts,))
     gammas = np.broadcast_to(np.asarray(torsional, float), (n_contacts,))
-    columns, normal_parts, owner = [], [], []
-    for i, (p, n, m, gamma) in enumerate(zip(positions, normals, frictions, gammas)):
+    edges, twists = [], []
+    for n, m, gamma in zip(normals, frictions, gammas):
+        if gamma == 0:
+            edges.append(pyramid_edges(n, m, points, inscribed))
+            twists.append(np.zeros(points))
+            continue
         helper = np.eye(3)[np.abs(n).argmin()]
         t1 = np.cross(n, helper)
         t1 /= np.linalg.norm(t1)
         t2 = np.cross(n, t1)
-        if gamma == 0:
-            edges, twists = pyramid_edges(n, m, points, inscribed), np.zeros(points)
-        else:
-            ball = ball_polytope(points, inscribed)
-            edges = n + m * (ball[:, :1] * t1 + ball[:, 1:2] * t2)
-            twists = gamma * ball[:, 2]
-        for f, tau in zip(edges, twists):
-            columns.append(np.concatenate([f, np.cross(p, f) + tau * n]))
-            normal_parts.append(f @ n)
-            owner.append(i)
-    wrenches, normal_parts, owner = np.array(columns).T, np.array(normal_parts), np.array(owner)
-    k = wrenches.shape[1]
-    cost = np.zeros(k + 1)
-    cost[-1] = 1.0
-    per_contact = np.zeros((n_contacts, k))
-    per_contact[owner, np.arange(k)] = normal_parts
-    result = _linprog_robust(cost, A_ub=np.hstack([per_contact, -np.ones((n_contacts, 1))]),
-                             b_ub=np.zeros(n_contacts),
-                             A_eq=np.hstack([wrenches, np.zeros((6, 1))]),
-                             b_eq=-np.asarray(wrench, float), bounds=[(0, None)] * (k + 1))
-    if result.status == 2:
-        return np.inf
-    return result.x[-1]
+        ball = ball_polytope(points, inscribed)
+        edges.append(n + m * (ball[:, :1] * t1 + ball[:, 1:2] * t2))
+        twists.append(gamma * ball[:, 2])
+    return _min_max_force_lp(positions, normals, edges, twists, wrench)
 
 
 def soft_pyramid_minimum_friction(positions, normals, torsional, points=32, inscribed=True,
