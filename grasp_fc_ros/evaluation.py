@@ -199,6 +199,23 @@ class Verdicts:
                    messages=[message] * n)
 
     @classmethod
+    def failed_grasps(cls, packed: PackedGrasps, settings: Settings, status: Status,
+                      message: str) -> Verdicts:
+        """:meth:`failed` for every grasp of ``packed``, with the optional fields that
+        ``settings`` ask for present and NaN (so that the verdicts of a failed part
+        join those of the other parts of a message without emptying their fields)."""
+        n_grasps, n_contacts = len(packed), len(packed.positions)
+        verdicts = cls.failed(packed.ids, status, message)
+        if settings.certificates:
+            verdicts.contact_forces = np.full((n_contacts, 3), np.nan)
+            if packed.torsional is not None:
+                verdicts.contact_torques = np.full(n_contacts, np.nan)
+            verdicts.separating_wrench = np.full((n_grasps, 6), np.nan)
+        if settings.compute_min_friction:
+            verdicts.min_friction = np.full(n_grasps, np.nan)
+        return verdicts
+
+    @classmethod
     def concatenate(cls, parts: list[Verdicts]) -> Verdicts:
         """The verdicts of ``parts``, one after the other."""
         if not parts:
@@ -323,7 +340,7 @@ def evaluate(packed: PackedGrasps, settings: Settings) -> tuple[Verdicts, dict]:
         included) and, if computed, ``min_friction_s`` (s).
     """
     n_grasps = len(packed)
-    verdicts = Verdicts.failed(packed.ids, Status.INVALID_INPUT, "")
+    verdicts = Verdicts.failed_grasps(packed, settings, Status.INVALID_INPUT, "")
     if n_grasps > settings.max_batch:
         verdicts.messages = [f"{n_grasps} grasps exceed max_batch={settings.max_batch}"
                              ] * n_grasps
@@ -335,13 +352,7 @@ def evaluate(packed: PackedGrasps, settings: Settings) -> tuple[Verdicts, dict]:
         eligible[problem.grasp] = False
         verdicts.messages[problem.grasp] = problem.describe(packed)
     seconds = {"validation_s": time.perf_counter() - start, "filter_s": 0.0, "exact_s": 0.0}
-    if settings.certificates:
-        verdicts.contact_forces = np.full((len(packed.positions), 3), np.nan)
-        if packed.torsional is not None:
-            verdicts.contact_torques = np.full(len(packed.positions), np.nan)
-        verdicts.separating_wrench = np.full((n_grasps, 6), np.nan)
     if settings.compute_min_friction:
-        verdicts.min_friction = np.full(n_grasps, np.nan)
         seconds["min_friction_s"] = 0.0
     starts, counts = packed.starts, packed.counts
     for n in np.unique(counts[eligible]):

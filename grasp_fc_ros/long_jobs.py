@@ -146,12 +146,15 @@ class _Tally:
         return Outcome(verdicts=verdicts, seconds=self.seconds, complete=complete)
 
 
-def _chunk_result(future: Future, chunk: PackedGrasps) -> tuple[Verdicts, dict]:
-    """A finished chunk's verdicts; a failed worker fails this chunk only."""
+def _chunk_result(future: Future, chunk: PackedGrasps, settings: Settings
+                  ) -> tuple[Verdicts, dict]:
+    """A finished chunk's verdicts; a failed worker fails this chunk only (its
+    certificates NaN)."""
     try:
         return future.result()
     except Exception as exc:  # noqa: BLE001 - the rest of the job goes on
-        return Verdicts.failed(chunk.ids, Status.SOLVER_FAILURE, f"internal error: {exc}"), {}
+        return Verdicts.failed_grasps(chunk, settings, Status.SOLVER_FAILURE,
+                                      f"internal error: {exc}"), {}
 
 
 def decide_in_chunks(pool: EvaluationPool, packed: PackedGrasps, settings: Settings,
@@ -213,14 +216,14 @@ def decide_in_chunks(pool: EvaluationPool, packed: PackedGrasps, settings: Setti
             except Exception:  # noqa: BLE001 - handled by _chunk_result
                 pass
             in_flight.popleft()
-            verdicts, seconds = _chunk_result(future, chunk)
+            verdicts, seconds = _chunk_result(future, chunk, settings)
             tally.add(verdicts, seconds)
             compute_s = sum(seconds.values())
             chunk_contacts = adapted_chunk_contacts(int(chunk.counts.sum()), compute_s, upper)
         # Chunks that finished while the stop came in are decided: keep them (in order).
         while in_flight and in_flight[0][1].done():
             chunk, future = in_flight.popleft()
-            tally.add(*_chunk_result(future, chunk))
+            tally.add(*_chunk_result(future, chunk, settings))
     finally:
         for _, future in in_flight:
             future.cancel()

@@ -123,6 +123,7 @@ class HandPool:
         future = Future()
         with self.lock:
             self.submitted.append((chunk, future))
+            self.settings = settings
         return future
 
     def finish(self, index: int, fail: bool = False):
@@ -131,7 +132,7 @@ class HandPool:
         if fail:
             future.set_exception(RuntimeError("worker process failed: test"))
         else:
-            future.set_result(evaluate(chunk, Settings()))
+            future.set_result(evaluate(chunk, self.settings))
 
 
 def test_reports_keep_coming_and_a_stop_is_seen_while_a_chunk_hangs():
@@ -160,12 +161,15 @@ def test_reports_keep_coming_and_a_stop_is_seen_while_a_chunk_hangs():
     assert reports[-1].done == len(pool.submitted[0][0]) + len(pool.submitted[1][0])
 
 
-def test_a_failed_chunk_fails_alone():
+@pytest.mark.parametrize("chosen", [Settings(), Settings(certificates=True,
+                                                         compute_min_friction=True)],
+                         ids=["plain", "certificates"])
+def test_a_failed_chunk_fails_alone(chosen):
     job = packed_grasps(30, seed=3)
     pool = HandPool()
     result = {}
     thread = threading.Thread(target=lambda: result.update(outcome=decide_in_chunks(
-        pool, job, Settings(), lambda: False, lambda _: None)))
+        pool, job, chosen, lambda: False, lambda _: None)))
     thread.start()
     deadline = time.monotonic() + 10.0
     finished = 0
@@ -184,9 +188,24 @@ def test_a_failed_chunk_fails_alone():
     hi = lo + len(failed)
     assert np.all(outcome.verdicts.status[lo:hi] == Status.SOLVER_FAILURE)
     assert all("worker process failed" in m for m in outcome.verdicts.messages[lo:hi])
-    expected = evaluate(job, Settings())[0]
+    expected = evaluate(job, chosen)[0]
     others = np.r_[0:lo, hi:len(job)]
     np.testing.assert_array_equal(outcome.verdicts.status[others], expected.status[others])
+    if not chosen.certificates:
+        return
+    # The other chunks keep their certificates; the failed one's are NaN.
+    got = outcome.verdicts
+    for per_grasp in (got.separating_wrench, got.min_friction):
+        assert per_grasp is not None and len(per_grasp) == len(job)
+        assert np.isnan(per_grasp[lo:hi]).all()
+    np.testing.assert_array_equal(got.separating_wrench[others],
+                                  expected.separating_wrench[others])
+    np.testing.assert_array_equal(got.min_friction[others], expected.min_friction[others])
+    rows = np.arange(job.starts[lo], job.starts[hi - 1] + job.counts[hi - 1])
+    assert got.contact_forces.shape == expected.contact_forces.shape
+    assert np.isnan(got.contact_forces[rows]).all()
+    kept = np.setdiff1d(np.arange(len(job.positions)), rows)
+    np.testing.assert_array_equal(got.contact_forces[kept], expected.contact_forces[kept])
 
 
 @settings(max_examples=60, deadline=None)
