@@ -360,7 +360,7 @@ def evaluate(packed: PackedGrasps, settings: Settings) -> tuple[Verdicts, dict]:
         rows = starts[group, None] + np.arange(n)
         try:
             result = check_force_closure(
-                packed.positions[rows], packed.normals[rows], mu[rows],
+                *_core_arguments(packed, rows, mu, settings),
                 use_filter="auto" if settings.use_filter else False,
                 origins=settings.filter_origins, certificates=settings.certificates,
                 torsional_friction=0.0 if packed.torsional is None else packed.torsional[rows])
@@ -390,6 +390,20 @@ def evaluate(packed: PackedGrasps, settings: Settings) -> tuple[Verdicts, dict]:
                     verdicts.messages[i] = f"min_friction not computed: {exc}"
             seconds["min_friction_s"] += time.perf_counter() - began
     return verdicts, seconds
+
+
+def _core_arguments(packed: PackedGrasps, rows: np.ndarray, mu: np.ndarray,
+                    settings: Settings) -> tuple:
+    """(positions, normals, mu) of the same-size grasps ``rows`` (G, n) for the core.
+
+    A lone hard grasp with one friction coefficient, without certificates, goes as
+    (n, 3) arrays and a float: the core's one-grasp compiled path (the same verdict),
+    ~0.3 ms less than a batch of one, which a single query waits for.
+    """
+    if (len(rows) == 1 and packed.torsional is None and not settings.certificates
+            and (mu[rows[0]] == mu[rows[0, 0]]).all()):
+        return packed.positions[rows[0]], packed.normals[rows[0]], float(mu[rows[0, 0]])
+    return packed.positions[rows], packed.normals[rows], mu[rows]
 
 
 def group_min_friction(positions: np.ndarray, normals: np.ndarray, mu: np.ndarray,

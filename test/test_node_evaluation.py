@@ -61,6 +61,42 @@ def test_mixed_contact_counts_match_the_core_in_order(mixed):
     assert {Status.FORCE_CLOSURE, Status.FILTERED_OUT} <= set(verdicts.status.tolist())
 
 
+@pytest.mark.parametrize("use_filter", [True, False])
+def test_a_lone_grasp_gets_the_verdict_it_gets_in_a_batch(mixed, use_filter, monkeypatch):
+    import grasp_fc_ros.core.pipeline as pipeline
+
+    lone_calls = []
+    real_check_one = pipeline.check_one
+    monkeypatch.setattr(pipeline, "check_one",
+                        lambda *args: lone_calls.append(1) or real_check_one(*args))
+    settings_ = Settings(friction_coefficient=0.7, use_filter=use_filter)
+    together, _ = evaluate(pack(mixed), settings_)
+    for i, grasp in enumerate(mixed):
+        alone, _ = evaluate(pack([grasp], ids=[100 + i]), settings_)
+        assert alone.status[0] == together.status[i], f"grasp {i}"
+        assert alone.force_closure[0] == together.force_closure[i]
+        assert alone.margin[0] == pytest.approx(together.margin[i], rel=MARGIN_REL_TOL,
+                                                abs=MARGIN_ABS_TOL, nan_ok=True)
+    # Lone grasps the filter does not run on take the core's one-grasp compiled path
+    # (without the filter: all of them; with it, "auto" filters n <= 4 only).
+    assert len(lone_calls) == (len(mixed) if not use_filter
+                               else sum(len(p) > 4 for p, _ in mixed))
+
+
+def test_a_lone_grasp_with_mixed_friction_or_certificates_takes_the_batch_path(mixed,
+                                                                                monkeypatch):
+    import grasp_fc_ros.core.pipeline as pipeline
+
+    monkeypatch.setattr(pipeline, "check_one", lambda *args: pytest.fail("one-grasp path"))
+    grasp = next(g for g in mixed if len(g[0]) == 6)
+    mu = np.linspace(0.5, 0.9, 6)
+    alone, _ = evaluate(pack([grasp], mu=mu), Settings(use_filter=False))
+    expected = check_force_closure(*grasp, mu, use_filter=False)
+    assert alone.status[0] == expected.status
+    certified, _ = evaluate(pack([grasp]), Settings(certificates=True, use_filter=False))
+    assert certified.separating_wrench.shape == (1, 6)
+
+
 def test_invalid_grasps_are_structured_and_spare_the_others(mixed):
     grasps = [(p.copy(), n.copy()) for p, n in mixed[:6]]
     grasps[1][0][2, 0] = np.nan
