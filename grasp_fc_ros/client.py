@@ -24,6 +24,7 @@ from __future__ import annotations
 import secrets
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import Future
 
 import numpy as np
@@ -111,7 +112,8 @@ class GraspClient:
             ForceClosureVerdict, f"{prefix}/verdicts",
             self._on_raw_verdict if self._raw else self._on_verdict, QUERY_QOS, raw=self._raw)
         self.node.create_subscription(ForceClosureVerdictArray, f"{prefix}/verdicts_batch",
-                                      self._on_batch, QUERY_QOS)
+                                      self._on_raw_batch if self._raw else self._on_batch,
+                                      QUERY_QOS, raw=self._raw)
         self._diag_name = f"{prefix}/{base}:"  # the node's diagnostics status name starts so
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
         self._service = self.node.create_client(CheckForceClosure,
@@ -320,13 +322,27 @@ class GraspClient:
                                  torsional_friction=torsional_friction).result(timeout)
 
     def _on_batch(self, msg: ForceClosureVerdictArray):
-        if msg.client_id != self.client_id:
-            return
+        if msg.client_id == self.client_id:
+            self._batch_answered(msg.request_id, lambda: verdict_array_to_numpy(msg))
+
+    def _on_raw_batch(self, raw: bytes):
+        """A serialized verdict array: read with numpy (grasp_fc_ros.wire), ~10x faster
+        than rclpy's message for a large batch; other clients' answers are skipped
+        unread."""
+        client_id, request_id = wire.verdict_ids(raw)
+        if client_id == self.client_id:
+            self._batch_answered(request_id, lambda: wire.decode_verdict_array(raw)[2])
+
+    def _batch_answered(self, request_id: int, read: Callable[[], Verdicts]):
         with self._cond:
-            entry = self._batches.pop(msg.request_id, None)
+            entry = self._batches.pop(request_id, None)
             self._cond.notify_all()
-        if entry is not None:
-            entry[1].set_result(verdict_array_to_numpy(msg))
+        if entry is None:
+            return
+        try:
+            entry[1].set_result(read())
+        except Exception as exc:  # noqa: BLE001 - the caller learns why, not a timeout
+            entry[1].set_exception(exc)
 
     # --- the service --------------------------------------------------------------------
 

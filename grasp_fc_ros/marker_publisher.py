@@ -32,7 +32,7 @@ from typing import Protocol
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from grasp_fc_msgs.msg import ContactArray, ContactArrayBatch, ForceClosureVerdictArray
+from grasp_fc_msgs.msg import ContactArray, ContactArrayBatch
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import Header
@@ -274,13 +274,14 @@ class MarkerPublisher:
                          default_mu=default_mu, settings=settings,
                          limit=settings.batch_sample))
 
-    def offer_batch(self, query: ContactArrayBatch, reply: ForceClosureVerdictArray,
+    def offer_batch(self, query: ContactArrayBatch, verdicts: Verdicts,
                     settings: MarkerSettings, default_mu: float) -> None:
-        """Queue markers of at most ``batch_sample`` grasps of an answered batch."""
+        """Queue markers of at most ``batch_sample`` grasps of an answered batch (its
+        published ``verdicts``)."""
         if not len(query.ids) or settings.batch_sample == 0:
             return
-        self._queue(_Job(queries=query, status=list(reply.status),
-                         margin=list(reply.margin), default_mu=default_mu,
+        self._queue(_Job(queries=query, status=verdicts.status.tolist(),
+                         margin=verdicts.margin.tolist(), default_mu=default_mu,
                          settings=settings, limit=settings.batch_sample))
 
     def start(self) -> None:

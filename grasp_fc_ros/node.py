@@ -383,8 +383,21 @@ def _failure_replies(queries, status: Status, message: str) -> list[ForceClosure
 def _batch_failure(msg: ContactArrayBatch, status: Status, message: str
                    ) -> ForceClosureVerdictArray:
     """A verdict array answering every grasp of batch ``msg`` with ``status``."""
+    return verdicts_to_array_msg(_failed_batch(msg, status, message), msg)
+
+
+def _failed_batch(msg: ContactArrayBatch, status: Status, message: str) -> Verdicts:
     ids = np.frombuffer(msg.ids, np.uint64) if len(msg.ids) else np.empty(0, np.uint64)
-    return verdicts_to_array_msg(Verdicts.failed(ids, status, message), msg)
+    return Verdicts.failed(ids, status, message)
+
+
+def _batch_answer(verdicts: Verdicts, msg: ContactArrayBatch, serialized: bool
+                  ) -> ForceClosureVerdictArray | bytes:
+    """The verdict array answering batch ``msg``: serialized by :mod:`grasp_fc_ros.wire`
+    (rclpy spends ~10x longer converting a large one, holding the GIL) or a message."""
+    if serialized:
+        return wire.encode_verdict_array(msg.header, msg.client_id, msg.request_id, verdicts)
+    return verdicts_to_array_msg(verdicts, msg)
 
 
 class _Goal:
@@ -479,13 +492,13 @@ class ForceClosureNode(Node):
                                                 copy.copy(VERDICT_QOS),
                                                 qos_overriding_options=overridable)
         self._diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        # Serialized queries in, serialized verdicts out (grasp_fc_ros.wire), unless this
-        # rmw's layout is not the one wire reads.
-        self._raw_queries = wire.layout_matches()
+        # Serialized single queries in, serialized verdicts and batch answers out
+        # (grasp_fc_ros.wire), unless this rmw's layout is not the one wire reads.
+        self._use_wire = wire.layout_matches()
         self._contacts_sub = self.create_subscription(
             ContactArray, "contacts",
-            self._on_raw_contacts if self._raw_queries else self._on_contacts,
-            copy.copy(QUERY_QOS), qos_overriding_options=overridable, raw=self._raw_queries)
+            self._on_raw_contacts if self._use_wire else self._on_contacts,
+            copy.copy(QUERY_QOS), qos_overriding_options=overridable, raw=self._use_wire)
         self.create_subscription(ContactArrayBatch, "contacts_batch", self._on_batch,
                                  copy.copy(QUERY_QOS), qos_overriding_options=overridable)
         # Markers are built and published by a process of its own, started when
@@ -1107,10 +1120,10 @@ class ForceClosureNode(Node):
             self._queued_batch_grasps -= len(msg.ids)
             self._busy_batch_grasps = len(msg.ids)
         try:
-            reply = self._batch_reply(msg)
-            self._batch_pub.publish(reply)
+            verdicts, answer = self._batch_reply(msg)
+            self._batch_pub.publish(answer)
             if self._marker_settings.enabled:
-                self._offer_markers(self._markers.offer_batch, msg, reply)
+                self._offer_markers(self._markers.offer_batch, msg, verdicts)
         except Cancelled:
             with self._lock:  # the node is being destroyed: destroy_node answers it
                 self._batches.appendleft(msg)
@@ -1119,27 +1132,31 @@ class ForceClosureNode(Node):
             with self._lock:
                 self._busy_batch_grasps = 0
 
-    def _batch_reply(self, msg: ContactArrayBatch) -> ForceClosureVerdictArray:
-        """Decide a batch and count it; any failure becomes one answer for all of it."""
+    def _batch_reply(self, msg: ContactArrayBatch
+                     ) -> tuple[Verdicts, ForceClosureVerdictArray | bytes]:
+        """Decide a batch and count it: its verdicts and the answer to publish; any
+        failure becomes one answer for all of it."""
         start = time.perf_counter()
+        serialized = self._use_wire
         try:
             packed = batch_to_packed(msg)
             verdicts, seconds = self._decide(packed, self._settings, start, PRIORITY_BATCH)
-            reply = verdicts_to_array_msg(verdicts, msg)
-            # Counted only once the reply exists, so a failure cannot count it twice.
+            answer = _batch_answer(verdicts, msg, serialized)
+            # Counted only once the answer exists, so a failure cannot count it twice.
             self._stats.record(verdicts.status, seconds, time.perf_counter() - start)
-            return reply
+            return verdicts, answer
         except MalformedBatch as exc:
             if self._may_log("malformed"):
                 self.get_logger().warning(str(exc))
             self._stats.record(np.full(len(msg.ids), Status.INVALID_INPUT, np.uint8), {}, None)
-            return _batch_failure(msg, Status.INVALID_INPUT, str(exc))
+            failed = _failed_batch(msg, Status.INVALID_INPUT, str(exc))
         except Cancelled:
             raise
         except Exception as exc:  # noqa: BLE001 - any failure must still be answered
             self._internal_error(f"a batch of {len(msg.ids)} grasps", exc)
             self._stats.record_failures(len(msg.ids))
-            return _batch_failure(msg, Status.SOLVER_FAILURE, f"internal error: {exc}")
+            failed = _failed_batch(msg, Status.SOLVER_FAILURE, f"internal error: {exc}")
+        return failed, _batch_answer(failed, msg, serialized)
 
     def _is_stopping(self) -> bool:
         return self._stopping

@@ -531,7 +531,7 @@ def test_service_failure_while_building_the_response_is_answered(client, grasps,
 def test_failed_batch_reply_is_counted_once_and_not_timed(client, grasps, monkeypatch):
     positions, normals = (a[:3] for a in grasps)
     before = client.diagnostics_after(time.time())
-    raise_once(monkeypatch, node_module, "verdicts_to_array_msg", "cannot pack verdicts")
+    raise_once(monkeypatch, node_module, "_batch_answer", "cannot pack verdicts")
     got = send_batch(client, grasps_to_batch_msg([61, 62, 63], positions, normals))
     np.testing.assert_array_equal(got.ids, [61, 62, 63])
     assert (got.status == Status.SOLVER_FAILURE).all()

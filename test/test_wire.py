@@ -155,3 +155,91 @@ def test_decoded_verdict_equals_rclpy_deserialization(query, fc, status, margin,
     assert repr(ours) == repr(theirs)
     with pytest.raises(ValueError):
         wire.decode_verdict(raw[:-8])
+
+
+# --- batch verdicts -------------------------------------------------------------------
+
+
+@st.composite
+def verdict_arrays(draw):
+    """(header, client_id, request_id, Verdicts) with any mix of messages (mostly empty
+    or not, so that both the numpy and the rclpy paths run) and optional certificates."""
+    from std_msgs.msg import Header
+
+    from grasp_fc_ros.evaluation import Verdicts
+
+    n = draw(st.integers(0, 40))
+    header = Header(frame_id=draw(TEXT))
+    header.stamp.sec = draw(st.integers(-2**31, 2**31 - 1))
+    header.stamp.nanosec = draw(st.integers(0, 2**32 - 1))
+    share = draw(st.sampled_from([0.0, 0.03, 1.0]))
+    messages = [draw(TEXT) if draw(st.floats(0, 1)) < share else "" for _ in range(n)]
+    floats = st.lists(FLOATS, min_size=n, max_size=n)
+    verdicts = Verdicts(
+        ids=np.array(draw(st.lists(UINT64, min_size=n, max_size=n)), np.uint64),
+        force_closure=np.array(draw(st.lists(st.booleans(), min_size=n, max_size=n)), bool),
+        status=np.array(draw(st.lists(st.integers(0, 255), min_size=n, max_size=n)), np.uint8),
+        margin=np.array(draw(floats), np.float64), messages=messages)
+    if draw(st.booleans()):
+        k = draw(st.integers(0, 3 * n))
+        verdicts.contact_forces = np.array(draw(st.lists(FLOATS, min_size=3 * k,
+                                                         max_size=3 * k))).reshape(-1, 3)
+        if draw(st.booleans()):
+            verdicts.contact_torques = np.array(draw(st.lists(FLOATS, min_size=k, max_size=k)))
+        verdicts.separating_wrench = np.full((n, 6), draw(FLOATS))
+        verdicts.min_friction = np.array(draw(floats), np.float64)
+    return header, draw(UINT64), draw(UINT64), verdicts
+
+
+def same_field(a, b) -> bool:
+    if a is None or b is None or (len(a) == 0 and len(b) == 0):
+        return (a is None or len(a) == 0) and (b is None or len(b) == 0)
+    return a.shape == b.shape and np.array_equal(a, b, equal_nan=a.dtype.kind == "f")
+
+
+@settings(max_examples=80, deadline=None)
+@given(verdict_arrays())
+def test_encoded_verdict_array_reads_back_in_rclpy_as_the_message(case):
+    from grasp_fc_msgs.msg import ForceClosureVerdictArray
+
+    from grasp_fc_ros.conversions import verdict_array_to_numpy, verdicts_to_array_msg
+
+    header, client_id, request_id, verdicts = case
+    back = deserialize_message(wire.encode_verdict_array(header, client_id, request_id,
+                                                         verdicts), ForceClosureVerdictArray)
+    expected = verdicts_to_array_msg(verdicts)
+    assert (back.header, back.client_id, back.request_id) == (header, client_id, request_id)
+    got, want = verdict_array_to_numpy(back), verdict_array_to_numpy(expected)
+    assert got.messages == want.messages
+    for name in ("ids", "force_closure", "status", "margin", "contact_forces",
+                 "contact_torques", "separating_wrench", "min_friction"):
+        assert same_field(getattr(got, name), getattr(want, name)), name
+
+
+@settings(max_examples=80, deadline=None)
+@given(verdict_arrays())
+def test_decoded_verdict_array_equals_rclpy_deserialization(case):
+    from grasp_fc_ros.conversions import verdict_array_to_numpy, verdicts_to_array_msg
+
+    header, client_id, request_id, verdicts = case
+    msg = verdicts_to_array_msg(verdicts)
+    msg.header, msg.client_id, msg.request_id = header, client_id, request_id
+    got_client, got_request, got = wire.decode_verdict_array(serialize_message(msg))
+    want = verdict_array_to_numpy(msg)
+    assert (got_client, got_request) == (client_id, request_id)
+    assert got.messages == want.messages
+    for name in ("ids", "force_closure", "status", "margin", "contact_forces",
+                 "contact_torques", "separating_wrench", "min_friction"):
+        assert same_field(getattr(got, name), getattr(want, name)), name
+
+
+def test_a_truncated_verdict_array_is_refused():
+    from std_msgs.msg import Header
+
+    from grasp_fc_ros.evaluation import Verdicts
+
+    raw = wire.encode_verdict_array(Header(), 1, 2, Verdicts.failed(np.arange(5), 1, ""))
+    with pytest.raises(ValueError):
+        wire.decode_verdict_array(raw[:40])
+    with pytest.raises(ValueError):
+        wire.decode_verdict_array(b"\x01\x00\x00\x00" + raw[4:])  # big-endian
