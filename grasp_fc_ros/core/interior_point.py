@@ -190,6 +190,22 @@ def _cholesky(matrix, factor):
     return True
 
 
+def _certified_rank(unit, gram, gram_factor, scratch):
+    """(sigma_min, |G|_F) of the grasp map at ``unit`` (n, 3), with G G^T into ``gram``
+    and its Cholesky factor into ``gram_factor``; sigma_min is 0 where rank 6 is not
+    certain (sigma_min^2 <= FAST_RANK_TOL^2 trace(G G^T))."""
+    _gram(unit, gram)
+    trace = np.trace(gram)
+    if not _cholesky(gram, gram_factor):
+        return 0.0, np.sqrt(trace)
+    # lambda_min(G G^T) = 1 / |L^-T L^-1|_2 >= 1 / |L^-1|_F^2: a lower bound on sigma_min,
+    # so the witness slack errs on the safe side; lambda_max <= trace likewise.
+    lambda_min = 1.0 / _triangular_inverse_norm2(gram_factor, scratch)
+    if not lambda_min > FAST_RANK_TOL * FAST_RANK_TOL * trace:
+        return 0.0, np.sqrt(trace)
+    return np.sqrt(lambda_min), np.sqrt(trace)
+
+
 def _witness(unit, normals, tangent, bitangent, mu, z, sigma, gram_factor, sigma_min,
              grasp_norm, out, forces, y, check, scratch):
     """Certified depth of the forces of primal iterate z (n, 3); the projected forces,
@@ -372,18 +388,9 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
     inv_eta2, normal_work = work_n[0], work_n[1]
     q, w_dz, second_order = y[:3], y[3:], scratch[:3]
 
-    _gram(unit, gram)
-    trace = np.trace(gram)
-    if not _cholesky(gram, gram_factor):
+    sigma_min, grasp_norm = _certified_rank(unit, gram, gram_factor, scratch)
+    if not sigma_min > 0.0:
         return UNDECIDED, -np.inf, np.inf, 0
-    # lambda_min(G G^T) = 1 / |L^-T L^-1|_2 >= 1 / |L^-1|_F^2: a lower bound on sigma_min,
-    # so the witness slack errs on the safe side; lambda_max <= trace likewise.
-    inverse_norm2 = _triangular_inverse_norm2(gram_factor, scratch)
-    lambda_min = 1.0 / inverse_norm2
-    if not lambda_min > FAST_RANK_TOL * FAST_RANK_TOL * trace:
-        return UNDECIDED, -np.inf, np.inf, 0
-    sigma_min = np.sqrt(lambda_min)
-    grasp_norm = np.sqrt(trace)
     # A first trial wrench: pull against the mean inward normal. It separates every
     # grasp whose normals all lie in one open half-space around it, e.g. contacts
     # sharing a face, which the interior-point start below cannot handle.
@@ -610,8 +617,9 @@ def _solve_all(unit, normals, mu, want_optimum, want_wrench, signed_gap, signed_
 
 
 for _name in ("_frames", "_wrench_rows", "_gram", "_apply_grasp_map", "_cholesky_solve",
-              "_cholesky", "_triangular_inverse_norm2", "_witness", "_bound", "_nt_scaling", "_inverse_apply",
-              "_jordan_product_into", "_jordan_divide_into", "_max_step", "_solve_grasp", "_solve_all"):
+              "_cholesky", "_triangular_inverse_norm2", "_certified_rank", "_witness", "_bound",
+              "_nt_scaling", "_inverse_apply", "_jordan_product_into", "_jordan_divide_into",
+              "_max_step", "_solve_grasp", "_solve_all"):
     globals()[_name] = _jit(globals()[_name])
 
 
