@@ -45,7 +45,7 @@ MAX_ITERATIONS = 50
 #: The kernel stops at this fraction of the numpy checks' tolerances (FORCE_TOL,
 #: OPTIMALITY_TOL): its projection and bound differ from numpy's only by rounding
 #: (~1e-15 relative), so an answer it accepts passes those checks.
-STOP_FRACTION = 0.1
+STOP_FRACTION = 0.5
 
 #: Scale of the start's complementarity s_i o z_i = START_GAP e (unit grasp, unit wrench:
 #: forces and work are O(1)).
@@ -149,7 +149,7 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
 
     ``forces_out`` (n, 3) gets the forces c_i / beta (world frame, before the
     projection), ``wrench_out`` (6,) the wrench w. The other arguments are scratch of
-    the batch: work3 (11, n, 3), work6 (12, 6), rows (4, n, 6), mats (4, 6, 6),
+    the batch: work3 (11, n, 3), work6 (12, 6), rows (4, n, 6), mats (6, 6, 6),
     scalings (n, 3, 3), work_n (20, n).
     """
     n = unit.shape[0]
@@ -161,6 +161,9 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
         work6[8], work6[9], work6[10], work6[11])
     b_n, b_t1, b_t2, h = rows[0], rows[1], rows[2], rows[3]
     gram, gram_factor, schur, factor = mats[0], mats[1], mats[2], mats[3]
+    y_rows = mats[4, :3]
+    p_row, unit_e, gvec, column, x_col = (mats[5, 0], mats[5, 1, :3], mats[5, 1, 3:],
+                                          mats[5, 2, :3], mats[5, 2, 3:])
     (u, v, zu, zv, du, dv, dzu, dzv, rc_u, rc_v, inv_eta2, e_sum, e_cross, e_vv, r_u, r_v,
      t_u, t_v, excess, rhs_uv) = (
         work_n[0], work_n[1], work_n[2], work_n[3], work_n[4], work_n[5], work_n[6],
@@ -255,14 +258,34 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
             for r in range(6):
                 g[r] = mu[i] * (b_t1[i, r] * jv[i, 1] + b_t2[i, r] * jv[i, 2]) - b_n[i, r] * jv[i, 0]
                 h[i, r] = inv_eta2[i] * (2.0 * jv[i, 0] * g[r] + b_n[i, r])
-            for r in range(6):
-                for col in range(r + 1):
-                    schur[r, col] += inv_eta2[i] * (
-                        2.0 * g[r] * g[col] - b_n[i, r] * b_n[i, col]
-                        + mu[i] * mu[i] * (b_t1[i, r] * b_t1[i, col] + b_t2[i, r] * b_t2[i, col]))
             p00 = inv_eta2[i] * (2.0 * jv[i, 0] * jv[i, 0] - 1.0)
             d_u = zu[i] / u[i]
             gap += z[i, 0] * s[i, 0] + z[i, 1] * s[i, 1] + z[i, 2] * s[i, 2] + zu[i] * u[i]
+            # Contact i adds A^T W^-1 (I + c g g^T)^-1 W^-1 A to S (A: its rows over w;
+            # c: the compliance of its eliminated u_i, v_i; g = W^-1 e0), summed as
+            # Y^T Y + kappa p p^T with X = W^-1 A, p = X^T g/|g|, Y = X - (g/|g|) p^T,
+            # kappa = 1 / (1 + c |g|^2): a sum of semidefinite terms. Subtracting the
+            # elimination from A^T W^-2 A instead cancels to rounding near the optimum,
+            # and so does forming W^2.
+            compliance = u[i] / zu[i] + (v[i] / zv[i] if limits[i] < np.inf else 0.0)
+            unit_e[0], unit_e[1], unit_e[2] = 1.0, 0.0, 0.0
+            ip._inverse_apply(scalings[i], unit_e, gvec)
+            g_norm = np.sqrt(gvec[0] ** 2 + gvec[1] ** 2 + gvec[2] ** 2)
+            kappa = 1.0 / (1.0 + compliance * g_norm * g_norm)
+            for k in range(3):
+                gvec[k] /= g_norm
+            for r in range(6):
+                column[0], column[1], column[2] = -b_n[i, r], mu[i] * b_t1[i, r], mu[i] * b_t2[i, r]
+                ip._inverse_apply(scalings[i], column, x_col)
+                along_g = gvec[0] * x_col[0] + gvec[1] * x_col[1] + gvec[2] * x_col[2]
+                p_row[r] = along_g
+                for k in range(3):
+                    y_rows[k, r] = x_col[k] - gvec[k] * along_g
+            for r in range(6):
+                for col in range(r + 1):
+                    schur[r, col] += (y_rows[0, r] * y_rows[0, col] + y_rows[1, r] * y_rows[1, col]
+                                      + y_rows[2, r] * y_rows[2, col]
+                                      + kappa * p_row[r] * p_row[col])
             if limits[i] < np.inf:
                 d_v = zv[i] / v[i]
                 gap += zv[i] * v[i]
@@ -276,9 +299,6 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
                 c += limits[i] * limits[i] * e_vv[i]
             else:
                 e_sum[i] = 1.0 / (p00 + d_u)
-            for r in range(6):
-                for col in range(r + 1):
-                    schur[r, col] -= e_sum[i] * h[i, r] * h[i, col]
         if not finite:
             break
         for r in range(6):
@@ -416,7 +436,7 @@ def _solve_all(unit, normals, mu, limits, direction, force_tol, optimality_tol,
     work3 = np.empty((11, n_contacts, 3))
     work6 = np.empty((12, 6))
     rows = np.empty((4, n_contacts, 6))
-    mats = np.empty((4, 6, 6))
+    mats = np.empty((6, 6, 6))
     scalings = np.empty((n_contacts, 3, 3))
     work_n = np.zeros((20, n_contacts))
     for k in range(n_grasps):
