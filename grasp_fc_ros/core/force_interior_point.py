@@ -124,17 +124,50 @@ def _upper_bound(unit, normals, tangent, bitangent, mu, limits, direction, z, be
     return largest, violation
 
 
-def _slacks(mu, b_n, b_t1, b_t2, w, u, v, s):
-    """The wrench side's cone slacks s_i = (u_i + v_i - Bn_i w, mu_i Bt_i w) into s (n, 3)."""
-    for i in range(mu.shape[0]):
-        n_w = t1_w = t2_w = 0.0
-        for r in range(6):
-            n_w += b_n[i, r] * w[r]
-            t1_w += b_t1[i, r] * w[r]
-            t2_w += b_t2[i, r] * w[r]
-        s[i, 0] = u[i] + v[i] - n_w
-        s[i, 1] = mu[i] * t1_w
-        s[i, 2] = mu[i] * t2_w
+def _work(w, point, out):
+    """The work vector a = w_F + w_T x point (3,) of wrench w (6,) at ``point`` (G_i^T w)."""
+    out[0] = w[0] + w[4] * point[2] - w[5] * point[1]
+    out[1] = w[1] + w[5] * point[0] - w[3] * point[2]
+    out[2] = w[2] + w[3] * point[1] - w[4] * point[0]
+
+
+def _add_wrench(force, point, scale, out):
+    """out (6,) += scale (force, point x force) (G_i f)."""
+    out[0] += scale * force[0]
+    out[1] += scale * force[1]
+    out[2] += scale * force[2]
+    out[3] += scale * (point[1] * force[2] - point[2] * force[1])
+    out[4] += scale * (point[2] * force[0] - point[0] * force[2])
+    out[5] += scale * (point[0] * force[1] - point[1] * force[0])
+
+
+def _add_congruence(q, point, out, t):
+    """out (6, 6) += G q G^T for a symmetric q (3, 3) and G = [I; [point]x];
+    t (3, 3) is scratch: t = [point]x q, so the blocks are q, t^T, t, [point]x t^T."""
+    for col in range(3):
+        t[0, col] = point[1] * q[2, col] - point[2] * q[1, col]
+        t[1, col] = point[2] * q[0, col] - point[0] * q[2, col]
+        t[2, col] = point[0] * q[1, col] - point[1] * q[0, col]
+    for r in range(3):
+        for col in range(3):
+            out[r, col] += q[r, col]
+            out[3 + r, col] += t[r, col]
+            out[col, 3 + r] += t[r, col]
+    for col in range(3):
+        out[3, 3 + col] += point[1] * t[col, 2] - point[2] * t[col, 1]
+        out[4, 3 + col] += point[2] * t[col, 0] - point[0] * t[col, 2]
+        out[5, 3 + col] += point[0] * t[col, 1] - point[1] * t[col, 0]
+
+
+def _slacks(unit, edges, w, u, v, s, work):
+    """The wrench side's cone slacks s_i = (u_i + v_i, 0, 0) + R_i^T G_i^T w into s
+    (n, 3), R_i's columns ``edges[:, i]`` (-n_i, mu_i t1_i, mu_i t2_i); ``work`` (3,)
+    is scratch."""
+    for i in range(unit.shape[0]):
+        _work(w, unit[i], work)
+        for k in range(3):
+            s[i, k] = edges[k, i, 0] * work[0] + edges[k, i, 1] * work[1] + edges[k, i, 2] * work[2]
+        s[i, 0] += u[i] + v[i]
 
 
 def _positive_step(x, dx):
@@ -143,33 +176,32 @@ def _positive_step(x, dx):
 
 
 def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol,
-                 infeasible_bound, forces_out, wrench_out, work3, work6, rows, mats,
-                 scalings, work_n):
+                 infeasible_bound, forces_out, wrench_out, work3, work6, mats, scalings,
+                 edges, work_n):
     """Solve one unit-size grasp. Returns (code, beta, iterations).
 
     ``forces_out`` (n, 3) gets the forces c_i / beta (world frame, before the
     projection), ``wrench_out`` (6,) the wrench w. The other arguments are scratch of
-    the batch: work3 (11, n, 3), work6 (12, 6), rows (4, n, 6), mats (6, 6, 6),
-    scalings (n, 3, 3), work_n (20, n).
+    the batch: work3 (12, n, 3), work6 (9, 6), mats (6, 6, 6), scalings (n, 3, 3),
+    edges (3, n, 3), work_n (20, n).
     """
     n = unit.shape[0]
-    tangent, bitangent, z, s, jv, lam, dz, ds, rhs_c, winv_q, forces = (
+    tangent, bitangent, z, s, jv, lam, dz, ds, rhs_c, winv_q, forces, h3 = (
         work3[0], work3[1], work3[2], work3[3], work3[4], work3[5], work3[6], work3[7],
-        work3[8], work3[9], work3[10])
-    w, dw, r_w, rhs, b, sb, check, y6, scratch, g, pair, pair2 = (
+        work3[8], work3[9], work3[10], work3[11])
+    w, dw, r_w, rhs, b, sb, check, y6, scratch = (
         work6[0], work6[1], work6[2], work6[3], work6[4], work6[5], work6[6], work6[7],
-        work6[8], work6[9], work6[10], work6[11])
-    b_n, b_t1, b_t2, h = rows[0], rows[1], rows[2], rows[3]
+        work6[8])
     gram, gram_factor, schur, factor = mats[0], mats[1], mats[2], mats[3]
-    y_rows = mats[4, :3]
-    p_row, unit_e, gvec, column, x_col = (mats[5, 0], mats[5, 1, :3], mats[5, 1, 3:],
-                                          mats[5, 2, :3], mats[5, 2, 3:])
+    winv, vy, q_mat, t_mat = mats[4, :3, :3], mats[4, 3:, :3], mats[4, :3, 3:], mats[4, 3:, 3:]
+    a, gvec, p_row, q, w_dz, second_order, vec, pe = (
+        mats[5, 0, :3], mats[5, 0, 3:], mats[5, 1, :3], mats[5, 1, 3:], mats[5, 2, :3],
+        mats[5, 2, 3:], mats[5, 3, :3], mats[5, 3, 3:])
     (u, v, zu, zv, du, dv, dzu, dzv, rc_u, rc_v, inv_eta2, e_sum, e_cross, e_vv, r_u, r_v,
      t_u, t_v, excess, rhs_uv) = (
         work_n[0], work_n[1], work_n[2], work_n[3], work_n[4], work_n[5], work_n[6],
         work_n[7], work_n[8], work_n[9], work_n[10], work_n[11], work_n[12], work_n[13],
         work_n[14], work_n[15], work_n[16], work_n[17], work_n[18], work_n[19])
-    q, w_dz, second_order = pair[:3], pair[3:], pair2[:3]
 
     sigma_min, _ = ip._certified_rank(unit, gram, gram_factor, scratch)
     if not sigma_min > 0.0:
@@ -181,9 +213,11 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
         if limits[i] < np.inf:
             n_cones += 1
     ip._frames(normals, tangent, bitangent)
-    ip._wrench_rows(unit, normals, b_n)
-    ip._wrench_rows(unit, tangent, b_t1)
-    ip._wrench_rows(unit, bitangent, b_t2)
+    for i in range(n):
+        for k in range(3):
+            edges[0, i, k] = -normals[i, k]
+            edges[1, i, k] = mu[i] * tangent[i, k]
+            edges[2, i, k] = mu[i] * bitangent[i, k]
 
     # Start: v_i L_i <= 1/n, w = -W (1 + sum_i L_i v_i), u_i one past the cone's need;
     # z centred on s (s o z = START_GAP e), beta = 0.
@@ -194,7 +228,7 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
     for r in range(6):
         w[r] = -direction[r] * total
     u[:] = 0.0
-    _slacks(mu, b_n, b_t1, b_t2, w, u, v, s)
+    _slacks(unit, edges, w, u, v, s, a)
     for i in range(n):
         tangential = np.sqrt(s[i, 1] ** 2 + s[i, 2] ** 2)
         u[i] = max(tangential - s[i, 0], 0.0) + 1.0
@@ -207,7 +241,7 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
     y = 0.0
 
     for iteration in range(MAX_ITERATIONS + 1):
-        _slacks(mu, b_n, b_t1, b_t2, w, u, v, s)
+        _slacks(unit, edges, w, u, v, s, a)
         bound = _lower_bound(unit, normals, mu, limits, direction, w, excess)
         if bound >= infeasible_bound:
             wrench_out[:] = w
@@ -231,9 +265,10 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
             r_w[r] = -direction[r] * y
             r_p -= direction[r] * w[r]
         for i in range(n):
-            for r in range(6):
-                r_w[r] += (z[i, 0] * b_n[i, r] - mu[i] * (z[i, 1] * b_t1[i, r]
-                                                          + z[i, 2] * b_t2[i, r]))
+            for k in range(3):   # the force of z_i: -R_i z_i
+                vec[k] = -(edges[0, i, k] * z[i, 0] + edges[1, i, k] * z[i, 1]
+                           + edges[2, i, k] * z[i, 2])
+            _add_wrench(vec, unit[i], 1.0, r_w)
             r_u[i] = 1.0 - z[i, 0] - zu[i]
             if limits[i] < np.inf:
                 r_v[i] = -z[i, 0] - zv[i] - limits[i] * y
@@ -254,38 +289,44 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
             for k in range(3):
                 lam[i, k] = (scalings[i, k, 0] * z[i, 0] + scalings[i, k, 1] * z[i, 1]
                              + scalings[i, k, 2] * z[i, 2])
-            # The cone's rows over w: a0 = -Bn_i, a1 = mu Bt1_i, a2 = mu Bt2_i.
-            for r in range(6):
-                g[r] = mu[i] * (b_t1[i, r] * jv[i, 1] + b_t2[i, r] * jv[i, 2]) - b_n[i, r] * jv[i, 0]
-                h[i, r] = inv_eta2[i] * (2.0 * jv[i, 0] * g[r] + b_n[i, r])
-            p00 = inv_eta2[i] * (2.0 * jv[i, 0] * jv[i, 0] - 1.0)
+            # h_i = G_i R_i W^-2 e0, W^-2 = (2 Jv Jv^T - J) / eta^2.
+            pe[0] = inv_eta2[i] * (2.0 * jv[i, 0] * jv[i, 0] - 1.0)
+            pe[1] = inv_eta2[i] * 2.0 * jv[i, 0] * jv[i, 1]
+            pe[2] = inv_eta2[i] * 2.0 * jv[i, 0] * jv[i, 2]
+            for k in range(3):
+                h3[i, k] = pe[0] * edges[0, i, k] + pe[1] * edges[1, i, k] + pe[2] * edges[2, i, k]
             d_u = zu[i] / u[i]
             gap += z[i, 0] * s[i, 0] + z[i, 1] * s[i, 1] + z[i, 2] * s[i, 2] + zu[i] * u[i]
-            # Contact i adds A^T W^-1 (I + c g g^T)^-1 W^-1 A to S (A: its rows over w;
-            # c: the compliance of its eliminated u_i, v_i; g = W^-1 e0), summed as
-            # Y^T Y + kappa p p^T with X = W^-1 A, p = X^T g/|g|, Y = X - (g/|g|) p^T,
-            # kappa = 1 / (1 + c |g|^2): a sum of semidefinite terms. Subtracting the
-            # elimination from A^T W^-2 A instead cancels to rounding near the optimum,
-            # and so does forming W^2.
+            # Contact i adds G_i R_i W^-1 (I + c g g^T)^-1 W^-1 R_i^T G_i^T to S (c: the
+            # compliance of its eliminated u_i, v_i; g = W^-1 e0), with the 3 x 3 middle
+            # Y^T Y + kappa p p^T, X = W^-1 R_i^T, p = X^T g/|g|, Y = X - (g/|g|) p^T,
+            # kappa = 1 / (1 + c |g|^2): semidefinite terms only. Subtracting the
+            # elimination from the cone's term instead cancels to rounding near the
+            # optimum, and so does forming W^2.
             compliance = u[i] / zu[i] + (v[i] / zv[i] if limits[i] < np.inf else 0.0)
-            unit_e[0], unit_e[1], unit_e[2] = 1.0, 0.0, 0.0
-            ip._inverse_apply(scalings[i], unit_e, gvec)
-            g_norm = np.sqrt(gvec[0] ** 2 + gvec[1] ** 2 + gvec[2] ** 2)
+            for r in range(3):      # W^-1 = J W J / eta^2
+                for col in range(3):
+                    sign = 1.0 if (r == 0) == (col == 0) else -1.0
+                    winv[r, col] = sign * inv_eta2[i] * scalings[i, r, col]
+            g_norm = np.sqrt(winv[0, 0] ** 2 + winv[1, 0] ** 2 + winv[2, 0] ** 2)
             kappa = 1.0 / (1.0 + compliance * g_norm * g_norm)
             for k in range(3):
-                gvec[k] /= g_norm
-            for r in range(6):
-                column[0], column[1], column[2] = -b_n[i, r], mu[i] * b_t1[i, r], mu[i] * b_t2[i, r]
-                ip._inverse_apply(scalings[i], column, x_col)
-                along_g = gvec[0] * x_col[0] + gvec[1] * x_col[1] + gvec[2] * x_col[2]
-                p_row[r] = along_g
+                gvec[k] = winv[k, 0] / g_norm
+            for m in range(3):
+                along_g = 0.0
                 for k in range(3):
-                    y_rows[k, r] = x_col[k] - gvec[k] * along_g
-            for r in range(6):
-                for col in range(r + 1):
-                    schur[r, col] += (y_rows[0, r] * y_rows[0, col] + y_rows[1, r] * y_rows[1, col]
-                                      + y_rows[2, r] * y_rows[2, col]
-                                      + kappa * p_row[r] * p_row[col])
+                    vy[k, m] = (winv[k, 0] * edges[0, i, m] + winv[k, 1] * edges[1, i, m]
+                                + winv[k, 2] * edges[2, i, m])
+                    along_g += gvec[k] * vy[k, m]
+                p_row[m] = along_g
+                for k in range(3):
+                    vy[k, m] -= gvec[k] * along_g
+            for m in range(3):
+                for col in range(3):
+                    q_mat[m, col] = (vy[0, m] * vy[0, col] + vy[1, m] * vy[1, col]
+                                     + vy[2, m] * vy[2, col] + kappa * p_row[m] * p_row[col])
+            _add_congruence(q_mat, unit[i], schur, t_mat)
+            p00 = pe[0]
             if limits[i] < np.inf:
                 d_v = zv[i] / v[i]
                 gap += zv[i] * v[i]
@@ -294,16 +335,12 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
                 e_sum[i] = (d_u + d_v) / det
                 e_cross[i] = d_u / det
                 e_vv[i] = (p00 + d_u) / det
-                for r in range(6):
-                    b[r] -= limits[i] * e_cross[i] * h[i, r]
+                _add_wrench(h3[i], unit[i], -limits[i] * e_cross[i], b)
                 c += limits[i] * limits[i] * e_vv[i]
             else:
                 e_sum[i] = 1.0 / (p00 + d_u)
         if not finite:
             break
-        for r in range(6):
-            for col in range(r):
-                schur[col, r] = schur[r, col]
         if not ip._cholesky(schur, factor):
             break
         ip._cholesky_solve(factor, b, sb, scratch)
@@ -318,6 +355,7 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
             rc_u[i] = -u[i] * zu[i]
             rc_v[i] = -v[i] * zv[i]
         alpha = 1e30
+        dy = 0.0
         for corrector in range(2):
             # Right-hand side M W^-1 q - r_d; then (u_i, v_i) eliminated.
             for r in range(6):
@@ -328,9 +366,6 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
                 ip._inverse_apply(scalings[i], q, winv_q[i])
                 t_u[i] = rc_u[i] / u[i]
                 ru = winv_q[i, 0] + t_u[i] - r_u[i]
-                for r in range(6):
-                    rhs[r] += (mu[i] * (b_t1[i, r] * winv_q[i, 1] + b_t2[i, r] * winv_q[i, 2])
-                               - b_n[i, r] * winv_q[i, 0])
                 if limits[i] < np.inf:
                     t_v[i] = rc_v[i] / v[i]
                     rv = winv_q[i, 0] + t_v[i] - r_v[i]
@@ -341,38 +376,31 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
                 else:
                     rhs_uv[i] = e_sum[i] * ru
                 du[i] = ru
-                for r in range(6):
-                    rhs[r] -= h[i, r] * rhs_uv[i]
+                for k in range(3):   # R_i W^-1 q_i - h_i (1'E r'_i), mapped by G_i
+                    vec[k] = (winv_q[i, 0] * edges[0, i, k] + winv_q[i, 1] * edges[1, i, k]
+                              + winv_q[i, 2] * edges[2, i, k] - rhs_uv[i] * h3[i, k])
+                _add_wrench(vec, unit[i], 1.0, rhs)
             ip._cholesky_solve(factor, rhs, dw, scratch)
             dy = (r2 - np.dot(b, dw)) / border
             for r in range(6):
                 dw[r] += sb[r] * dy
             alpha = 1e30
             for i in range(n):
-                along_h = 0.0
-                for r in range(6):
-                    along_h += h[i, r] * dw[r]
-                ru = du[i]
+                _work(dw, unit[i], a)
+                along_h = h3[i, 0] * a[0] + h3[i, 1] * a[1] + h3[i, 2] * a[2]
+                ru = du[i] - along_h
                 if limits[i] < np.inf:
-                    rv = dv[i] + limits[i] * dy
-                    # [du; dv] = E ([ru; rv] - along_h [1; 1]), E from its three entries.
-                    e_uu = e_sum[i] - 2.0 * e_cross[i] + e_vv[i]
+                    rv = dv[i] + limits[i] * dy - along_h
+                    # [du; dv] = E [ru; rv], E from its three entries.
                     e_uv = e_cross[i] - e_vv[i]
-                    ru -= along_h
-                    rv -= along_h
-                    du[i] = e_uu * ru + e_uv * rv
+                    du[i] = (e_sum[i] - 2.0 * e_cross[i] + e_vv[i]) * ru + e_uv * rv
                     dv[i] = e_uv * ru + e_vv[i] * rv
                 else:
-                    du[i] = e_sum[i] * (ru - along_h)
+                    du[i] = e_sum[i] * ru
                     dv[i] = 0.0
-                n_dw = t1_dw = t2_dw = 0.0
-                for r in range(6):
-                    n_dw += b_n[i, r] * dw[r]
-                    t1_dw += b_t1[i, r] * dw[r]
-                    t2_dw += b_t2[i, r] * dw[r]
-                ds[i, 0] = du[i] + dv[i] - n_dw
-                ds[i, 1] = mu[i] * t1_dw
-                ds[i, 2] = mu[i] * t2_dw
+                for k in range(3):
+                    ds[i, k] = edges[k, i, 0] * a[0] + edges[k, i, 1] * a[1] + edges[k, i, 2] * a[2]
+                ds[i, 0] += du[i] + dv[i]
                 # dz = W^-1 q - W^-2 ds, W^-2 ds = (2 Jv (Jv . ds) - J ds) / eta^2
                 proj = jv[i, 0] * ds[i, 0] + jv[i, 1] * ds[i, 1] + jv[i, 2] * ds[i, 2]
                 for k in range(3):
@@ -433,21 +461,21 @@ def _solve_all(unit, normals, mu, limits, direction, force_tol, optimality_tol,
     iterations = np.empty(n_grasps, dtype=np.int32)
     forces = np.full((n_grasps, n_contacts, 3), np.nan)
     wrench = np.full((n_grasps, 6), np.nan)
-    work3 = np.empty((11, n_contacts, 3))
-    work6 = np.empty((12, 6))
-    rows = np.empty((4, n_contacts, 6))
+    work3 = np.empty((12, n_contacts, 3))
+    work6 = np.empty((9, 6))
     mats = np.empty((6, 6, 6))
     scalings = np.empty((n_contacts, 3, 3))
+    edges = np.empty((3, n_contacts, 3))
     work_n = np.zeros((20, n_contacts))
     for k in range(n_grasps):
         codes[k], beta[k], iterations[k] = _solve_grasp(
             unit[k], normals[k], mu[k], limits[k], direction[k], force_tol, optimality_tol,
-            infeasible_bound, forces[k], wrench[k], work3, work6, rows, mats, scalings, work_n)
+            infeasible_bound, forces[k], wrench[k], work3, work6, mats, scalings, edges, work_n)
     return codes, beta, iterations, forces, wrench
 
 
-for _name in ("_lower_bound", "_upper_bound", "_slacks", "_positive_step", "_solve_grasp",
-              "_solve_all"):
+for _name in ("_lower_bound", "_upper_bound", "_work", "_add_wrench", "_add_congruence",
+              "_slacks", "_positive_step", "_solve_grasp", "_solve_all"):
     globals()[_name] = ip._jit(globals()[_name])
 
 
