@@ -85,7 +85,8 @@ def _lower_bound(unit, normals, mu, limits, direction, w, excess):
             start = point
     saturated = slope = 0.0
     for i in range(n):
-        if limits[i] == np.inf or start * limits[i] >= 1.0:
+        # 1 / L_i <= start, not start L_i >= 1: the same rounding as the breakpoints.
+        if limits[i] == np.inf or 1.0 / limits[i] <= start:
             saturated += excess[i]
         else:
             slope += excess[i] * limits[i]
