@@ -47,6 +47,10 @@ MAX_ITERATIONS = 50
 #: (~1e-15 relative), so an answer it accepts passes those checks.
 STOP_FRACTION = 0.5
 
+#: Diagonal shift, relative to the trace, of a Newton system that lost definiteness to
+#: rounding: a few hundred eps, enough to restore a positive factor.
+REGULARISATION = 1e-13
+
 #: Scale of the start's complementarity s_i o z_i = START_GAP e (unit grasp, unit wrench:
 #: forces and work are O(1)).
 START_GAP = 1.0
@@ -343,7 +347,14 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
         if not finite:
             break
         if not ip._cholesky(schur, factor):
-            break
+            # S lost definiteness to rounding (its condition nears 1/eps as beta -> 0 on
+            # a load that can just not be held): a shift of REGULARISATION of its
+            # trace keeps the step a descent direction; the checks judge the iterate.
+            shift = REGULARISATION * np.trace(schur)
+            for r in range(6):
+                schur[r, r] += shift
+            if not ip._cholesky(schur, factor):
+                break
         ip._cholesky_solve(factor, b, sb, scratch)
         border = np.dot(b, sb) + c
         if not border > 0.0:
