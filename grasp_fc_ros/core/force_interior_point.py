@@ -17,16 +17,22 @@ at all), so it starts infeasible and its residual shrinks with the steps. Nester
 scaling and Mehrotra's predictor-corrector, as in :mod:`.interior_point` (whose cone
 helpers this uses). Each Newton step eliminates (u_i, v_i) contact by contact (a 2 x 2
 block), leaving the 6 x 6 system in w bordered by the one equality: one 6 x 6 Cholesky
-factor per iteration, used by both the predictor and the corrector.
+factor per iteration, used by both the predictor and the corrector. The 6 x 6 matrix is
+summed from semidefinite per-contact terms (subtracting the eliminated blocks instead
+lost its definiteness to rounding near the optimum).
 
 After every iteration (iteration 0 included) it checks what :mod:`.grasp_forces` will
-check in numpy, at tighter tolerances so that the numpy check cannot disagree for
-rounding: the iterate's forces divided by beta and projected onto equilibrium (closed
-form from the Cholesky factor of G G^T) lie in their cones and limits and their largest
+check in numpy, at tighter tolerances so that rounding differences do not fail that
+check: the iterate's forces divided by beta and projected onto equilibrium (closed form
+from the Cholesky factor of G G^T) lie in their cones and limits and their largest
 normal force is within the optimality tolerance of the dual bound of the iterate's
-wrench; or that bound alone proves s* = inf. It returns a grasp as undecided (for the
-Clarabel path) when the grasp map's rank is not clearly 6, when a contact is limited to
-0, on a numerical breakdown, and at the iteration limit.
+wrench; or that bound alone proves s* = inf. The numpy check decides; the kernel's own
+test only says when to stop. It returns a grasp as undecided (for the Clarabel path)
+when the grasp map's rank is not clearly 6, when a contact is limited to 0 (no interior
+point on the force side), on a numerical breakdown, and at the iteration limit. On the
+box benchmark (mu = 0.5, random unit wrenches, 4 or 6 fingers, with or without limits)
+a held load took 8-9 iterations on average (at most 15), a load no forces hold 1.6-2.9,
+and none of 8,000 grasps was left undecided.
 """
 
 from __future__ import annotations

@@ -9,8 +9,7 @@ the grasp-force optimisation problem is
               n_i . f_i <= max_normal_force_i        (optional limits)
 
 a second-order cone program (Boyd and Wegbreit, "Fast computation of optimal contact
-forces", IEEE T-RO 2007). A batch of grasps is stacked into one Clarabel problem, which
-needs every block feasible, so each grasp is solved in the homogenised form
+forces", IEEE T-RO 2007). Each grasp is solved in the homogenised form
 
     maximise beta  s.t.  G f + beta W = 0,  n_i . f_i <= 1,  n_i . f_i <= beta f_max,i,
                          f_i in its cone,
@@ -18,13 +17,18 @@ needs every block feasible, so each grasp is solved in the homogenised form
 always feasible (f = 0, beta = 0): the forces f / beta hold W with largest normal force
 1 / beta, so s* = 1 / beta*, and beta* = 0 means no forces can hold W. The grasp is first
 moved to its centroid, scaled to unit size and the wrench scaled to unit length (torque
-moved and scaled along), so the solver's tolerances are relative.
+moved and scaled along), so the solvers' tolerances are relative.
 
-Every answer is checked in numpy before it is returned: the forces are projected exactly
-onto the equilibrium set, then must lie in every cone and within every limit to within
+Two stages solve it. Hard grasps go first to the compiled interior-point method of
+:mod:`.force_interior_point` (one 6 x 6 system per iteration); what it leaves, and every
+soft grasp, goes to Clarabel, the batch stacked into one problem (which needs every block
+feasible: hence the homogenised form). Every answer of either stage is checked in numpy
+(:func:`_check_answers`) before it is returned: the forces are projected exactly onto
+the equilibrium set, then must lie in every cone and within every limit to within
 FORCE_TOL of s*, and s* must be within OPTIMALITY_TOL of a lower bound proved by the
-solver's dual wrench (:func:`lower_bound`), which also certifies every s* = inf. A grasp
-that fails even when solved alone with tight tolerances gets s* = NaN.
+solver's dual wrench (:func:`lower_bound`), which also certifies every s* = inf. A fast
+answer that fails goes to Clarabel; a Clarabel answer that fails is solved again alone
+with tight tolerances, and a grasp that fails then too gets s* = NaN.
 
 Soft fingers (``torsional_friction``, :mod:`.contact_model`): each contact also applies
 a torsional moment tau_i n_i, inside the elliptic cone with its force; the program then
