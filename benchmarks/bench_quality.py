@@ -4,7 +4,8 @@ For random n-finger grasps on a built-in object it measures, in this one process
 the exact force-closure test (the unit of cost), ``minimum_friction`` (margin 0 and
 margin MARGIN_TOL) with its SOCP solves per grasp, and ``optimal_contact_forces`` for a
 random unit wrench per grasp (mu = 0.5); grasps per second and cost ratios to one exact
-test; how many s* grasps the fast stage decided and how many went on to Clarabel. Figures are medians over ``--repeats`` runs after one warm-up, in CPU seconds of
+test; how many s* grasps the fast stage decided and how many went on to Clarabel, and
+s* on the Clarabel stage alone for comparison. Figures are medians over ``--repeats`` runs after one warm-up, in CPU seconds of
 this process (single-threaded: BLAS and numba on one thread), so that other processes
 on a shared machine do not inflate them; on an idle core wall time is the same.
 
@@ -58,6 +59,20 @@ def clarabel_share(function):
     return sum(counted)
 
 
+def without_fast_stage(function):
+    """``function`` run with s*'s fast stage deciding nothing: the Clarabel stage alone."""
+    def run():
+        stage = grasp_forces._fast_stage
+        grasp_forces._fast_stage = lambda unit, *args: (
+            np.zeros(unit.shape[0]), np.zeros(unit.shape[:2] + (3,)),
+            np.zeros(unit.shape[0], dtype=bool))
+        try:
+            return function()
+        finally:
+            grasp_forces._fast_stage = stage
+    return run
+
+
 def measure(surface, n_fingers, n_grasps, repeats, rng):
     positions, normals = sample_grasps(surface, n_grasps, n_fingers, rng)
     wrench = rng.normal(size=(n_grasps, 6))
@@ -69,6 +84,11 @@ def measure(surface, n_fingers, n_grasps, repeats, rng):
     forces_s, (s_star, _) = median_seconds(
         lambda: optimal_contact_forces(positions, normals, MU, wrench), repeats)
     fallback = clarabel_share(lambda: optimal_contact_forces(positions, normals, MU, wrench))
+    slow_s, (slow_star, _) = median_seconds(without_fast_stage(
+        lambda: optimal_contact_forces(positions, normals, MU, wrench)), repeats)
+    both = np.isfinite(s_star) & np.isfinite(slow_star)
+    differ = float(np.max(np.abs(s_star[both] - slow_star[both]) / slow_star[both],
+                          initial=0.0))
     value = bounds.value
     return {
         "n": n_fingers, "grasps": n_grasps,
@@ -82,6 +102,8 @@ def measure(surface, n_fingers, n_grasps, repeats, rng):
         else float("nan"),
         "fc": float(fc.mean()), "held": float(np.isfinite(s_star).mean()),
         "forces_failed": int(np.isnan(s_star).sum()), "forces_fallback": fallback,
+        "clarabel_ms": 1e3 * slow_s / n_grasps, "clarabel_failed": int(np.isnan(slow_star).sum()),
+        "inf_differ": int((np.isinf(s_star) != np.isinf(slow_star)).sum()), "differ": differ,
     }
 
 
@@ -105,6 +127,11 @@ def print_rows(rows, object_name):
               f"mu = {MU}: {100 * r['fc']:.1f}%; unit wrench held {100 * r['held']:.1f}%, "
               f"s* solver failures {r['forces_failed']}; s* fast stage "
               f"{r['grasps'] - r['forces_fallback']}, Clarabel {r['forces_fallback']}")
+    for r in rows:
+        print(f"n = {r['n']}: s* on the Clarabel stage alone {r['clarabel_ms']:.3f} ms "
+              f"({r['clarabel_ms'] / r['forces_ms']:.1f}x the two stages), solver failures "
+              f"{r['clarabel_failed']}; inf on one side only {r['inf_differ']}, largest "
+              f"relative difference of finite s* {r['differ']:.1e}")
 
 
 def main(argv=None):
