@@ -73,13 +73,8 @@ def _lower_bound(unit, normals, mu, limits, direction, w, excess):
     if not along > 0.0:
         return 0.0
     for i in range(n):
-        u = unit[i]
-        a0 = w[0] + w[4] * u[2] - w[5] * u[1]
-        a1 = w[1] + w[5] * u[0] - w[3] * u[2]
-        a2 = w[2] + w[3] * u[1] - w[4] * u[0]
-        a_n = a0 * normals[i, 0] + a1 * normals[i, 1] + a2 * normals[i, 2]
-        a_t = np.sqrt((a0 - a_n * normals[i, 0]) ** 2 + (a1 - a_n * normals[i, 1]) ** 2
-                      + (a2 - a_n * normals[i, 2]) ** 2)
+        a0, a1, a2 = ip._work_at(w, unit[i])
+        a_n, a_t = ip._normal_split(a0, a1, a2, normals[i])
         excess[i] = max(a_n + mu[i] * a_t, 0.0)
     # g(beta) = sum_i excess_i min(1, beta L_i) - beta along is concave, linear between
     # the breakpoints 1 / L_i: the root lies past the last breakpoint where g >= 0.
@@ -123,23 +118,12 @@ def _upper_bound(unit, normals, tangent, bitangent, mu, limits, direction, z, be
     largest = -np.inf
     violation = 0.0
     for i in range(n):
-        u = unit[i]
-        f0 = forces[i, 0] - (y[0] + y[4] * u[2] - y[5] * u[1])
-        f1 = forces[i, 1] - (y[1] + y[5] * u[0] - y[3] * u[2])
-        f2 = forces[i, 2] - (y[2] + y[3] * u[1] - y[4] * u[0])
-        f_n = f0 * normals[i, 0] + f1 * normals[i, 1] + f2 * normals[i, 2]
-        f_t = np.sqrt((f0 - f_n * normals[i, 0]) ** 2 + (f1 - f_n * normals[i, 1]) ** 2
-                      + (f2 - f_n * normals[i, 2]) ** 2)
+        g0, g1, g2 = ip._work_at(y, unit[i])                           # G_i^T y
+        f_n, f_t = ip._normal_split(forces[i, 0] - g0, forces[i, 1] - g1, forces[i, 2] - g2,
+                                    normals[i])
         largest = max(largest, f_n)
         violation = max(violation, f_t - mu[i] * f_n, f_n - limits[i])
     return largest, violation
-
-
-def _work(w, point, out):
-    """The work vector a = w_F + w_T x point (3,) of wrench w (6,) at ``point`` (G_i^T w)."""
-    out[0] = w[0] + w[4] * point[2] - w[5] * point[1]
-    out[1] = w[1] + w[5] * point[0] - w[3] * point[2]
-    out[2] = w[2] + w[3] * point[1] - w[4] * point[0]
 
 
 def _add_wrench(force, point, scale, out):
@@ -175,7 +159,7 @@ def _slacks(unit, edges, w, u, v, s, work):
     (n, 3), R_i's columns ``edges[:, i]`` (-n_i, mu_i t1_i, mu_i t2_i); ``work`` (3,)
     is scratch."""
     for i in range(unit.shape[0]):
-        _work(w, unit[i], work)
+        work[0], work[1], work[2] = ip._work_at(w, unit[i])
         for k in range(3):
             s[i, k] = edges[k, i, 0] * work[0] + edges[k, i, 1] * work[1] + edges[k, i, 2] * work[2]
         s[i, 0] += u[i] + v[i]
@@ -404,7 +388,7 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
                 dw[r] += sb[r] * dy
             alpha = 1e30
             for i in range(n):
-                _work(dw, unit[i], a)
+                a[0], a[1], a[2] = ip._work_at(dw, unit[i])
                 along_h = h3[i, 0] * a[0] + h3[i, 1] * a[1] + h3[i, 2] * a[2]
                 ru = du[i] - along_h
                 if limits[i] < np.inf:
@@ -492,7 +476,7 @@ def _solve_all(unit, normals, mu, limits, direction, force_tol, optimality_tol,
     return codes, beta, iterations, forces, wrench
 
 
-for _name in ("_lower_bound", "_upper_bound", "_work", "_add_wrench", "_add_congruence",
+for _name in ("_lower_bound", "_upper_bound", "_add_wrench", "_add_congruence",
               "_slacks", "_positive_step", "_solve_grasp", "_solve_all"):
     globals()[_name] = ip._jit(globals()[_name])
 
