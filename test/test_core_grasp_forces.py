@@ -275,6 +275,12 @@ def test_fast_stage_agrees_with_clarabel_on_adversarial_grasps(monkeypatch):
     doubled = np.concatenate([ring, ring + 1e-9])
     fast, left, slow = solve_both_ways(monkeypatch, doubled, -doubled, 0.5, GRAVITY)
     assert fast == pytest.approx(9.81 / 3, rel=1e-6) and slow == pytest.approx(fast, rel=1e-6)
+    # A contact limited to 0 is dropped by the kernel (force 0), not left to Clarabel.
+    angle = 2 * np.pi * np.arange(5) / 5
+    five = np.stack([np.cos(angle), np.sin(angle), 0.3 * np.cos(2 * angle)], axis=1)
+    fast, left, slow = solve_both_ways(monkeypatch, five, -five, 0.8, GRAVITY,
+                                       [np.inf, 3.0, 0.0, np.inf, 20.0])
+    assert left == 0 and np.isfinite(slow) and fast == pytest.approx(slow, rel=3e-6)
 
 
 def test_infeasible_loads_are_proved_by_the_fast_stage(monkeypatch):
