@@ -4,7 +4,8 @@ For random n-finger grasps on a built-in object it measures, in this one process
 the exact force-closure test (the unit of cost), ``minimum_friction`` (margin 0 and
 margin MARGIN_TOL) with its SOCP solves per grasp, and ``optimal_contact_forces`` for a
 random unit wrench per grasp (mu = 0.5); grasps per second and cost ratios to one exact
-test. Figures are medians over ``--repeats`` runs after one warm-up, in CPU seconds of
+test; how many s* grasps the fast stage decided and how many went on to Clarabel, and
+s* on the Clarabel stage alone for comparison. Figures are medians over ``--repeats`` runs after one warm-up, in CPU seconds of
 this process (single-threaded: BLAS and numba on one thread), so that other processes
 on a shared machine do not inflate them; on an idle core wall time is the same.
 
@@ -24,7 +25,7 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from grasp_fc_ros.core import exact_force_closure  # noqa: E402
+from grasp_fc_ros.core import exact_force_closure, grasp_forces  # noqa: E402
 from grasp_fc_ros.core.grasp_forces import optimal_contact_forces  # noqa: E402
 from grasp_fc_ros.core.minimum_friction import minimum_friction_bounds  # noqa: E402
 from grasp_fc_ros.core.tolerances import MARGIN_TOL  # noqa: E402
@@ -44,6 +45,34 @@ def median_seconds(function, repeats):
     return statistics.median(times), result
 
 
+def clarabel_share(function):
+    """Grasps that ``function`` (an untimed call) sends to s*'s Clarabel stage: those the
+    fast stage did not decide."""
+    counted = []
+    stage = grasp_forces._clarabel_stage
+    grasp_forces._clarabel_stage = lambda gmap, *args: (counted.append(gmap.shape[0]),
+                                                        stage(gmap, *args))[1]
+    try:
+        function()
+    finally:
+        grasp_forces._clarabel_stage = stage
+    return sum(counted)
+
+
+def without_fast_stage(function):
+    """``function`` run with s*'s fast stage deciding nothing: the Clarabel stage alone."""
+    def run():
+        stage = grasp_forces._fast_stage
+        grasp_forces._fast_stage = lambda unit, *args: (
+            np.zeros(unit.shape[0]), np.zeros(unit.shape[:2] + (3,)),
+            np.zeros(unit.shape[0], dtype=bool))
+        try:
+            return function()
+        finally:
+            grasp_forces._fast_stage = stage
+    return run
+
+
 def measure(surface, n_fingers, n_grasps, repeats, rng):
     positions, normals = sample_grasps(surface, n_grasps, n_fingers, rng)
     wrench = rng.normal(size=(n_grasps, 6))
@@ -54,6 +83,12 @@ def measure(surface, n_fingers, n_grasps, repeats, rng):
         lambda: minimum_friction_bounds(positions, normals, margin=MARGIN_TOL), repeats)
     forces_s, (s_star, _) = median_seconds(
         lambda: optimal_contact_forces(positions, normals, MU, wrench), repeats)
+    fallback = clarabel_share(lambda: optimal_contact_forces(positions, normals, MU, wrench))
+    slow_s, (slow_star, _) = median_seconds(without_fast_stage(
+        lambda: optimal_contact_forces(positions, normals, MU, wrench)), repeats)
+    both = np.isfinite(s_star) & np.isfinite(slow_star)
+    differ = float(np.max(np.abs(s_star[both] - slow_star[both]) / slow_star[both],
+                          initial=0.0))
     value = bounds.value
     return {
         "n": n_fingers, "grasps": n_grasps,
@@ -66,7 +101,9 @@ def measure(surface, n_fingers, n_grasps, repeats, rng):
         "median_mu": float(np.median(value[np.isfinite(value)])) if np.isfinite(value).any()
         else float("nan"),
         "fc": float(fc.mean()), "held": float(np.isfinite(s_star).mean()),
-        "forces_failed": int(np.isnan(s_star).sum()),
+        "forces_failed": int(np.isnan(s_star).sum()), "forces_fallback": fallback,
+        "clarabel_ms": 1e3 * slow_s / n_grasps, "clarabel_failed": int(np.isnan(slow_star).sum()),
+        "inf_differ": int((np.isinf(s_star) != np.isinf(slow_star)).sum()), "differ": differ,
     }
 
 
@@ -88,7 +125,13 @@ def print_rows(rows, object_name):
         print(f"n = {r['n']}: mu* finite {100 * r['finite']:.1f}%, 0 {100 * r['zero']:.1f}%, "
               f"median {r['median_mu']:.4f}, unresolved {r['unresolved']}; force closure at "
               f"mu = {MU}: {100 * r['fc']:.1f}%; unit wrench held {100 * r['held']:.1f}%, "
-              f"s* solver failures {r['forces_failed']}")
+              f"s* solver failures {r['forces_failed']}; s* fast stage "
+              f"{r['grasps'] - r['forces_fallback']}, Clarabel {r['forces_fallback']}")
+    for r in rows:
+        print(f"n = {r['n']}: s* on the Clarabel stage alone {r['clarabel_ms']:.3f} ms "
+              f"({r['clarabel_ms'] / r['forces_ms']:.1f}x the two stages), solver failures "
+              f"{r['clarabel_failed']}; inf on one side only {r['inf_differ']}, largest "
+              f"relative difference of finite s* {r['differ']:.1e}")
 
 
 def main(argv=None):

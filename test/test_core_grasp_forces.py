@@ -6,9 +6,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from grasp_cases import ellipsoid_grasps, random_rotation
-from grasp_fc_ros.core import certificates, check_force_closure
-from grasp_fc_ros.core.grasp_forces import FORCE_TOL, lower_bound, optimal_contact_forces
+from grasp_cases import adversarial_grasps, ellipsoid_grasps, random_rotation
+from grasp_fc_ros.core import (certificates, check_force_closure, force_interior_point,
+                               grasp_forces, warm_up)
+from grasp_fc_ros.core.grasp_forces import (FORCE_TOL, OPTIMALITY_TOL, lower_bound,
+                                            optimal_contact_forces)
+from grasp_fc_ros.objects import make_object, sample_grasps
 from reference_pyramids import pyramid_min_max_force
 
 GRAVITY = np.array([0.0, 0.0, -9.81, 0.0, 0.0, 0.0])
@@ -199,6 +202,133 @@ def test_dual_lower_bound_is_sound_for_any_wrench(seed, n_contacts):
                             limits / magnitude[:, None]) * magnitude
         held = np.isfinite(s_star)
         assert (bound[held] <= s_star[held] * (1 + 1e-9)).all()
+
+
+def solve_both_ways(monkeypatch, positions, normals, mu, wrench, limits=None):
+    """s* through the fast stage (and Clarabel for what it leaves), the number of grasps
+    it left, and s* on the Clarabel stage alone."""
+    left = []
+    stage = grasp_forces._clarabel_stage
+    with monkeypatch.context() as patch:
+        patch.setattr(grasp_forces, "_clarabel_stage",
+                      lambda gmap, *args: (left.append(gmap.shape[0]), stage(gmap, *args))[1])
+        fast, _ = optimal_contact_forces(positions, normals, mu, wrench, limits)
+    with monkeypatch.context() as patch:
+        patch.setattr(grasp_forces, "_fast_stage", lambda unit, *args: (
+            np.zeros(unit.shape[0]), np.zeros(unit.shape[:2] + (3,)),
+            np.zeros(unit.shape[0], dtype=bool)))
+        slow, _ = optimal_contact_forces(positions, normals, mu, wrench, limits)
+    return fast, sum(left), slow
+
+
+def assert_same_s_star(fast, slow):
+    """Same inf (and no NaN) on both stages, finite values within both stages' accuracy."""
+    assert not np.isnan(fast).any() and not np.isnan(slow).any()
+    np.testing.assert_array_equal(np.isinf(fast), np.isinf(slow))
+    finite = np.isfinite(slow)
+    np.testing.assert_allclose(fast[finite], slow[finite], rtol=3 * OPTIMALITY_TOL)
+
+
+@pytest.mark.parametrize("n_contacts", [3, 4, 6])
+@pytest.mark.parametrize("limited", [False, True])
+def test_fast_stage_agrees_with_clarabel_and_decides_nearly_every_box_grasp(
+        monkeypatch, n_contacts, limited):
+    """The compiled stage gives Clarabel's s* (and inf on the same grasps), with and
+    without limits, and leaves at most a few percent of the grasps to Clarabel."""
+    rng = np.random.default_rng(30 + n_contacts)
+    positions, normals = sample_grasps(make_object("box"), 150, n_contacts, rng)
+    wrench = rng.normal(size=(150, 6))
+    mu = rng.uniform(0.3, 1.0, (150, n_contacts))
+    limits = None
+    if limited:   # around the unlimited need: some grasps are held still, some no more
+        need, _ = optimal_contact_forces(positions, normals, mu, wrench)
+        limits = rng.uniform(0.5, 3.0, (150, n_contacts)) * np.minimum(need, 1e3)[:, None]
+        limits[rng.random((150, n_contacts)) < 0.3] = np.inf
+    fast, left, slow = solve_both_ways(monkeypatch, positions, normals, mu, wrench, limits)
+    assert_same_s_star(fast, slow)
+    assert np.isfinite(slow).sum() >= 20 and np.isinf(slow).sum() >= 20
+    assert left <= 0.02 * 150
+
+
+def test_fast_stage_agrees_with_clarabel_on_adversarial_grasps(monkeypatch):
+    """Antipodal pairs, duplicate contacts, collinear and coplanar contacts, a contact
+    limited to 0, loads no forces can hold: the same s* as Clarabel (what the kernel
+    cannot certify goes there)."""
+    rng = np.random.default_rng(40)
+    cases = adversarial_grasps(rng, n_contacts=6, mu=0.5)
+    positions = np.array([p for p, _ in cases])
+    normals = np.array([n for _, n in cases])
+    wrenches = np.concatenate([rng.normal(size=(4, 6)),
+                               [[0, 0, -1.0, 0, 0, 0], [0, 0, 0, 1.0, 0, 0]]])
+    for wrench in wrenches:
+        for limits in (None, np.where(np.arange(6) == 2, 0.0, 5.0)):
+            fast, _, slow = solve_both_ways(monkeypatch, positions, normals, 0.5, wrench,
+                                            limits)
+            assert_same_s_star(fast, slow)
+    # Two antipodal fingers: rank 5, left to Clarabel; three doubled contacts decided.
+    pair = np.array([[1.0, 0, 0], [-1.0, 0, 0]])
+    for load, expected in (([0, 0, 0, 1.0, 0, 0], np.inf), ([0, 0, -1.0, 0, 0, 0], 0.25)):
+        fast, _, slow = solve_both_ways(monkeypatch, pair, -pair, 2.0, np.array(load))
+        assert fast == slow == pytest.approx(expected, rel=1e-6)
+    angle = 2 * np.pi * np.arange(3) / 3
+    ring = np.stack([np.cos(angle), np.sin(angle), np.zeros(3)], axis=1)
+    doubled = np.concatenate([ring, ring + 1e-9])
+    fast, left, slow = solve_both_ways(monkeypatch, doubled, -doubled, 0.5, GRAVITY)
+    assert fast == pytest.approx(9.81 / 3, rel=1e-6) and slow == pytest.approx(fast, rel=1e-6)
+    # A contact limited to 0 is dropped by the kernel (force 0), not left to Clarabel.
+    angle = 2 * np.pi * np.arange(5) / 5
+    five = np.stack([np.cos(angle), np.sin(angle), 0.3 * np.cos(2 * angle)], axis=1)
+    fast, left, slow = solve_both_ways(monkeypatch, five, -five, 0.8, GRAVITY,
+                                       [np.inf, 3.0, 0.0, np.inf, 20.0])
+    assert left == 0 and np.isfinite(slow) and fast == pytest.approx(slow, rel=3e-6)
+
+
+def test_infeasible_loads_are_proved_by_the_fast_stage(monkeypatch):
+    """Pulling a grasp's contacts off the object: s* = inf from the kernel's wrench alone."""
+    rng = np.random.default_rng(41)
+    positions, normals = ellipsoid_grasps(rng, 40, 4)
+    normals[:, :, 2] = -np.abs(normals[:, :, 2]) - 0.5         # every contact pushes down
+    normals /= np.linalg.norm(normals, axis=2, keepdims=True)
+    fast, left, slow = solve_both_ways(monkeypatch, positions, normals, 0.3,
+                                       np.array([0, 0, -1.0, 0, 0, 0]))
+    assert np.isinf(fast).all() and np.isinf(slow).all() and left == 0
+
+
+def test_wrong_fast_answers_are_caught_by_the_checks(monkeypatch):
+    """Forces off the optimum, or an infeasibility claim with a wrench that proves
+    nothing, fail the numpy checks: those grasps get Clarabel's answer instead."""
+    rng = np.random.default_rng(42)
+    positions, normals = ellipsoid_grasps(rng, 60, 5)
+    wrench = rng.normal(size=(60, 6))
+    _, _, slow = solve_both_ways(monkeypatch, positions, normals, 0.7, wrench)
+    kernel = grasp_forces.solve_fast_forces
+
+    def sloppy(*args):
+        codes, beta, iterations, forces, dual = kernel(*args)
+        return codes, beta, iterations, 1.001 * forces, dual
+
+    def boastful(*args):
+        codes, beta, iterations, forces, dual = kernel(*args)
+        return np.full_like(codes, 1), beta, iterations, forces, rng.normal(size=dual.shape)
+
+    for wrong in (sloppy, boastful):
+        monkeypatch.setattr(grasp_forces, "solve_fast_forces", wrong)
+        fast, left, _ = solve_both_ways(monkeypatch, positions, normals, 0.7, wrench)
+        assert_same_s_star(fast, slow)
+        assert left >= np.isfinite(slow).sum()
+
+
+def test_warm_up_compiles_the_fast_stage_for_the_calls_it_serves():
+    """After the core's warm-up, s* calls (one grasp, a batch, with limits) run the
+    already compiled kernel: no new specialisation, so no compile at the first query."""
+    warm_up()
+    compiled = set(force_interior_point._solve_all.signatures)
+    assert compiled
+    positions, normals = equator_grasp()
+    optimal_contact_forces(positions, normals, 0.5, GRAVITY)
+    optimal_contact_forces(np.stack([positions] * 3), np.stack([normals] * 3), 0.5, GRAVITY,
+                           max_normal_force=10.0)
+    assert set(force_interior_point._solve_all.signatures) == compiled
 
 
 def test_batch_shapes():

@@ -18,6 +18,8 @@ Closure Grasp":
 * :mod:`.minimum_friction` -- the least friction coefficient that makes a grasp force
   closure (certified bounds);
 * :mod:`.grasp_forces` -- the least largest normal force that holds a given load;
+* :mod:`.force_interior_point` -- its fast stage for hard contacts: a compiled
+  interior-point method, every answer checked in numpy;
 * :mod:`.stacked_socp` -- many same-shape SOCPs in one Clarabel solve (for the two above);
 * :mod:`.contact_model` -- hard contacts and soft fingers (torsional friction): cones,
   wrench columns, depths and work, in one place;

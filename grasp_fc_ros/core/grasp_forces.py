@@ -9,8 +9,7 @@ the grasp-force optimisation problem is
               n_i . f_i <= max_normal_force_i        (optional limits)
 
 a second-order cone program (Boyd and Wegbreit, "Fast computation of optimal contact
-forces", IEEE T-RO 2007). A batch of grasps is stacked into one Clarabel problem, which
-needs every block feasible, so each grasp is solved in the homogenised form
+forces", IEEE T-RO 2007). Each grasp is solved in the homogenised form
 
     maximise beta  s.t.  G f + beta W = 0,  n_i . f_i <= 1,  n_i . f_i <= beta f_max,i,
                          f_i in its cone,
@@ -18,13 +17,18 @@ needs every block feasible, so each grasp is solved in the homogenised form
 always feasible (f = 0, beta = 0): the forces f / beta hold W with largest normal force
 1 / beta, so s* = 1 / beta*, and beta* = 0 means no forces can hold W. The grasp is first
 moved to its centroid, scaled to unit size and the wrench scaled to unit length (torque
-moved and scaled along), so the solver's tolerances are relative.
+moved and scaled along), so the solvers' tolerances are relative.
 
-Every answer is checked in numpy before it is returned: the forces are projected exactly
-onto the equilibrium set, then must lie in every cone and within every limit to within
+Two stages solve it. Hard grasps go first to the compiled interior-point method of
+:mod:`.force_interior_point` (one 6 x 6 system per iteration); what it leaves, and every
+soft grasp, goes to Clarabel, the batch stacked into one problem (which needs every block
+feasible: hence the homogenised form). Every answer of either stage is checked in numpy
+(:func:`_check_answers`) before it is returned: the forces are projected exactly onto
+the equilibrium set, then must lie in every cone and within every limit to within
 FORCE_TOL of s*, and s* must be within OPTIMALITY_TOL of a lower bound proved by the
-solver's dual wrench (:func:`lower_bound`), which also certifies every s* = inf. A grasp
-that fails even when solved alone with tight tolerances gets s* = NaN.
+solver's dual wrench (:func:`lower_bound`), which also certifies every s* = inf. A fast
+answer that fails goes to Clarabel; a Clarabel answer that fails is solved again alone
+with tight tolerances, and a grasp that fails then too gets s* = NaN.
 
 Soft fingers (``torsional_friction``, :mod:`.contact_model`): each contact also applies
 a torsional moment tau_i n_i, inside the elliptic cone with its force; the program then
@@ -38,6 +42,7 @@ import numpy as np
 from .certificates import grasp_maps, normalise_positions
 from .contact_model import (HARD, ContactModel, cone_rows, model_of, torsion_scales,
                             wrench_columns)
+from .force_interior_point import UNDECIDED, solve_fast_forces
 from .grasp_input import GraspBatch, prepare_grasps
 from .stacked_socp import SOLVE_BATCH, BlockShape, solve_stacked, split_normal, tangent_bases
 
@@ -59,6 +64,11 @@ EQUILIBRIUM_TOL = 1e-9
 #: Returned forces must have s* within this relative distance of the dual lower bound:
 #: the solve is then optimal to that accuracy, not merely feasible.
 OPTIMALITY_TOL = 1e-6
+
+#: Residual |G f + W| (unit wrench, normalised grasp) above which the projection onto
+#: equilibrium by the normal equations is redone with the pseudo-inverse: ~1e-15 where
+#: G G^T is well conditioned; far more where G is (nearly) rank-deficient.
+NORMAL_EQUATIONS_TOL = 1e-12
 
 #: Relative rounding slack of the dual wrench's work a = G^T w (~500 eps).
 CERT_SLACK = 1e-13
@@ -200,17 +210,19 @@ def solve_contact_forces(grasps: GraspBatch, wrench: np.ndarray, limits: np.ndar
     forces = np.zeros((n_grasps, n_contacts, model.components))
     loaded = np.flatnonzero(magnitude > 0)
     limited = bool(np.isfinite(limits).any())
-    for start in range(0, loaded.size, SOLVE_BATCH):
-        chunk = loaded[start:start + SOLVE_BATCH]
-        args = (gmap[chunk], grasps.normals[chunk], grasps.mu[chunk], direction[chunk],
-                relative_limits[chunk], limited, model,
-                None if weight is None else weight[chunk])
-        s, f, ok = _solve_and_check(*args, tol=None)
-        for k in np.flatnonzero(~ok):
-            lone = tuple(a[k:k + 1] if isinstance(a, np.ndarray) else a for a in args)
-            s[k], f[k], ok[k] = (v[0] for v in _solve_and_check(*lone, tol=RETRY_TOL))
-        s[~ok] = np.nan
-        f[~ok] = np.nan
+    rest = loaded
+    if model is HARD and loaded.size:
+        s, f, ok = _fast_stage(unit[loaded], gmap[loaded], grasps.normals[loaded],
+                               grasps.mu[loaded], direction[loaded], relative_limits[loaded])
+        done = loaded[ok]
+        s_star[done] = s[ok] * magnitude[done]
+        forces[done] = f[ok] * magnitude[done, None, None]
+        rest = loaded[~ok]
+    for start in range(0, rest.size, SOLVE_BATCH):
+        chunk = rest[start:start + SOLVE_BATCH]
+        s, f = _clarabel_stage(gmap[chunk], grasps.normals[chunk], grasps.mu[chunk],
+                               direction[chunk], relative_limits[chunk], limited, model,
+                               None if weight is None else weight[chunk])
         s_star[chunk] = s * magnitude[chunk]
         forces[chunk] = f * magnitude[chunk, None, None]
     if model is HARD:
@@ -236,21 +248,44 @@ def _block_shape(n_contacts: int, limited: bool, d: int = 3) -> BlockShape:
     return BlockShape(pattern, zero_rows=6, nonneg_rows=n_nonneg, soc_sizes=(d,) * n_contacts)
 
 
-def _solve_and_check(gmap, normals, mu, direction, limits, limited,
-                     model: ContactModel = HARD, weight=None, tol=None):
-    """Solve the homogenised problem for K grasps and check each answer.
+def _fast_stage(unit, gmap, normals, mu, direction, limits):
+    """The compiled stage (:mod:`.force_interior_point`) on K hard grasps, its answers
+    checked by :func:`_check_answers`.
 
     Returns
     -------
     s_star : ndarray, shape (K,)
-        Largest normal force of the checked forces, for the unit wrench; inf where the
-        dual bound is at least 1 / INFEASIBLE_BETA.
-    forces : ndarray, shape (K, n, d)
-        Generalised forces (d = model.components).
+    forces : ndarray, shape (K, n, 3)
     ok : ndarray of bool, shape (K,)
-        The forces passed the checks and are optimal to OPTIMALITY_TOL, or the dual
-        bound certifies s* = inf.
+        The kernel finished and its answer passed the checks; the others are for
+        :func:`_clarabel_stage`.
     """
+    codes, beta, _, forces, wrench = solve_fast_forces(unit, normals, mu, limits, direction,
+                                                       FORCE_TOL, OPTIMALITY_TOL,
+                                                       1.0 / INFEASIBLE_BETA)
+    s_star, forces, ok = _check_answers(beta, forces.reshape(beta.size, -1), wrench, gmap,
+                                        normals, mu, direction, limits)
+    return s_star, forces, ok & (codes != UNDECIDED)
+
+
+def _clarabel_stage(gmap, normals, mu, direction, limits, limited,
+                    model: ContactModel = HARD, weight=None):
+    """K grasps in one Clarabel solve, each failed one again alone with RETRY_TOL; NaN
+    where that fails too. Returns (s_star (K,), forces (K, n, d)) for the unit wrench."""
+    args = (gmap, normals, mu, direction, limits, limited, model, weight)
+    s, f, ok = _solve_and_check(*args, tol=None)
+    for k in np.flatnonzero(~ok):
+        lone = tuple(a[k:k + 1] if isinstance(a, np.ndarray) else a for a in args)
+        s[k], f[k], ok[k] = (v[0] for v in _solve_and_check(*lone, tol=RETRY_TOL))
+    s[~ok] = np.nan
+    f[~ok] = np.nan
+    return s, f
+
+
+def _solve_and_check(gmap, normals, mu, direction, limits, limited,
+                     model: ContactModel = HARD, weight=None, tol=None):
+    """Solve the homogenised problem for K grasps in one Clarabel solve and check each
+    answer (:func:`_check_answers`)."""
     n_grasps, n_contacts = mu.shape
     d = model.components
     shape = _block_shape(n_contacts, limited, d)
@@ -276,10 +311,40 @@ def _solve_and_check(gmap, normals, mu, direction, limits, limited,
     q[:, -1] = -1.0
     solution = solve_stacked(shape, a, b, q, tol)
     beta = solution.x[:, -1]
-    lower = lower_bound(solution.z[:, :6], gmap, normals, mu, direction, limits, weight)
-    infeasible = lower >= 1.0 / INFEASIBLE_BETA
     with np.errstate(divide="ignore", invalid="ignore"):
         forces = solution.x[:, :-1] / beta[:, None]
+    return _check_answers(beta, forces, solution.z[:, :6], gmap, normals, mu, direction,
+                          limits, weight)
+
+
+def _check_answers(beta, forces, wrench, gmap, normals, mu, direction, limits, weight=None):
+    """Check K solver answers of the homogenised problem (either stage's).
+
+    Parameters
+    ----------
+    beta : ndarray, shape (K,)
+    forces : ndarray, shape (K, d n)
+        The solver's forces divided by beta (generalised components, d per contact).
+    wrench : ndarray, shape (K, 6)
+        The solver's dual wrench (either sign), for :func:`lower_bound`.
+    gmap, normals, mu, direction, limits, weight
+        As in :func:`lower_bound`.
+
+    Returns
+    -------
+    s_star : ndarray, shape (K,)
+        Largest normal force of the checked forces, for the unit wrench; inf where the
+        dual bound is at least 1 / INFEASIBLE_BETA.
+    forces : ndarray, shape (K, n, d)
+        Generalised forces, projected onto equilibrium; NaN where s_star is inf.
+    ok : ndarray of bool, shape (K,)
+        The forces passed the checks and are optimal to OPTIMALITY_TOL, or the dual
+        bound certifies s* = inf.
+    """
+    n_grasps, n_contacts = mu.shape
+    d = forces.shape[1] // n_contacts
+    lower = lower_bound(wrench, gmap, normals, mu, direction, limits, weight)
+    infeasible = lower >= 1.0 / INFEASIBLE_BETA
     forces = _project_to_equilibrium(forces, gmap, direction).reshape(n_grasps, n_contacts, d)
     normal_part, tangential = split_normal(forces[..., :3], normals)
     if d == 4:  # the soft cone: |(f_t, mu w rho)| <= mu f_n
@@ -364,17 +429,32 @@ def _dual_room(beta, excess, limits, along):
 def _project_to_equilibrium(forces, gmap, direction):
     """The nearest forces (K, d n) with G f + W = 0 exactly (up to rounding).
 
+    The correction G^T (G G^T)^-1 r of the residual r; where that leaves more than
+    NORMAL_EQUATIONS_TOL of residual (G G^T singular or ill-conditioned: collinear
+    contacts), the least-squares correction with the pseudo-inverse instead.
+
     Parameters
     ----------
     forces : ndarray, shape (K, d n)
     gmap : ndarray, shape (K, 6, d n)
-        Full rank is not assumed: the least-squares correction uses the pseudo-inverse.
     direction : ndarray, shape (K, 6)
     """
     residual = np.einsum("gkv,gv->gk", gmap, forces) + direction
     finite = np.isfinite(residual).all(axis=1)
-    correction = np.zeros_like(forces)
-    if finite.any():
-        pinv = np.linalg.pinv(gmap[finite])                            # (K, 3n, 6)
-        correction[finite] = np.einsum("gvk,gk->gv", pinv, residual[finite])
-    return forces - correction
+    projected = forces.copy()
+    if not finite.any():
+        return projected
+    g, r = gmap[finite], residual[finite]
+    try:
+        with np.errstate(all="ignore"):
+            step = np.linalg.solve(g @ g.transpose(0, 2, 1), r[..., None])[..., 0]
+            trial = forces[finite] - np.einsum("gkv,gk->gv", g, step)
+            left = np.linalg.norm(np.einsum("gkv,gv->gk", g, trial) + direction[finite], axis=1)
+        poor = ~(left <= NORMAL_EQUATIONS_TOL)
+    except np.linalg.LinAlgError:  # a singular G G^T in the batch
+        trial, poor = forces[finite].copy(), np.ones(r.shape[0], dtype=bool)
+    if poor.any():
+        pinv = np.linalg.pinv(g[poor])                                 # (K, d n, 6)
+        trial[poor] = forces[finite][poor] - np.einsum("gvk,gk->gv", pinv, r[poor])
+    projected[finite] = trial
+    return projected

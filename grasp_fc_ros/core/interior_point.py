@@ -102,6 +102,23 @@ def _wrench_rows(unit, direction, rows):
         rows[i, 5] = u[0] * e[1] - u[1] * e[0]
 
 
+def _work_at(w, point):
+    """The work vector (3 floats) w_F + w_T x point of wrench w (6,) at ``point`` (3,):
+    G_i^T w for the contact there."""
+    return (w[0] + w[4] * point[2] - w[5] * point[1],
+            w[1] + w[5] * point[0] - w[3] * point[2],
+            w[2] + w[3] * point[1] - w[4] * point[0])
+
+
+def _normal_split(x0, x1, x2, normal):
+    """Normal component and tangential length of the vector (x0, x1, x2) at a unit
+    ``normal`` (3,)."""
+    x_n = x0 * normal[0] + x1 * normal[1] + x2 * normal[2]
+    x_t = np.sqrt((x0 - x_n * normal[0]) ** 2 + (x1 - x_n * normal[1]) ** 2
+                  + (x2 - x_n * normal[2]) ** 2)
+    return x_n, x_t
+
+
 def _gram(unit, gram):
     """G G^T (6 x 6) into ``gram`` for global force components at ``unit`` (n, 3):
     [[n I, -sum [u]x], [sum [u]x, sum (|u|^2 I - u u^T)]]."""
@@ -190,6 +207,22 @@ def _cholesky(matrix, factor):
     return True
 
 
+def _certified_rank(unit, gram, gram_factor, scratch):
+    """(sigma_min, |G|_F) of the grasp map at ``unit`` (n, 3), with G G^T into ``gram``
+    and its Cholesky factor into ``gram_factor``; sigma_min is 0 where rank 6 is not
+    certain (sigma_min^2 <= FAST_RANK_TOL^2 trace(G G^T))."""
+    _gram(unit, gram)
+    trace = np.trace(gram)
+    if not _cholesky(gram, gram_factor):
+        return 0.0, np.sqrt(trace)
+    # lambda_min(G G^T) = 1 / |L^-T L^-1|_2 >= 1 / |L^-1|_F^2: a lower bound on sigma_min,
+    # so the witness slack errs on the safe side; lambda_max <= trace likewise.
+    lambda_min = 1.0 / _triangular_inverse_norm2(gram_factor, scratch)
+    if not lambda_min > FAST_RANK_TOL * FAST_RANK_TOL * trace:
+        return 0.0, np.sqrt(trace)
+    return np.sqrt(lambda_min), np.sqrt(trace)
+
+
 def _witness(unit, normals, tangent, bitangent, mu, z, sigma, gram_factor, sigma_min,
              grasp_norm, out, forces, y, check, scratch):
     """Certified depth of the forces of primal iterate z (n, 3); the projected forces,
@@ -208,11 +241,10 @@ def _witness(unit, normals, tangent, bitangent, mu, z, sigma, gram_factor, sigma
     _cholesky_solve(gram_factor, check, y, scratch)
     size = 0.0
     for i in range(n):
-        u = unit[i]
-        # G_i^T y = y_F + y_T x u_i
-        forces[i, 0] -= y[0] + y[4] * u[2] - y[5] * u[1]
-        forces[i, 1] -= y[1] + y[5] * u[0] - y[3] * u[2]
-        forces[i, 2] -= y[2] + y[3] * u[1] - y[4] * u[0]
+        g0, g1, g2 = _work_at(y, unit[i])                              # G_i^T y
+        forces[i, 0] -= g0
+        forces[i, 1] -= g1
+        forces[i, 2] -= g2
         size += forces[i, 0] ** 2 + forces[i, 1] ** 2 + forces[i, 2] ** 2
     _apply_grasp_map(unit, forces, check)
     residual = 0.0
@@ -223,10 +255,7 @@ def _witness(unit, normals, tangent, bitangent, mu, z, sigma, gram_factor, sigma
     total = 0.0
     worst = np.inf
     for i in range(n):
-        f_n = forces[i, 0] * normals[i, 0] + forces[i, 1] * normals[i, 1] + forces[i, 2] * normals[i, 2]
-        tangential = np.sqrt((forces[i, 0] - f_n * normals[i, 0]) ** 2
-                             + (forces[i, 1] - f_n * normals[i, 1]) ** 2
-                             + (forces[i, 2] - f_n * normals[i, 2]) ** 2)
+        f_n, tangential = _normal_split(forces[i, 0], forces[i, 1], forces[i, 2], normals[i])
         worst = min(worst, mu[i] * f_n - tangential - (mu[i] + 1.0) * reach)
         total += f_n
     slack = np.sqrt(n) * reach
@@ -249,13 +278,8 @@ def _bound(unit, normals, mu, w, normal_work):
     largest = 0.0
     mu_max = 0.0
     for i in range(n):
-        u = unit[i]
-        a0 = w[0] + w[4] * u[2] - w[5] * u[1]
-        a1 = w[1] + w[5] * u[0] - w[3] * u[2]
-        a2 = w[2] + w[3] * u[1] - w[4] * u[0]
-        a_n = a0 * normals[i, 0] + a1 * normals[i, 1] + a2 * normals[i, 2]
-        a_t = np.sqrt((a0 - a_n * normals[i, 0]) ** 2 + (a1 - a_n * normals[i, 1]) ** 2
-                      + (a2 - a_n * normals[i, 2]) ** 2)
+        a0, a1, a2 = _work_at(w, unit[i])
+        a_n, a_t = _normal_split(a0, a1, a2, normals[i])
         normal_work[i] = a_n
         level = max(level, a_n + mu[i] * a_t)
         largest = max(largest, np.sqrt(a0 * a0 + a1 * a1 + a2 * a2))
@@ -372,18 +396,9 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
     inv_eta2, normal_work = work_n[0], work_n[1]
     q, w_dz, second_order = y[:3], y[3:], scratch[:3]
 
-    _gram(unit, gram)
-    trace = np.trace(gram)
-    if not _cholesky(gram, gram_factor):
+    sigma_min, grasp_norm = _certified_rank(unit, gram, gram_factor, scratch)
+    if not sigma_min > 0.0:
         return UNDECIDED, -np.inf, np.inf, 0
-    # lambda_min(G G^T) = 1 / |L^-T L^-1|_2 >= 1 / |L^-1|_F^2: a lower bound on sigma_min,
-    # so the witness slack errs on the safe side; lambda_max <= trace likewise.
-    inverse_norm2 = _triangular_inverse_norm2(gram_factor, scratch)
-    lambda_min = 1.0 / inverse_norm2
-    if not lambda_min > FAST_RANK_TOL * FAST_RANK_TOL * trace:
-        return UNDECIDED, -np.inf, np.inf, 0
-    sigma_min = np.sqrt(lambda_min)
-    grasp_norm = np.sqrt(trace)
     # A first trial wrench: pull against the mean inward normal. It separates every
     # grasp whose normals all lie in one open half-space around it, e.g. contacts
     # sharing a face, which the interior-point start below cannot handle.
@@ -609,9 +624,10 @@ def _solve_all(unit, normals, mu, want_optimum, want_wrench, signed_gap, signed_
     return codes, t_lo, t_hi, iterations, forces, wrench
 
 
-for _name in ("_frames", "_wrench_rows", "_gram", "_apply_grasp_map", "_cholesky_solve",
-              "_cholesky", "_triangular_inverse_norm2", "_witness", "_bound", "_nt_scaling", "_inverse_apply",
-              "_jordan_product_into", "_jordan_divide_into", "_max_step", "_solve_grasp", "_solve_all"):
+for _name in ("_frames", "_wrench_rows", "_work_at", "_normal_split", "_gram", "_apply_grasp_map", "_cholesky_solve",
+              "_cholesky", "_triangular_inverse_norm2", "_certified_rank", "_witness", "_bound",
+              "_nt_scaling", "_inverse_apply", "_jordan_product_into", "_jordan_divide_into",
+              "_max_step", "_solve_grasp", "_solve_all"):
     globals()[_name] = _jit(globals()[_name])
 
 

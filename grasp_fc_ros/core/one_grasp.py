@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import interior_point, positive_span
+from . import force_interior_point, interior_point, positive_span
 from .interior_point import _jit
 from .tolerances import MAX_ABS_COORDINATE, MAX_FRICTION_COEFFICIENT, MIN_NORMAL_COMPONENT
 
@@ -105,10 +105,11 @@ def check_one(positions, normals, mu: float, want_optimum: bool):
 
 def warm_up() -> None:
     """Compile (or load from the cache) every numba kernel of the core (the fast exact
-    stage, the filter's pair test, this path): a ROS node calls this before it reports
-    ready, so no query pays the compile."""
+    stage, the filter's pair test, this path, the fast s* stage): a ROS node calls this
+    before it reports ready, so no query pays the compile."""
     interior_point.warm_up()
     positive_span.warm_up()
+    force_interior_point.warm_up()
     corners = np.array([[1.0, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]])
     for optimum in (False, True):
         check_one(corners, -corners, 0.5, optimum)
