@@ -15,7 +15,8 @@ Padding bytes are not initialised by rclpy, so nothing here reads or compares th
 (the node and the client use rclpy's messages if it does not match); a query in another
 layout (say big-endian, from another machine) is listed as undecoded, for rclpy to read.
 
-Imports the message types only (for :func:`decode_verdict`), not rclpy.
+Imports the message types only (for :func:`decode_verdict`), not rclpy (except in
+the layout check and for verdict arrays full of messages, which rclpy handles).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from numpy.typing import ArrayLike
 from geometry_msgs.msg import Vector3
 from grasp_fc_msgs.msg import (Contact, ContactArray, ForceClosureVerdict,
                                 ForceClosureVerdictArray)
+from std_msgs.msg import Header
 
 from grasp_fc_ros.evaluation import PackedGrasps, Verdicts
 
@@ -245,7 +247,6 @@ def layout_matches() -> bool:
 def _array_layout_matches() -> bool:
     """:func:`layout_matches` for verdict arrays: ours read by rclpy, rclpy's by us."""
     from rclpy.serialization import deserialize_message, serialize_message
-    from std_msgs.msg import Header
 
     from grasp_fc_ros.conversions import verdict_array_to_numpy, verdicts_to_array_msg
 
@@ -300,7 +301,7 @@ _EMPTY_STRING = b"\x01\0\0\0\0\0\0\0"
 class _Cdr:
     """Appends plain little-endian CDR to a buffer (offsets from after the encapsulation)."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.parts: list[bytes] = [CDR_LE]
         self.at = 0
 
@@ -352,7 +353,7 @@ def _many_messages(texts: list[str]) -> bool:
     return any(texts) and sum(map(bool, texts)) > MAX_MESSAGE_SHARE * len(texts)
 
 
-def encode_verdict_array(header, client_id: int, request_id: int,
+def encode_verdict_array(header: Header, client_id: int, request_id: int,
                          verdicts: Verdicts) -> bytes:
     """A serialized ``ForceClosureVerdictArray`` of ``verdicts`` (as
     :func:`~grasp_fc_ros.conversions.verdicts_to_array_msg` fills it).
@@ -396,7 +397,7 @@ class _ManyMessages(Exception):
 class _CdrReader:
     """Reads plain little-endian CDR from a serialized message (after its encapsulation)."""
 
-    def __init__(self, raw: bytes):
+    def __init__(self, raw: bytes) -> None:
         if raw[:_ENCAPSULATION] != CDR_LE:
             raise ValueError("not little-endian plain CDR")
         self.view = memoryview(raw)[_ENCAPSULATION:]
