@@ -14,7 +14,8 @@ from rclpy.serialization import serialize_message
 from ros_fixtures import REPLY_TIMEOUT_S
 
 from grasp_fc_ros import node as node_module
-from grasp_fc_ros.conversions import grasp_to_contact_array
+from grasp_fc_ros.conversions import (grasp_to_contact_array, grasps_to_batch_msg,
+                                      verdict_array_to_numpy)
 from grasp_fc_ros.core import Status, check_force_closure
 from grasp_fc_ros.objects import make_object, sample_grasps
 
@@ -58,7 +59,7 @@ def assert_answers(verdicts, msgs, grasps):
 @pytest.mark.parametrize("soft", [(), (0,), (3, 4, 9), (11,)])
 def test_serialized_path_answers_every_query_once_in_order(own_node, grasps, soft):
     node, _, client = own_node(f"/wire_test_{len(soft)}_{sum(soft)}", workers=0)
-    assert node._raw_queries
+    assert node._use_wire
     msgs = queries(grasps, soft)
     # Soft contacts are decided as hard ones until the node supports them: the point here
     # is only that they take the other path without losing their place. One drain of the
@@ -70,9 +71,17 @@ def test_serialized_path_answers_every_query_once_in_order(own_node, grasps, sof
 def test_without_the_layout_the_message_path_answers(own_node, grasps, monkeypatch):
     monkeypatch.setattr(node_module.wire, "layout_matches", lambda: False)
     node, _, client = own_node("/wire_test_off", workers=0)
-    assert not node._raw_queries
+    assert not node._use_wire
     msgs = queries(grasps)
     assert_answers(send_and_collect(client, msgs), msgs, grasps)
+    # Batch answers too go out as rclpy messages then.
+    positions, normals = grasps
+    reply = client.request_batch(grasps_to_batch_msg(np.arange(len(positions)) + 7,
+                                                     positions, normals))
+    got = verdict_array_to_numpy(reply)
+    np.testing.assert_array_equal(got.ids, np.arange(len(positions)) + 7)
+    np.testing.assert_array_equal(got.status,
+                                  check_force_closure(positions, normals, DEFAULT_MU).status)
 
 
 def test_invalid_query_on_the_serialized_path_names_its_id(own_node, grasps):
