@@ -74,15 +74,21 @@ CHECK_GAP = 1e-6
 SIGNED_RELATIVE_GAP = 1e-3
 
 #: With ``want_optimum``, a force-closure grasp's iterate is polished (:func:`_polish`)
-#: once its objectives are this close (and again each iteration, up to POLISH_TRIES):
-#: near enough for the active cones to show, far from MARGIN_ACCURACY.
+#: once its objectives are this close, and again at each of the next iterations, at most
+#: POLISH_TRIES times: near enough for the active cones to show, far from
+#: MARGIN_ACCURACY. POLISH_STEPS Newton steps without a change of the active set
+#: follow. Measured on the box grasps (n = 4 .. 8): 1e-4 took fewer iterations than
+#: 1e-3 and 1e-5; 3 steps instead of 2 saved 0.1-0.2 iterations per grasp for more
+#: work per polish.
 POLISH_GAP = 1e-4
 POLISH_TRIES = 3
-POLISH_STEPS = 3
+POLISH_STEPS = 2
 
-#: A cone counts as active in the polish when z_0 s_0 exceeds this multiple of z . s:
-#: about 1 / (relative distance from the boundary) for an inactive cone's centred pair,
-#: ~1/gap for an active one.
+#: A cone counts as active in the polish when z_0 s_0 exceeds this multiple of z . s.
+#: Near the central path z ~ mu s^-1, so the ratio is s_0^2 / (s_0^2 - |s_t|^2) for an
+#: inactive cone (modest unless s_i nears the boundary) and ~lam_i s_0 / mu for an
+#: active one (large near the optimum). A wrong guess costs time only (the set is
+#: updated, the results are certified); 10 took fewer iterations than 100 or 300.
 POLISH_ACTIVE_RATIO = 10.0
 
 #: The polish stops where an active cone's s comes this close (relatively) to its apex:
@@ -374,18 +380,20 @@ def _polish(a_mat, d, z, s, w, flags, lam, gaps, b_rows, x_rows, vectors, mats, 
     An active cone i has s_i on the cone's boundary and z_i = lam_i (1, -s_t,i / |s_t,i|);
     the others z_i = 0. With b_i = A_i (1, -s_t,i / |s_t,i|), the conditions are
     d + sum_i lam_i b_i = 0 (equilibrium) and s_0,i - |s_t,i| = 0, a (6 + k)-square
-    system for k <= 6 active cones, solved through M = H + B B^T (H = sum_i lam_i A_t,i
-    (I - e e^T) A_t,i^T / |s_t,i|, the curvature; M is positive definite at a regular
-    optimum) and the k x k Schur complement B^T M^-1 B. A cone whose multiplier turns
-    negative leaves the set, an inactive cone that the step leaves (s_0 < |s_t|) joins
-    it. Newton converges quadratically where the interior-point iteration converges
-    linearly, so near the optimum a few steps bring the certificates together. The
-    results are only candidates: the caller certifies them like any iterate.
+    system for k active cones, solved through M = H + B B^T (H = sum_i lam_i A_t,i
+    (I - e e^T) A_t,i^T / |s_t,i|, the curvature, of rank k; M is positive definite at a
+    regular optimum, which needs 3 <= k <= 6) and the k x k Schur complement
+    B^T M^-1 B. A cone whose multiplier turns negative leaves the set, an inactive cone
+    that a step leaves (s_0 < |s_t|) joins it. Newton converges quadratically where the
+    interior-point iteration converges linearly, so near the optimum a few steps bring
+    the certificates together. The results are only candidates: the caller certifies
+    them like any iterate.
 
     Writes the polished wrench into ``vectors[0]`` and primal iterate into ``z_out``
-    (n, 3) after POLISH_STEPS Newton steps; returns False where the active set is empty
-    or larger than 6, or a step breaks down (a singular M: fewer than three active cones
-    leave the dual optimum non-unique).
+    (n, 3) after POLISH_STEPS Newton steps without a change of the active set; returns
+    False where that takes more than POLISH_STEPS + 2 steps, the active set has fewer
+    than 3 or more than 6 cones (fewer leave the dual optimum non-unique), or a step
+    breaks down.
     """
     n = z.shape[0]
     w_new, f1, rhs, solved, dl, tmp = (vectors[0], vectors[1], vectors[2], vectors[3],
@@ -396,10 +404,12 @@ def _polish(a_mat, d, z, s, w, flags, lam, gaps, b_rows, x_rows, vectors, mats, 
         flags[i] = 1.0 if z[i, 0] * s[i, 0] > POLISH_ACTIVE_RATIO * product else 0.0
         lam[i] = z[i, 0] if flags[i] > 0.0 else 0.0
     w_new[:] = w
-    for step in range(POLISH_STEPS + 1):
+    steady = 0
+    for step in range(POLISH_STEPS + 3):
         f1[:] = d
         m[:] = 0.0
         k = 0
+        changed = False
         for i in range(n):
             s0, s1, s2 = 1.0, 0.0, 0.0          # s_i = e - A_i^T w
             for r in range(6):
@@ -408,17 +418,15 @@ def _polish(a_mat, d, z, s, w, flags, lam, gaps, b_rows, x_rows, vectors, mats, 
                 s2 -= a_mat[i, r, 2] * w_new[r]
             radius = np.sqrt(s1 * s1 + s2 * s2)
             if flags[i] == 0.0:
-                if not s0 < radius or step == POLISH_STEPS:
-                    z_out[i, 0] = z_out[i, 1] = z_out[i, 2] = 0.0
+                z_out[i, 0] = z_out[i, 1] = z_out[i, 2] = 0.0
+                if not s0 < radius:
                     continue
-                flags[i], lam[i] = 1.0, POLISH_ACTIVE_RATIO * 1e-6 * z[i, 0] + z[i, 0]
+                flags[i], lam[i], changed = 1.0, z[i, 0], True
             k += 1
             if not (s0 > 0.0 and radius > POLISH_MIN_RADIUS * s0):
                 return False
             e1, e2 = s1 / radius, s2 / radius
-            if step == POLISH_STEPS:
-                z_out[i, 0], z_out[i, 1], z_out[i, 2] = lam[i], -lam[i] * e1, -lam[i] * e2
-                continue
+            z_out[i, 0], z_out[i, 1], z_out[i, 2] = lam[i], -lam[i] * e1, -lam[i] * e2
             gaps[i] = s0 - radius
             weight = lam[i] / radius
             for r in range(6):
@@ -428,10 +436,12 @@ def _polish(a_mat, d, z, s, w, flags, lam, gaps, b_rows, x_rows, vectors, mats, 
             for r in range(6):
                 for c in range(r + 1):
                     m[r, c] += weight * x_rows[i, r] * x_rows[i, c] + b_rows[i, r] * b_rows[i, c]
-        if k == 0 or k > 6:
+        if changed:
+            steady = 0
+        if steady == POLISH_STEPS:
+            return True
+        if k < 3 or k > 6 or step == POLISH_STEPS + 2:
             return False
-        if step == POLISH_STEPS:
-            break
         for r in range(6):
             for c in range(r):
                 m[c, r] = m[r, c]
@@ -467,6 +477,7 @@ def _polish(a_mat, d, z, s, w, flags, lam, gaps, b_rows, x_rows, vectors, mats, 
             return False
         _cholesky_solve(schur_factor[:k, :k], rhs[:k], dl[:k], tmp)
         p = 0
+        steady += 1
         for i in range(n):
             if flags[i] == 0.0:
                 continue
@@ -474,11 +485,11 @@ def _polish(a_mat, d, z, s, w, flags, lam, gaps, b_rows, x_rows, vectors, mats, 
                 solved[r] -= x_rows[i, r] * dl[p]
             lam[i] += dl[p]
             if not lam[i] > 0.0:
-                flags[i], lam[i] = 0.0, 0.0
+                flags[i], lam[i], steady = 0.0, 0.0, 0
             p += 1
         for r in range(6):
             w_new[r] += solved[r]
-    return True
+    return False
 
 
 for _name in ("_polish",):
