@@ -73,28 +73,6 @@ CHECK_GAP = 1e-6
 #: certificates need no more.
 SIGNED_RELATIVE_GAP = 1e-3
 
-#: With ``want_optimum``, a force-closure grasp's iterate is polished (:func:`_polish`)
-#: once its objectives are this close, and again at each of the next iterations, at most
-#: POLISH_TRIES times: near enough for the active cones to show, far from
-#: MARGIN_ACCURACY. POLISH_STEPS Newton steps without a change of the active set
-#: follow. Measured on the box grasps (n = 4 .. 8): 1e-4 took fewer iterations than
-#: 1e-3 and 1e-5; 3 steps instead of 2 saved 0.1-0.2 iterations per grasp for more
-#: work per polish.
-POLISH_GAP = 1e-4
-POLISH_TRIES = 3
-POLISH_STEPS = 2
-
-#: A cone counts as active in the polish when z_0 s_0 exceeds this multiple of z . s.
-#: Near the central path z ~ mu s^-1, so the ratio is s_0^2 / (s_0^2 - |s_t|^2) for an
-#: inactive cone (modest unless s_i nears the boundary) and ~lam_i s_0 / mu for an
-#: active one (large near the optimum). A wrong guess costs time only (the set is
-#: updated, the results are certified); 10 took fewer iterations than 100 or 300.
-POLISH_ACTIVE_RATIO = 10.0
-
-#: The polish stops where an active cone's s comes this close (relatively) to its apex:
-#: the direction of s_t, which it linearises, is undefined there.
-POLISH_MIN_RADIUS = 1e-6
-
 #: Relative rounding allowance of the trivial bound t* <= 1 / sum_i (1/mu_i): the sum
 #: of n <= ~1e3 positive terms errs by far less than n eps.
 TRIVIAL_BOUND_SLACK = 1e-12
@@ -373,129 +351,6 @@ def _max_step(x, dx):
     return best
 
 
-def _polish(a_mat, d, z, s, w, flags, lam, gaps, b_rows, x_rows, vectors, mats, z_out):
-    """Newton's method on the optimality conditions of the dual, on the cones that the
-    iterate (z (n, 3), s (n, 3), w (6,)) shows active, with a simple active-set update.
-
-    An active cone i has s_i on the cone's boundary and z_i = lam_i (1, -s_t,i / |s_t,i|);
-    the others z_i = 0. With b_i = A_i (1, -s_t,i / |s_t,i|), the conditions are
-    d + sum_i lam_i b_i = 0 (equilibrium) and s_0,i - |s_t,i| = 0, a (6 + k)-square
-    system for k active cones, solved through M = H + B B^T (H = sum_i lam_i A_t,i
-    (I - e e^T) A_t,i^T / |s_t,i|, the curvature, of rank k; M is positive definite at a
-    regular optimum, which needs 3 <= k <= 6) and the k x k Schur complement
-    B^T M^-1 B. A cone whose multiplier turns negative leaves the set, an inactive cone
-    that a step leaves (s_0 < |s_t|) joins it. Newton converges quadratically where the
-    interior-point iteration converges linearly, so near the optimum a few steps bring
-    the certificates together. The results are only candidates: the caller certifies
-    them like any iterate.
-
-    Writes the polished wrench into ``vectors[0]`` and primal iterate into ``z_out``
-    (n, 3) after POLISH_STEPS Newton steps without a change of the active set; returns
-    False where that takes more than POLISH_STEPS + 2 steps, the active set has fewer
-    than 3 or more than 6 cones (fewer leave the dual optimum non-unique), or a step
-    breaks down.
-    """
-    n = z.shape[0]
-    w_new, f1, rhs, solved, dl, tmp = (vectors[0], vectors[1], vectors[2], vectors[3],
-                                       vectors[4], vectors[5])
-    m, m_factor, schur, schur_factor = mats[0], mats[1], mats[2], mats[3]
-    for i in range(n):
-        product = z[i, 0] * s[i, 0] + z[i, 1] * s[i, 1] + z[i, 2] * s[i, 2]
-        flags[i] = 1.0 if z[i, 0] * s[i, 0] > POLISH_ACTIVE_RATIO * product else 0.0
-        lam[i] = z[i, 0] if flags[i] > 0.0 else 0.0
-    w_new[:] = w
-    steady = 0
-    for step in range(POLISH_STEPS + 3):
-        f1[:] = d
-        m[:] = 0.0
-        k = 0
-        changed = False
-        for i in range(n):
-            s0, s1, s2 = 1.0, 0.0, 0.0          # s_i = e - A_i^T w
-            for r in range(6):
-                s0 -= a_mat[i, r, 0] * w_new[r]
-                s1 -= a_mat[i, r, 1] * w_new[r]
-                s2 -= a_mat[i, r, 2] * w_new[r]
-            radius = np.sqrt(s1 * s1 + s2 * s2)
-            if flags[i] == 0.0:
-                z_out[i, 0] = z_out[i, 1] = z_out[i, 2] = 0.0
-                if not s0 < radius:
-                    continue
-                flags[i], lam[i], changed = 1.0, z[i, 0], True
-            k += 1
-            if not (s0 > 0.0 and radius > POLISH_MIN_RADIUS * s0):
-                return False
-            e1, e2 = s1 / radius, s2 / radius
-            z_out[i, 0], z_out[i, 1], z_out[i, 2] = lam[i], -lam[i] * e1, -lam[i] * e2
-            gaps[i] = s0 - radius
-            weight = lam[i] / radius
-            for r in range(6):
-                b_rows[i, r] = a_mat[i, r, 0] - a_mat[i, r, 1] * e1 - a_mat[i, r, 2] * e2
-                x_rows[i, r] = a_mat[i, r, 2] * e1 - a_mat[i, r, 1] * e2   # A_t (e2 rotated)
-                f1[r] += lam[i] * b_rows[i, r]
-            for r in range(6):
-                for c in range(r + 1):
-                    m[r, c] += weight * x_rows[i, r] * x_rows[i, c] + b_rows[i, r] * b_rows[i, c]
-        if changed:
-            steady = 0
-        if steady == POLISH_STEPS:
-            return True
-        if k < 3 or k > 6 or step == POLISH_STEPS + 2:
-            return False
-        for r in range(6):
-            for c in range(r):
-                m[c, r] = m[r, c]
-        if not _cholesky(m, m_factor):
-            return False
-        # M dw + B dl = -f1 + B g,  B^T dw = g:  S dl = B^T M^-1 (-f1 + B g) - g.
-        for r in range(6):
-            rhs[r] = -f1[r]
-        for i in range(n):
-            if flags[i] > 0.0:
-                for r in range(6):
-                    rhs[r] += b_rows[i, r] * gaps[i]
-                _cholesky_solve(m_factor, b_rows[i], x_rows[i], tmp)
-        _cholesky_solve(m_factor, rhs, solved, tmp)
-        p = 0
-        for i in range(n):
-            if flags[i] == 0.0:
-                continue
-            q = 0
-            for j in range(i + 1):
-                if flags[j] > 0.0:
-                    value = 0.0
-                    for r in range(6):
-                        value += b_rows[i, r] * x_rows[j, r]
-                    schur[p, q] = schur[q, p] = value
-                    q += 1
-            value = -gaps[i]
-            for r in range(6):
-                value += b_rows[i, r] * solved[r]
-            rhs[p] = value
-            p += 1
-        if not _cholesky(schur[:k, :k], schur_factor[:k, :k]):
-            return False
-        _cholesky_solve(schur_factor[:k, :k], rhs[:k], dl[:k], tmp)
-        p = 0
-        steady += 1
-        for i in range(n):
-            if flags[i] == 0.0:
-                continue
-            for r in range(6):
-                solved[r] -= x_rows[i, r] * dl[p]
-            lam[i] += dl[p]
-            if not lam[i] > 0.0:
-                flags[i], lam[i], steady = 0.0, 0.0, 0
-            p += 1
-        for r in range(6):
-            w_new[r] += solved[r]
-    return False
-
-
-for _name in ("_polish",):
-    globals()[_name] = _jit(globals()[_name])
-
-
 def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signed_level,
                  forces_out, wrench_out, work3, work6, rows, a_mat, scalings, mats, work_n):
     """Decide one unit-size grasp. Returns (code, t_lo, t_hi, iterations).
@@ -509,8 +364,8 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
     optimum's multipliers).
 
     The remaining arguments are scratch space of the batch, reused from grasp to grasp
-    (allocating it per grasp cost ~25% of the run time): work3 (13, n, 3), work6 (20, 6),
-    rows (5, n, 6), a_mat (n, 6, 3), scalings (n, 3, 3), mats (8, 6, 6), work_n (5, n).
+    (allocating it per grasp cost ~25% of the run time): work3 (12, n, 3), work6 (14, 6),
+    rows (3, n, 6), a_mat (n, 6, 3), scalings (n, 3, 3), mats (4, 6, 6), work_n (2, n).
     """
     n = unit.shape[0]
     (tangent, bitangent, z, s, candidate, jv, lam, dz, ds, rhs_c, winv_q,
@@ -523,8 +378,6 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
     gram, gram_factor, hessian, factor = mats[0], mats[1], mats[2], mats[3]
     inv_eta2, normal_work = work_n[0], work_n[1]
     q, w_dz, second_order = y[:3], y[3:], scratch[:3]
-    polished, polish_rows, polish_vectors, polish_mats = work3[12], rows[3:], work6[14:], mats[4:]
-    polish_flags, polish_lam, polish_gaps = work_n[2], work_n[3], work_n[4]
 
     _gram(unit, gram)
     trace = np.trace(gram)
@@ -607,7 +460,6 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
     # mu_i c_n,i >= t at every contact and sum_i c_n,i = 1 give t* <= 1 / sigma.
     t_lo, t_hi = -np.inf, (1.0 + TRIVIAL_BOUND_SLACK) / sigma
     separated = False
-    polishes = 0
     iteration = 0
     last = False     # a breakdown: check the current iterate in full, then stop
     while True:
@@ -661,25 +513,6 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
             if (t_hi < MARGIN_TOL and (separated or not want_wrench)
                     and (close or not want_optimum)):
                 return NOT_FORCE_CLOSURE, t_lo, t_hi, iteration
-            if (want_optimum and not last and polishes < POLISH_TRIES and t_p > MARGIN_TOL
-                    and (1.0 + d_w) / sigma - t_p < POLISH_GAP):
-                polishes += 1
-                if _polish(a_mat, d, z, s, w, polish_flags, polish_lam, polish_gaps,
-                           polish_rows[0], polish_rows[1], polish_vectors, polish_mats,
-                           polished):
-                    depth = _witness(unit, normals, tangent, bitangent, mu, polished, sigma,
-                                     gram_factor, sigma_min, grasp_norm, candidate,
-                                     projected, y, check, scratch)
-                    if depth > t_lo:
-                        t_lo = depth
-                        forces_out[:] = candidate
-                    bound, separating = _bound(unit, normals, mu, polish_vectors[0],
-                                               normal_work)
-                    if bound < t_hi and not separated:
-                        wrench_out[:] = polish_vectors[0]
-                    t_hi = min(t_hi, bound)
-                    if t_lo >= MARGIN_TOL and t_hi - t_lo <= MARGIN_ACCURACY:
-                        return FORCE_CLOSURE, t_lo, t_hi, iteration
         if last or iteration == MAX_ITERATIONS:
             break
 
@@ -784,13 +617,13 @@ def _solve_all(unit, normals, mu, want_optimum, want_wrench, signed_gap, signed_
     iterations = np.empty(n_grasps, dtype=np.int32)
     forces = np.full((n_grasps, n_contacts, 3), np.nan)
     wrench = np.full((n_grasps, 6), np.nan)
-    work3 = np.empty((13, n_contacts, 3))
-    work6 = np.empty((20, 6))
-    rows = np.empty((5, n_contacts, 6))
+    work3 = np.empty((12, n_contacts, 3))
+    work6 = np.empty((14, 6))
+    rows = np.empty((3, n_contacts, 6))
     a_mat = np.empty((n_contacts, 6, 3))
     scalings = np.empty((n_contacts, 3, 3))
-    mats = np.empty((8, 6, 6))
-    work_n = np.empty((5, n_contacts))
+    mats = np.empty((4, 6, 6))
+    work_n = np.empty((2, n_contacts))
     for g in range(n_grasps):
         codes[g], t_lo[g], t_hi[g], iterations[g] = _solve_grasp(
             unit[g], normals[g], mu[g], want_optimum, want_wrench, signed_gap, signed_level,
