@@ -352,7 +352,8 @@ def _max_step(x, dx):
 
 
 def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signed_level,
-                 forces_out, wrench_out, work3, work6, rows, a_mat, scalings, mats, work_n):
+                 forces_out, wrench_out, work3, work6, rows, a_mat, scalings, mats, work_n,
+                 a_gram):
     """Decide one unit-size grasp. Returns (code, t_lo, t_hi, iterations).
 
     ``signed_gap`` > 0 selects the signed mode (for :mod:`.minimum_friction`): no verdict;
@@ -365,7 +366,8 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
 
     The remaining arguments are scratch space of the batch, reused from grasp to grasp
     (allocating it per grasp cost ~25% of the run time): work3 (12, n, 3), work6 (14, 6),
-    rows (3, n, 6), a_mat (n, 6, 3), scalings (n, 3, 3), mats (4, 6, 6), work_n (2, n).
+    rows (3, n, 6), a_mat (n, 6, 3), scalings (n, 3, 3), mats (4, 6, 6), work_n (2, n),
+    a_gram (n, 6, 6).
     """
     n = unit.shape[0]
     (tangent, bitangent, z, s, candidate, jv, lam, dz, ds, rhs_c, winv_q,
@@ -517,7 +519,9 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
             break
 
         # Newton system: H dw = -r_p - sum A_i W_i^-1 q_i, H = sum A_i W_i^-2 A_i^T,
-        # with W_i^-2 = (2 (Jv)(Jv)^T - J) / eta^2: four rank-one updates per contact.
+        # with W_i^-2 = (2 (Jv)(Jv)^T - J) / eta^2: A_i W_i^-2 A_i^T = (2 g g^T - A_i J
+        # A_i^T) / eta^2, g = A_i J v; A_i J A_i^T does not change, so it is kept from
+        # the first iteration (a_gram) and each later one costs a rank-one update.
         hessian[:] = 0.0
         residual[:] = d
         gap = 0.0
@@ -532,11 +536,14 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
             for r in range(6):
                 g[r] = a_mat[i, r, 0] * jv[i, 0] + a_mat[i, r, 1] * jv[i, 1] + a_mat[i, r, 2] * jv[i, 2]
                 residual[r] += a_mat[i, r, 0] * z[i, 0] + a_mat[i, r, 1] * z[i, 1] + a_mat[i, r, 2] * z[i, 2]
+            if iteration == 0:
+                for r in range(6):
+                    for c in range(r + 1):
+                        a_gram[i, r, c] = (a_mat[i, r, 1] * a_mat[i, c, 1] + a_mat[i, r, 2] * a_mat[i, c, 2]
+                                           - a_mat[i, r, 0] * a_mat[i, c, 0])
             for r in range(6):
                 for c in range(r + 1):
-                    hessian[r, c] += inv_eta2[i] * (
-                        2.0 * g[r] * g[c] - a_mat[i, r, 0] * a_mat[i, c, 0]
-                        + a_mat[i, r, 1] * a_mat[i, c, 1] + a_mat[i, r, 2] * a_mat[i, c, 2])
+                    hessian[r, c] += inv_eta2[i] * (2.0 * g[r] * g[c] + a_gram[i, r, c])
             gap += z[i, 0] * s[i, 0] + z[i, 1] * s[i, 1] + z[i, 2] * s[i, 2]
         if not finite:
             last = True
@@ -624,10 +631,11 @@ def _solve_all(unit, normals, mu, want_optimum, want_wrench, signed_gap, signed_
     scalings = np.empty((n_contacts, 3, 3))
     mats = np.empty((4, 6, 6))
     work_n = np.empty((2, n_contacts))
+    a_gram = np.empty((n_contacts, 6, 6))
     for g in range(n_grasps):
         codes[g], t_lo[g], t_hi[g], iterations[g] = _solve_grasp(
             unit[g], normals[g], mu[g], want_optimum, want_wrench, signed_gap, signed_level,
-            forces[g], wrench[g], work3, work6, rows, a_mat, scalings, mats, work_n)
+            forces[g], wrench[g], work3, work6, rows, a_mat, scalings, mats, work_n, a_gram)
     return codes, t_lo, t_hi, iterations, forces, wrench
 
 
