@@ -15,7 +15,9 @@ projected onto equilibrium), and a primal-dual method with Nesterov-Todd scaling
 Mehrotra's predictor-corrector keeps them so.
 
 The method decides from certificates, never from convergence: after every iteration
-(iteration 0 included) it checks
+(iteration 0 included; with the optimum asked for, only once the iterates' objectives
+are within ``CHECK_GAP``, since before that no certificate can close the interval) it
+checks
 
 * force closure: the iterate's forces, projected onto equilibrium, lie ``MARGIN_TOL``
   deep in every cone after allowing for rounding (the same bound as
