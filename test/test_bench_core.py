@@ -1,19 +1,13 @@
 """The core benchmark script runs and prints its figures (tiny sizes; no timing asserted)."""
 
-import subprocess
-import sys
-from pathlib import Path
-
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_core.py"
+from bench_scripts import run_benchmark
 
 
 def test_core_benchmark_prints_per_stage_figures():
-    done = subprocess.run(
-        [sys.executable, str(SCRIPT), "--grasps", "1500", "--sweep-grasps", "200",
-         "--repeats", "1", "--fingers", "6", "3"],
-        capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr
-    lines = done.stdout.splitlines()
+    out = run_benchmark(
+        "bench_core", "--grasps", "1500", "--sweep-grasps", "200", "--repeats", "1",
+        "--fingers", "6", "3")
+    lines = out.splitlines()
     table = [line.split() for line in lines if line.strip()[:2] in ("6 ", "3 ")]
     assert [row[0] for row in table] == ["6", "3"]
     assert all(float(value) > 0 for row in table for value in row[1:7])
@@ -21,9 +15,7 @@ def test_core_benchmark_prints_per_stage_figures():
 
 
 def test_core_benchmark_times_the_peer_on_request():
-    done = subprocess.run(
-        [sys.executable, str(SCRIPT), "--grasps", "300", "--repeats", "1", "--fingers", "6",
-         "--peer", "3"], capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr
-    line = next(line for line in done.stdout.splitlines() if "Qhull peer" in line)
+    out = run_benchmark(
+        "bench_core", "--grasps", "300", "--repeats", "1", "--fingers", "6", "--peer", "3")
+    line = next(line for line in out.splitlines() if "Qhull peer" in line)
     assert "x faster" in line and float(line.split("peer ")[1].split(" ms")[0]) > 0

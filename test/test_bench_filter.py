@@ -1,18 +1,12 @@
 """The filter benchmark runs and prints its crossover table (tiny sizes; no timing asserted)."""
 
-import subprocess
-import sys
-from pathlib import Path
-
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_filter.py"
+from bench_scripts import run_benchmark
 
 
 def test_filter_benchmark_prints_costs_hit_rates_and_the_crossover():
-    done = subprocess.run(
-        [sys.executable, str(SCRIPT), "--contacts", "4", "20", "--scale", "0.02",
-         "--repeats", "1"], capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr
-    lines = done.stdout.splitlines()
+    out = run_benchmark(
+        "bench_filter", "--contacts", "4", "20", "--scale", "0.02", "--repeats", "1")
+    lines = out.splitlines()
     table = [row for row in map(str.split, lines) if len(row) == 7 and row[0].isdigit()]
     assert [row[0] for row in table] == ["4"] * 3 + ["20"] * 3
     for row in table:

@@ -1,19 +1,14 @@
 """The soft-contact benchmark runs, counts no unsound rejection, prints its cost table
 (tiny sizes; no timing asserted)."""
 
-import subprocess
-import sys
-from pathlib import Path
-
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_soft.py"
+from bench_scripts import run_benchmark
 
 
 def test_soft_benchmark_counts_rejections_and_prints_costs():
-    done = subprocess.run(
-        [sys.executable, str(SCRIPT), "--grasps", "3000", "--cost-grasps", "40",
-         "--contacts", "4", "--repeats", "1"], capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stdout + done.stderr
-    lines = done.stdout.splitlines()
+    out = run_benchmark(
+        "bench_soft", "--grasps", "3000", "--cost-grasps", "40", "--contacts", "4",
+        "--repeats", "1")
+    lines = out.splitlines()
     assert "force-closure grasps rejected: 0" in lines[0]
     assert int(lines[0].split(", ")[2].split()[0]) > 0          # some rejections
     table = [row for row in map(str.split, lines) if len(row) == 10 and row[0].isdigit()]

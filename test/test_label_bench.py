@@ -1,18 +1,12 @@
 """The labelling benchmark script runs and prints its figures (tiny sizes; no timing asserted)."""
 
 import re
-import subprocess
-import sys
-from pathlib import Path
 
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_label.py"
+from bench_scripts import run_benchmark
 
 
 def test_label_benchmark_prints_scaling_and_memory():
-    done = subprocess.run([sys.executable, str(SCRIPT), "--quick"], capture_output=True,
-                          text=True, timeout=300)
-    assert done.returncode == 0, done.stderr[-3000:]
-    out = done.stdout
+    out = run_benchmark("bench_label", "--quick")
 
     def number(pattern):
         match = re.search(pattern, out)
