@@ -187,17 +187,20 @@ def _int_descriptor(description, low, high, read_only=False):
         integer_range=[IntegerRange(from_value=low, to_value=high, step=1)])
 
 
+def _bool_descriptor(description):
+    return ParameterDescriptor(type=ParameterType.PARAMETER_BOOL, description=description)
+
+
 PARAMETERS = {
     # name: (default, descriptor)
     "friction_coefficient": (0.5, ParameterDescriptor(
         type=ParameterType.PARAMETER_DOUBLE,
         description="Coulomb friction coefficient for contacts that give none (finite <= 0)",
         additional_constraints=f"finite, > 0 and <= {MAX_FRICTION_COEFFICIENT:g}")),
-    "use_filter": (True, ParameterDescriptor(
-        type=ParameterType.PARAMETER_BOOL,
-        description="Run the torque-space filter before the exact test where it pays "
-                    "for the grasp's contact count (the core's use_filter='auto'); false: "
-                    "never. Verdicts are the same either way")),
+    "use_filter": (True, _bool_descriptor(
+        "Run the torque-space filter before the exact test where it pays "
+        "for the grasp's contact count (the core's use_filter='auto'); false: "
+        "never. Verdicts are the same either way")),
     "filter_origins": ("seed", ParameterDescriptor(
         type=ParameterType.PARAMETER_STRING,
         description="Torque origins of the filter: 'seed' (the paper's) or 'all'",
@@ -209,23 +212,20 @@ PARAMETERS = {
         "single-grasp topic queries waiting to be decided, and of batch grasps waiting; "
         "beyond that a query is answered at once with SOLVER_FAILURE 'node overloaded'",
         1, MAX_BATCH_LIMIT)),
-    "certificates": (False, ParameterDescriptor(
-        type=ParameterType.PARAMETER_BOOL,
-        description="Every verdict carries its certificate: contact forces of a "
-                    "force-closure grasp, the separating wrench of a rejected one "
-                    "(larger verdict messages, more time per grasp)")),
-    "compute_min_friction": (False, ParameterDescriptor(
-        type=ParameterType.PARAMETER_BOOL,
-        description="Every verdict carries the grasp's minimum friction coefficient "
-                    "(about a hundred exact tests' worth of time per grasp)")),
+    "certificates": (False, _bool_descriptor(
+        "Every verdict carries its certificate: contact forces of a "
+        "force-closure grasp, the separating wrench of a rejected one "
+        "(larger verdict messages, more time per grasp)")),
+    "compute_min_friction": (False, _bool_descriptor(
+        "Every verdict carries the grasp's minimum friction coefficient "
+        "(about a hundred exact tests' worth of time per grasp)")),
     "workers": (DEFAULT_WORKERS, _int_descriptor(
         "Worker processes deciding large batches and service requests (0: none, decide "
         "in the node's threads); set at start-up", 0, MAX_WORKERS, read_only=True)),
-    "publish_markers": (False, ParameterDescriptor(
-        type=ParameterType.PARAMETER_BOOL,
-        description="Publish visualization_msgs/MarkerArray on 'markers' for answered "
-                    "queries (built off the verdict path; dropped, never the verdicts, "
-                    "when they fall behind)")),
+    "publish_markers": (False, _bool_descriptor(
+        "Publish visualization_msgs/MarkerArray on 'markers' for answered "
+        "queries (built off the verdict path; dropped, never the verdicts, "
+        "when they fall behind)")),
     "marker_lifetime": (DEFAULT_LIFETIME_S, ParameterDescriptor(
         type=ParameterType.PARAMETER_DOUBLE,
         description="Seconds until RViz drops a query's markers (0: never)",
