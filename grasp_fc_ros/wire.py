@@ -324,13 +324,13 @@ class _Cdr:
         if len(values):
             self.put(values.tobytes(), values.itemsize)
 
-    def strings(self, texts: list[str]) -> None:
-        """A string[], placed with numpy: a batch's messages are mostly empty."""
+    def strings(self, texts: list[str], full: np.ndarray) -> None:
+        """A string[] whose non-empty strings are at indices ``full``
+        (:func:`_non_empty`), placed with numpy: a batch's messages are mostly empty."""
         self.put(_UINT32.pack(len(texts)), 4)
-        if not any(texts):
+        if not len(full):
             self.put(_EMPTY_STRING * len(texts))
             return
-        full = np.flatnonzero(np.fromiter(map(bool, texts), bool, len(texts)))
         encoded = [texts[i].encode("utf-8") for i in full.tolist()]
         sizes = np.fromiter(map(len, encoded), np.int64, len(encoded))
         lengths = np.ones(len(texts), np.int64)  # with the NUL
@@ -349,8 +349,11 @@ class _Cdr:
         return b"".join(self.parts)
 
 
-def _many_messages(texts: list[str]) -> bool:
-    return any(texts) and sum(map(bool, texts)) > MAX_MESSAGE_SHARE * len(texts)
+def _non_empty(texts: list[str]) -> np.ndarray:
+    """Indices of the non-empty strings (the usual all-empty case in one C-level scan)."""
+    if not any(texts):
+        return np.empty(0, np.int64)
+    return np.flatnonzero(np.fromiter(map(bool, texts), bool, len(texts)))
 
 
 def encode_verdict_array(header: Header, client_id: int, request_id: int,
@@ -367,7 +370,8 @@ def encode_verdict_array(header: Header, client_id: int, request_id: int,
     verdicts : Verdicts
         Its optional fields that are None go as empty sequences.
     """
-    if _many_messages(verdicts.messages):
+    full = _non_empty(verdicts.messages)
+    if len(full) > MAX_MESSAGE_SHARE * len(verdicts.messages):
         from rclpy.serialization import serialize_message
 
         from grasp_fc_ros.conversions import verdicts_to_array_msg
@@ -383,7 +387,7 @@ def encode_verdict_array(header: Header, client_id: int, request_id: int,
     out.sequence(np.asarray(verdicts.force_closure, bool).view(np.uint8), "u1")
     out.sequence(verdicts.status, "u1")
     out.sequence(verdicts.margin, "<f8")
-    out.strings(verdicts.messages)
+    out.strings(verdicts.messages, full)
     for values in (verdicts.contact_forces, verdicts.contact_torques,
                    verdicts.separating_wrench, verdicts.min_friction):
         out.sequence(np.empty(0) if values is None else values, "<f8")
