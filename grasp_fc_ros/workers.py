@@ -3,7 +3,9 @@
 The core is CPU-bound Python and numpy, and the GIL lets one process use about one
 core. :class:`EvaluationPool` splits a large :class:`~grasp_fc_ros.evaluation.PackedGrasps`
 into chunks, decides them in worker processes with :func:`~grasp_fc_ros.evaluation.evaluate`
-and puts the verdicts back together in order. Requests of at most
+and puts the verdicts back together in order; :meth:`~EvaluationPool.start` queues a
+request's chunks and returns at once (a :class:`Decision`), so that a caller can queue
+the next request before this one is collected. Requests of at most
 :data:`INLINE_GRASPS` grasps are decided in the calling thread: a few milliseconds of
 GIL, and no waiting for a worker busy with a batch chunk. Everything larger goes to the
 workers, so the core never holds the node's GIL for long.
@@ -140,6 +142,52 @@ def chunk_size(total_contacts: int, workers: int, chunk_contacts: int = CHUNK_CO
     return max(1, -(-total_contacts // n_chunks))
 
 
+class Decision:
+    """One request being decided: its chunks' futures, or its verdicts if decided inline.
+
+    Made by :meth:`EvaluationPool.start`; :meth:`result` waits for the verdicts.
+    """
+
+    def __init__(self, futures: list[Future], ready: tuple[Verdicts, dict] | None = None):
+        self._futures = futures
+        self._ready = ready
+
+    def result(self, cancelled: Callable[[], bool] = lambda: False) -> tuple[Verdicts, dict]:
+        """The verdicts, in order, and the seconds per stage summed over the chunks.
+
+        Raises
+        ------
+        Cancelled
+            If ``cancelled()`` became true before all chunks were decided (the chunks
+            not started yet are dropped).
+        RuntimeError
+            If a worker failed on a chunk.
+        """
+        if self._ready is not None:
+            return self._ready
+        try:
+            parts, seconds = [], {}
+            for future in self._futures:
+                verdicts, chunk_seconds = self._wait(future, cancelled)
+                parts.append(verdicts)
+                for key, value in chunk_seconds.items():
+                    seconds[key] = seconds.get(key, 0.0) + value
+            return Verdicts.concatenate(parts), seconds
+        finally:
+            for future in self._futures:
+                future.cancel()
+
+    @staticmethod
+    def _wait(future: Future, cancelled: Callable[[], bool]):
+        while True:
+            if cancelled():
+                raise Cancelled()
+            try:
+                return future.result(POLL_S)
+            except FutureTimeout:
+                continue
+
+
 class EvaluationPool:
     """Decide packed grasps, large ones in chunks on ``workers`` processes.
 
@@ -172,8 +220,19 @@ class EvaluationPool:
         """
         if cancelled():
             raise Cancelled()
+        return self.start(packed, settings, priority).result(cancelled)
+
+    def start(self, packed: PackedGrasps, settings: Settings,
+              priority: int = PRIORITY_BATCH) -> Decision:
+        """Queue the chunks of ``packed`` for the workers and return at once.
+
+        A caller can start the next request while this one's chunks are decided, so
+        that the workers never wait for it between requests. Requests of at most
+        :data:`INLINE_GRASPS` grasps (or with no workers) are decided here, before
+        returning.
+        """
         if not self._workers or len(packed) <= INLINE_GRASPS:
-            return evaluate(packed, settings)
+            return Decision([], evaluate(packed, settings))
         futures = []
         # Soft grasps take the exact test's Clarabel path, ~15-60x a hard grasp's cost
         # (benchmarks/bench_soft.py): smaller chunks keep one chunk's delay as short.
@@ -184,11 +243,7 @@ class EvaluationPool:
             future: Future = Future()
             self._tasks.put((priority, next(self._order), (future, chunk, settings)))
             futures.append(future)
-        try:
-            return self._collect(futures, cancelled)
-        finally:
-            for future in futures:
-                future.cancel()
+        return Decision(futures)
 
     @property
     def chunk_contacts(self) -> int:
@@ -213,24 +268,6 @@ class EvaluationPool:
             return future
         self._tasks.put((priority, next(self._order), (future, chunk, settings)))
         return future
-
-    @staticmethod
-    def _collect(futures: list[Future], cancelled: Callable[[], bool]
-                 ) -> tuple[Verdicts, dict]:
-        parts, seconds = [], {}
-        for future in futures:
-            while True:
-                if cancelled():
-                    raise Cancelled()
-                try:
-                    verdicts, chunk_seconds = future.result(POLL_S)
-                    break
-                except FutureTimeout:
-                    continue
-            parts.append(verdicts)
-            for key, value in chunk_seconds.items():
-                seconds[key] = seconds.get(key, 0.0) + value
-        return Verdicts.concatenate(parts), seconds
 
     def close(self):
         """Stop the workers at once (a chunk in progress is abandoned)."""

@@ -213,6 +213,24 @@ def test_worker_pool_gives_the_inline_verdicts_in_order():
     assert seconds["exact_s"] > 0
 
 
+def test_started_requests_are_decided_side_by_side_and_collected_in_any_order():
+    rng = np.random.default_rng(14)
+    positions, normals = sample_grasps(make_object("box"), 120, 6, rng)
+    first = pack(list(zip(positions[:80], normals[:80])))
+    second = pack(list(zip(positions[80:], normals[80:])))
+    tiny = first.slice(0, 2)  # decided inline, at start
+    pool = EvaluationPool(1, chunk_contacts=120)  # 20 grasps a chunk, one worker
+    try:
+        decisions = [pool.start(packed, Settings()) for packed in (first, second, tiny)]
+        results = [decision.result()[0] for decision in reversed(decisions)][::-1]
+    finally:
+        pool.close()
+    for packed, got in zip((first, second, tiny), results):
+        inline, _ = evaluate(packed, Settings())
+        np.testing.assert_array_equal(got.ids, inline.ids)
+        np.testing.assert_array_equal(got.status, inline.status)
+
+
 def test_a_killed_worker_fails_its_chunk_and_is_replaced():
     rng = np.random.default_rng(13)
     positions, normals = sample_grasps(make_object("box"), 400, 6, rng)

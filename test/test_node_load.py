@@ -114,6 +114,27 @@ def test_service_answers_while_a_large_batch_is_decided(own_node, grasps):
         client.close()
 
 
+def test_batches_are_answered_in_arrival_order_while_the_next_ones_are_decided(
+        own_node, grasps):
+    # One worker, so a large batch's chunks take a while; the batches behind it start
+    # before it is answered (BATCHES_IN_PROGRESS), and a tiny one is even decided first
+    # (inline), but every answer goes out in arrival order, complete.
+    _, _, client = own_node("/order_test", workers=1)
+    positions, normals = grasps
+    sizes = [3000, 2, 1, 700, 3, 3000, 2]
+    request_ids = list(range(500, 500 + len(sizes)))
+    for request_id, size in zip(request_ids, sizes):
+        msg = grasps_to_batch_msg(np.arange(size), positions[:size], normals[:size])
+        msg.request_id = request_id
+        client.batch_pub.publish(msg)
+    answers = client.wait_for("batches", len(sizes), timeout=LOAD_TIMEOUT_S)
+    assert [a.request_id for a in answers] == request_ids
+    expected = check_force_closure(positions, normals, 0.5).status
+    for answer, size in zip(answers, sizes):
+        np.testing.assert_array_equal(answer.ids, np.arange(size))
+        np.testing.assert_array_equal(answer.status, expected[:size])
+
+
 def test_malformed_message_flood_is_answered_and_harmless(own_node, grasps):
     node, _, client = own_node("/flood_test")
     positions, normals = (a[:4] for a in grasps)
