@@ -1170,11 +1170,18 @@ class ForceClosureNode(Node):
             if self._stopping:
                 return  # destroy_node answers the batches in progress
             batch = self._in_progress[0]
-        verdicts, answer = self._batch_reply(batch)
-        with self._lock:
-            self._in_progress.popleft()
-            self._busy_batch_grasps -= len(batch.msg.ids)
-            self._lock.notify_all()
+        cancelled = False
+        try:
+            verdicts, answer = self._batch_reply(batch)
+        except Cancelled:
+            cancelled = True  # left in progress: destroy_node answers it
+            raise
+        finally:
+            if not cancelled:  # answered, or failed beyond answering: never retried
+                with self._lock:
+                    self._in_progress.popleft()
+                    self._busy_batch_grasps -= len(batch.msg.ids)
+                    self._lock.notify_all()
         self._batch_pub.publish(answer)
         if self._marker_settings.enabled:
             self._offer_markers(self._markers.offer_batch, batch.msg, verdicts)
@@ -1259,11 +1266,14 @@ class ForceClosureNode(Node):
         self._pool.close()
         with self._lock:
             singles, self._pending = list(self._pending), deque()
-            batches = [batch.msg for batch in self._in_progress] + list(self._batches)
+            # In order, with the answer of each batch refused at conversion (counted
+            # then); the others get SHUTDOWN_MESSAGE.
+            batches = [(batch.msg, batch.failed) for batch in self._in_progress]
+            batches += [(msg, None) for msg in self._batches]
             self._in_progress, self._batches = deque(), deque()
         singles = [deserialize_message(q, ContactArray) if isinstance(q, bytes) else q
                    for q in singles]
-        unanswered = len(singles) + sum(len(b.ids) for b in batches)
+        unanswered = len(singles) + sum(len(msg.ids) for msg, _ in batches)
         try:
             if (singles or batches) and not rclpy.ok(context=self.context):
                 raise RuntimeError("rclpy is shut down")
@@ -1271,11 +1281,14 @@ class ForceClosureNode(Node):
                 self._verdict_pub.publish(reply)
                 self._stats.record_failures(1)
                 unanswered -= 1
-            for batch in batches:
-                self._batch_pub.publish(_batch_failure(batch, Status.SOLVER_FAILURE,
-                                                       SHUTDOWN_MESSAGE))
-                self._stats.record_failures(len(batch.ids))
-                unanswered -= len(batch.ids)
+            for msg, failed in batches:
+                if failed is None:
+                    self._batch_pub.publish(_batch_failure(msg, Status.SOLVER_FAILURE,
+                                                           SHUTDOWN_MESSAGE))
+                    self._stats.record_failures(len(msg.ids))
+                else:
+                    self._batch_pub.publish(_batch_answer(failed, msg, self._use_wire))
+                unanswered -= len(msg.ids)
             if singles or batches:
                 # Publishing only queues the answers: let DDS deliver them before the
                 # process can exit, for a bounded time.

@@ -18,7 +18,7 @@ from grasp_fc_ros import wire
 from grasp_fc_ros.client import GraspClient
 from grasp_fc_ros.conversions import grasp_to_contact_array, grasps_to_batch_msg
 from grasp_fc_ros.core import Status, check_force_closure
-from grasp_fc_ros.node import QUERY_QOS
+from grasp_fc_ros.node import QUERY_QOS, SHUTDOWN_MESSAGE
 from grasp_fc_ros.objects import make_object, sample_grasps
 
 pytestmark = pytest.mark.timeout(180)
@@ -133,6 +133,34 @@ def test_batches_are_answered_in_arrival_order_while_the_next_ones_are_decided(
     for answer, size in zip(answers, sizes):
         np.testing.assert_array_equal(answer.ids, np.arange(size))
         np.testing.assert_array_equal(answer.status, expected[:size])
+
+
+def test_batches_in_progress_and_queued_are_answered_in_order_at_shutdown(own_node, grasps):
+    node, spinner, client = own_node("/batch_shutdown_test", workers=1)
+    positions, normals = grasps
+    big = grasps_to_batch_msg(np.arange(60_000), np.tile(positions, (20, 1, 1)),
+                              np.tile(normals, (20, 1, 1)))  # seconds on one worker
+    mispacked = grasps_to_batch_msg([0, 1], positions[:2], normals[:2])
+    mispacked.contact_counts = [6, 5]  # refused at conversion, while big is decided
+    queued = grasps_to_batch_msg([0, 1, 2], positions[:3], normals[:3])
+    for request_id, msg in enumerate((big, mispacked, queued), start=1):
+        msg.request_id = request_id
+        client.batch_pub.publish(msg)
+    deadline = time.monotonic() + LOAD_TIMEOUT_S
+    while not (len(node._in_progress) == 2 and len(node._batches) == 1):
+        assert time.monotonic() < deadline, "the batches never got in place"
+        time.sleep(0.01)
+    spinner.stop()
+    answers = client.wait_for("batches", 3)
+    assert [a.request_id for a in answers] == [1, 2, 3]
+    # The mis-packed batch keeps the answer it got; the others say why they got none.
+    assert set(answers[1].status) == {Status.INVALID_INPUT}
+    assert answers[1].messages[0].startswith("malformed batch")
+    for answer in (answers[0], answers[2]):
+        assert set(answer.status) == {Status.SOLVER_FAILURE}
+        assert set(answer.messages) == {SHUTDOWN_MESSAGE}
+    time.sleep(0.5)
+    assert len(client.wait_for("batches", 3)) == 3, "a batch got two answers"
 
 
 def test_malformed_message_flood_is_answered_and_harmless(own_node, grasps):
