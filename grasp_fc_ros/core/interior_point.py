@@ -316,20 +316,25 @@ def _nt_scaling(z, s, scaling, inverse_vector):
     s_det = s[0] * s[0] - s[1] * s[1] - s[2] * s[2]
     if not (z_det > 0.0 and s_det > 0.0 and z[0] > 0.0 and s[0] > 0.0):
         return np.nan
+    # Four reciprocals instead of fifteen divisions (the divider bounds this function;
+    # 2x faster, measured); rounding of the scaling only, which no certificate uses.
     z_root, s_root = np.sqrt(z_det), np.sqrt(s_det)
-    gamma = np.sqrt(0.5 * (1.0 + (z[0] * s[0] + z[1] * s[1] + z[2] * s[2]) / (z_root * s_root)))
-    v0 = (s[0] / s_root + z[0] / z_root) / (2.0 * gamma)
-    v1 = (s[1] / s_root - z[1] / z_root) / (2.0 * gamma)
-    v2 = (s[2] / s_root - z[2] / z_root) / (2.0 * gamma)
-    eta = np.sqrt(s_root / z_root)
+    z_inv, s_inv = 1.0 / z_root, 1.0 / s_root
+    gamma = np.sqrt(0.5 * (1.0 + (z[0] * s[0] + z[1] * s[1] + z[2] * s[2]) * (z_inv * s_inv)))
+    half_inv_gamma = 0.5 / gamma
+    v0 = (s[0] * s_inv + z[0] * z_inv) * half_inv_gamma
+    v1 = (s[1] * s_inv - z[1] * z_inv) * half_inv_gamma
+    v2 = (s[2] * s_inv - z[2] * z_inv) * half_inv_gamma
+    eta = np.sqrt(s_root * z_inv)
+    off = eta / (1.0 + v0)
     scaling[0, 0] = eta * v0
     scaling[0, 1] = scaling[1, 0] = eta * v1
     scaling[0, 2] = scaling[2, 0] = eta * v2
-    scaling[1, 1] = eta * (1.0 + v1 * v1 / (1.0 + v0))
-    scaling[2, 2] = eta * (1.0 + v2 * v2 / (1.0 + v0))
-    scaling[1, 2] = scaling[2, 1] = eta * v1 * v2 / (1.0 + v0)
+    scaling[1, 1] = eta + off * v1 * v1
+    scaling[2, 2] = eta + off * v2 * v2
+    scaling[1, 2] = scaling[2, 1] = off * v1 * v2
     inverse_vector[0], inverse_vector[1], inverse_vector[2] = v0, -v1, -v2
-    return 1.0 / (eta * eta)
+    return z_root * s_inv
 
 
 def _inverse_apply(scaling, x, out):
@@ -370,20 +375,17 @@ def _max_step(x, dx):
     a = dx[0] * dx[0] - dx[1] * dx[1] - dx[2] * dx[2]
     b = 2.0 * (x[0] * dx[0] - x[1] * dx[1] - x[2] * dx[2])
     c = x[0] * x[0] - x[1] * x[1] - x[2] * x[2]
-    if a == 0.0:
-        return -c / b if b < 0.0 else 1e30
-    disc = b * b - 4.0 * a * c
-    if disc < 0.0:
-        return 1e30      # a > 0 and no real root: dx points into the cone
-    root = np.sqrt(disc)
-    q = -0.5 * (b + root) if b >= 0.0 else -0.5 * (b - root)
-    best = 1e30
-    for alpha in (q / a, c / q if q != 0.0 else 1e30):
-        if alpha > 0.0:
-            best = min(best, alpha)
-    if a > 0.0 and b >= 0.0:
-        return 1e30      # both roots negative: dx lies in the cone
-    return best
+    # The smallest positive root of a alpha^2 + b alpha + c (c > 0), one division:
+    # 2c / (sqrt(D) - b) for b < 0 (both terms positive, no cancellation); for b >= 0 a
+    # positive root needs a < 0, and is (-b - sqrt(D)) / (2a), again without cancellation.
+    if b < 0.0:
+        disc = b * b - 4.0 * a * c
+        if disc < 0.0:
+            return 1e30      # a > 0 and no real root: dx points into the cone
+        return 2.0 * c / (np.sqrt(disc) - b)
+    if a < 0.0:
+        return (-b - np.sqrt(b * b - 4.0 * a * c)) / (2.0 * a)
+    return 1e30          # both roots negative (or none): dx lies in the cone
 
 
 def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signed_level,
