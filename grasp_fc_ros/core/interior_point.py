@@ -58,6 +58,15 @@ MAX_ITERATIONS = 40
 #: methods: close enough to converge fast, far enough to keep the scaling well-defined).
 STEP_FRACTION = 0.99
 
+#: Centring with the optimum asked for: sigma = min(CAP, (1 - alpha_aff)^POWER) instead
+#: of Mehrotra's (1 - alpha_aff)^3, which is kept for verdicts. Iterating to the optimum,
+#: the cube's too little centring in the late iterations left affine steps of 0.6-0.9
+#: (gaps shrinking ~10x per iteration); this rule cut the mean iterations to the margin
+#: by 4-7% on the box, ellipsoid and mug (n = 4, 6, 8; mu = tan 10 deg, 0.5; 1,500-2,000
+#: grasps per cell), while on verdicts it cost up to 3% and the cube stays there.
+OPTIMUM_CENTRING_POWER = 1.5
+OPTIMUM_CENTRING_CAP = 0.1
+
 #: A step shorter than this means the iteration has stalled: hand the grasp over.
 MIN_STEP = 1e-10
 
@@ -599,13 +608,14 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
             for k in range(3):
                 w_dz[k] = -lam[i, k] - u_aff[i, k]
             alpha = min(alpha, _max_step(lam[i], u_aff[i]), _max_step(lam[i], w_dz))
-        alpha = min(1.0, alpha)
-        predicted = 0.0
-        for i in range(n):
-            for k in range(3):
-                predicted += (((1.0 - alpha) * lam[i, k] - alpha * u_aff[i, k])
-                              * (lam[i, k] + alpha * u_aff[i, k]))
-        target = (predicted / gap) ** 3 * (gap / n)
+        # Mehrotra's centring from the affine step: for feasible iterates dz . ds = 0,
+        # so that step would leave the gap (1 - alpha) gap.
+        shrink = 1.0 - min(1.0, alpha)
+        if want_optimum:
+            centring = min(OPTIMUM_CENTRING_CAP, shrink ** OPTIMUM_CENTRING_POWER)
+        else:
+            centring = shrink ** 3
+        target = centring * (gap / n)
         # Corrector: lam o (W dz + W^-1 ds) = -lam o lam - u o (-lam - u) + target e, so
         # W dz + W^-1 ds = -lam + p with p = lam \ (u o (lam + u) + target e); as above
         # the right-hand side becomes -d - sum_i A_i W^-1 p_i and dz = -z + W^-1 p - W^-2 ds.
