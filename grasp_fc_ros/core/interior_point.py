@@ -369,21 +369,18 @@ def _nt_scaling(z, s, scaling, inverse_vector):
     return z_root * s_inv
 
 
-def _inverse_apply(scaling, x, out):
-    """out = W^-1 x from W = eta Wbar: W^-1 = J W J / eta^2."""
-    inv_eta2 = 1.0 / (scaling[0, 0] ** 2 - scaling[0, 1] ** 2 - scaling[0, 2] ** 2)
-    jx0, jx1, jx2 = x[0], -x[1], -x[2]
-    for r in range(3):
-        sign = 1.0 if r == 0 else -1.0
-        out[r] = sign * inv_eta2 * (scaling[r, 0] * jx0 + scaling[r, 1] * jx1 + scaling[r, 2] * jx2)
-
-
 def _scaled_inverse_apply(scaling, inv_eta2, x, out):
     """out = W^-1 x = J W J x / eta^2 for W = eta Wbar (``scaling``) and its 1/eta^2."""
     jx0, jx1, jx2 = x[0], -x[1], -x[2]
     for r in range(3):
         sign = 1.0 if r == 0 else -1.0
         out[r] = sign * inv_eta2 * (scaling[r, 0] * jx0 + scaling[r, 1] * jx1 + scaling[r, 2] * jx2)
+
+
+def _inverse_apply(scaling, x, out):
+    """out = W^-1 x from W = eta Wbar alone (1/eta^2 = 1 / det W)."""
+    inv_eta2 = 1.0 / (scaling[0, 0] ** 2 - scaling[0, 1] ** 2 - scaling[0, 2] ** 2)
+    _scaled_inverse_apply(scaling, inv_eta2, x, out)
 
 
 def _jordan_product_into(x, y, out):
@@ -711,10 +708,10 @@ def _solve_all(unit, normals, mu, want_optimum, want_wrench, signed_gap, signed_
 
 
 for _name in ("_frames", "_wrench_rows", "_work_at", "_normal_split", "_gram", "_apply_grasp_map", "_cholesky_solve",
-              "_cholesky", "_triangular_inverse_norm2", "_certified_rank", "_witness", "_unprojected_depth",
-              "_bound",
-              "_nt_scaling", "_inverse_apply", "_scaled_inverse_apply", "_jordan_product_into", "_jordan_divide_into",
-              "_max_step", "_solve_grasp", "_solve_all"):
+              "_cholesky", "_triangular_inverse_norm2", "_certified_rank", "_witness",
+              "_unprojected_depth", "_bound", "_nt_scaling", "_scaled_inverse_apply",
+              "_inverse_apply", "_jordan_product_into", "_jordan_divide_into", "_max_step",
+              "_solve_grasp", "_solve_all"):
     globals()[_name] = _jit(globals()[_name])
 
 
