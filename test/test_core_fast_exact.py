@@ -11,7 +11,8 @@ from grasp_fc_ros.core import Status, check_force_closure, verify_certificates, 
 from grasp_fc_ros.core.certificates import normalise_positions
 from grasp_fc_ros.core.exact_test import solve_exact
 from grasp_fc_ros.core.grasp_input import prepare_grasps
-from grasp_fc_ros.core.interior_point import NOT_FORCE_CLOSURE, UNDECIDED, solve_fast
+from grasp_fc_ros.core.interior_point import (FORCE_CLOSURE, NOT_FORCE_CLOSURE, UNDECIDED,
+                                              solve_fast)
 from grasp_fc_ros.core.tolerances import (
     MARGIN_ACCURACY,
     MARGIN_TOL,
@@ -277,3 +278,30 @@ def test_fast_stage_results_are_identical_alone_and_in_a_batch():
         alone = _fast_codes(positions[g:g + 1], normals[g:g + 1], 0.5)
         for batch_value, alone_value in zip(together, alone):
             np.testing.assert_array_equal(batch_value[g], alone_value[0])
+
+
+def test_verdicts_just_above_the_threshold_are_certified_by_the_fast_stage():
+    """Verdicts skip the witness where the iterate's forces before projection are not
+    deep enough to matter (WITNESS_SKIP_SLACK): grasps with t* just above MARGIN_TOL must
+    still be certified force closure by the fast stage itself, with forces that verify
+    and a lower bound no higher than the optimum; just below, never force closure."""
+    rng = np.random.default_rng(41)
+    positions, normals = ellipsoid_grasps(rng, 4, 6)
+    for g in range(len(positions)):
+        for target, closure in ((3 * MARGIN_TOL, True), (MARGIN_TOL / 3, False)):
+            mu = _bisect_threshold_mu(positions[g], normals[g], target)
+            grasps = prepare_grasps(positions[g], normals[g], mu)
+            optimum = solve_exact(grasps, fast=False).margin[0]
+            unit = normalise_positions(grasps.positions)[0]
+            codes, t_lo, t_hi, _, _, _ = solve_fast(unit, grasps.normals, grasps.mu)
+            if closure:
+                assert codes[0] == FORCE_CLOSURE and MARGIN_TOL <= t_lo[0] <= optimum + 1e-8
+            else:
+                assert codes[0] != FORCE_CLOSURE and t_hi[0] >= optimum - 1e-8
+            result = check_force_closure(positions[g], normals[g], mu, margin="bound",
+                                         use_filter=False, certificates=True)
+            assert (result.status == Status.FORCE_CLOSURE) == closure
+            assert result.margin <= optimum + 1e-8
+            if closure:
+                assert verify_certificates(positions[g], normals[g], mu,
+                                           result.contact_forces)[0]

@@ -16,8 +16,9 @@ Mehrotra's predictor-corrector keeps them so.
 
 The method decides from certificates, never from convergence: after every iteration
 (iteration 0 included; with the optimum asked for, only once the iterates' objectives
-are within ``CHECK_GAP``, since before that no certificate can close the interval) it
-checks
+are within ``CHECK_GAP``, since before that no certificate can close the interval; for
+verdicts, the witness only where the iterate's forces before projection are deep enough
+to matter, ``WITNESS_SKIP_SLACK``) it checks
 
 * force closure: the iterate's forces, projected onto equilibrium, lie ``MARGIN_TOL``
   deep in every cone after allowing for rounding (the same bound as
@@ -58,17 +59,37 @@ MAX_ITERATIONS = 40
 #: methods: close enough to converge fast, far enough to keep the scaling well-defined).
 STEP_FRACTION = 0.99
 
+#: Centring with the optimum asked for: sigma = min(CAP, (1 - alpha_aff)^POWER) instead
+#: of Mehrotra's (1 - alpha_aff)^3, which is kept for verdicts. Iterating to the optimum,
+#: the cube's too little centring in the late iterations left affine steps of 0.6-0.9
+#: (gaps shrinking ~10x per iteration); this rule cut the mean iterations to the margin
+#: by 4-7% on the box, ellipsoid and mug (n = 4, 6, 8; mu = tan 10 deg, 0.5; 1,500-2,000
+#: grasps per cell), while on verdicts it cost up to 3% and the cube stays there.
+OPTIMUM_CENTRING_POWER = 1.5
+OPTIMUM_CENTRING_CAP = 0.1
+
 #: A step shorter than this means the iteration has stalled: hand the grasp over.
 MIN_STEP = 1e-10
 
 _EPS = float(np.finfo(np.float64).eps)
 
+#: For verdicts, the witness is computed only where it could raise max(t_lo, 0): where
+#: :func:`_unprojected_depth` exceeds it less this allowance, which covers the
+#: projection's rounding (~1e-15) many times over. A speed heuristic only (1.1-1.2x on
+#: verdicts, measured; with the optimum asked for, where ``CHECK_GAP`` already gates the
+#: witness, it cost 1-3% and is not used): a skipped witness could have changed neither
+#: the verdict nor the reported interval (t_lo enters both only through max(t_lo, 0); a
+#: certifying witness is MARGIN_TOL deep), and a mistaken skip only costs an iteration.
+WITNESS_SKIP_SLACK = 1e-9
+
 #: With ``want_optimum``, the certificate checks are skipped while the iterates' primal
-#: and dual objectives are more than this apart (100 MARGIN_ACCURACY): they cannot close
-#: the interval yet. A speed heuristic only (every return is still from a checked
-#: iterate); on the benchmark's 24,000 box grasps it changed no stop, and saved ~10-15%
-#: of the optimum's time.
-CHECK_GAP = 1e-6
+#: and dual objectives are more than this apart (10 MARGIN_ACCURACY): they cannot close
+#: the interval yet (at the iterate before the one that closes it, the certified width
+#: was 0.4-0.9 of the objectives' gap, 10th-90th percentile). A speed heuristic only
+#: (every return is still from a checked iterate). 100 MARGIN_ACCURACY changed no stop
+#: on the benchmark's 24,000 box grasps and saved ~10-15% of the optimum's time; 10
+#: MARGIN_ACCURACY changed none of 12,000 more (n = 4, 6, 8; two mu) and saved 0-4%.
+CHECK_GAP = 1e-7
 
 #: The signed mode also stops where its gap is this fraction of the margin's distance
 #: from the level searched for: far from mu*, the search's next step and the
@@ -167,26 +188,27 @@ def _apply_grasp_map(unit, forces, out):
 
 
 def _cholesky_solve(factor, rhs, x, y):
-    """Solve (L L^T) x = rhs for a lower-triangular L; ``y`` is scratch (x may be rhs)."""
-    size = rhs.shape[0]
-    for r in range(size):
+    """Solve (L L^T) x = rhs for a lower-triangular 6 x 6 L; ``y`` is scratch (x may be
+    rhs). The literal size lets the compiler unroll both substitutions (3x faster than
+    loops over ``rhs.shape[0]``, measured)."""
+    for r in range(6):
         acc = rhs[r]
         for c in range(r):
             acc -= factor[r, c] * y[c]
         y[r] = acc / factor[r, r]
-    for r in range(size - 1, -1, -1):
+    for r in range(5, -1, -1):
         acc = y[r]
-        for c in range(r + 1, size):
+        for c in range(r + 1, 6):
             acc -= factor[c, r] * x[c]
         x[r] = acc / factor[r, r]
 
 
 def _triangular_inverse_norm2(factor, column):
-    """|L^-1|_F^2 of a lower-triangular L, by forward substitution column by column."""
-    size = factor.shape[0]
+    """|L^-1|_F^2 of a lower-triangular 6 x 6 L, by forward substitution column by
+    column (literal size, as in :func:`_cholesky_solve`)."""
     total = 0.0
-    for k in range(size):
-        for r in range(size):
+    for k in range(6):
+        for r in range(6):
             if r < k:
                 column[r] = 0.0
                 continue
@@ -199,10 +221,10 @@ def _triangular_inverse_norm2(factor, column):
 
 
 def _cholesky(matrix, factor):
-    """Lower Cholesky factor into ``factor``; False on a non-positive pivot."""
-    size = matrix.shape[0]
+    """Lower Cholesky factor of a 6 x 6 ``matrix`` into ``factor`` (literal size, as in
+    :func:`_cholesky_solve`); False on a non-positive pivot."""
     factor[:] = 0.0
-    for r in range(size):
+    for r in range(6):
         for c in range(r + 1):
             acc = matrix[r, c]
             for k in range(c):
@@ -276,6 +298,17 @@ def _witness(unit, normals, tangent, bitangent, mu, z, sigma, gram_factor, sigma
     return worst / (total + slack)
 
 
+def _unprojected_depth(z, mu, t_p):
+    """Depth t_p + min_i mu_i (z0_i - |z_t,i|) of the forces of primal iterate z before
+    the projection onto equilibrium (mu_i c_n,i - |c_t,i| = t_p + mu_i (z0_i - |z_t,i|),
+    normal forces summing to one): the iterates are in equilibrium up to rounding, so
+    :func:`_witness` certifies at most this plus rounding, at a fraction of its cost."""
+    lowest = np.inf
+    for i in range(z.shape[0]):
+        lowest = min(lowest, mu[i] * (z[i, 0] - np.sqrt(z[i, 1] * z[i, 1] + z[i, 2] * z[i, 2])))
+    return t_p + lowest
+
+
 def _bound(unit, normals, mu, w, normal_work):
     """Certified upper bound on t* from wrench w (6,), and whether w meets the
     separation target (L <= SEPARATION_TARGET max_j |a_j|)."""
@@ -315,29 +348,39 @@ def _nt_scaling(z, s, scaling, inverse_vector):
     s_det = s[0] * s[0] - s[1] * s[1] - s[2] * s[2]
     if not (z_det > 0.0 and s_det > 0.0 and z[0] > 0.0 and s[0] > 0.0):
         return np.nan
+    # Four reciprocals instead of fifteen divisions (the divider bounds this function;
+    # 2x faster, measured); rounding of the scaling only, which no certificate uses.
     z_root, s_root = np.sqrt(z_det), np.sqrt(s_det)
-    gamma = np.sqrt(0.5 * (1.0 + (z[0] * s[0] + z[1] * s[1] + z[2] * s[2]) / (z_root * s_root)))
-    v0 = (s[0] / s_root + z[0] / z_root) / (2.0 * gamma)
-    v1 = (s[1] / s_root - z[1] / z_root) / (2.0 * gamma)
-    v2 = (s[2] / s_root - z[2] / z_root) / (2.0 * gamma)
-    eta = np.sqrt(s_root / z_root)
+    z_inv, s_inv = 1.0 / z_root, 1.0 / s_root
+    gamma = np.sqrt(0.5 * (1.0 + (z[0] * s[0] + z[1] * s[1] + z[2] * s[2]) * (z_inv * s_inv)))
+    half_inv_gamma = 0.5 / gamma
+    v0 = (s[0] * s_inv + z[0] * z_inv) * half_inv_gamma
+    v1 = (s[1] * s_inv - z[1] * z_inv) * half_inv_gamma
+    v2 = (s[2] * s_inv - z[2] * z_inv) * half_inv_gamma
+    eta = np.sqrt(s_root * z_inv)
+    off = eta / (1.0 + v0)
     scaling[0, 0] = eta * v0
     scaling[0, 1] = scaling[1, 0] = eta * v1
     scaling[0, 2] = scaling[2, 0] = eta * v2
-    scaling[1, 1] = eta * (1.0 + v1 * v1 / (1.0 + v0))
-    scaling[2, 2] = eta * (1.0 + v2 * v2 / (1.0 + v0))
-    scaling[1, 2] = scaling[2, 1] = eta * v1 * v2 / (1.0 + v0)
+    scaling[1, 1] = eta + off * v1 * v1
+    scaling[2, 2] = eta + off * v2 * v2
+    scaling[1, 2] = scaling[2, 1] = off * v1 * v2
     inverse_vector[0], inverse_vector[1], inverse_vector[2] = v0, -v1, -v2
-    return 1.0 / (eta * eta)
+    return z_root * s_inv
 
 
-def _inverse_apply(scaling, x, out):
-    """out = W^-1 x from W = eta Wbar: W^-1 = J W J / eta^2."""
-    inv_eta2 = 1.0 / (scaling[0, 0] ** 2 - scaling[0, 1] ** 2 - scaling[0, 2] ** 2)
+def _scaled_inverse_apply(scaling, inv_eta2, x, out):
+    """out = W^-1 x = J W J x / eta^2 for W = eta Wbar (``scaling``) and its 1/eta^2."""
     jx0, jx1, jx2 = x[0], -x[1], -x[2]
     for r in range(3):
         sign = 1.0 if r == 0 else -1.0
         out[r] = sign * inv_eta2 * (scaling[r, 0] * jx0 + scaling[r, 1] * jx1 + scaling[r, 2] * jx2)
+
+
+def _inverse_apply(scaling, x, out):
+    """out = W^-1 x from W = eta Wbar alone (1/eta^2 = 1 / det W)."""
+    inv_eta2 = 1.0 / (scaling[0, 0] ** 2 - scaling[0, 1] ** 2 - scaling[0, 2] ** 2)
+    _scaled_inverse_apply(scaling, inv_eta2, x, out)
 
 
 def _jordan_product_into(x, y, out):
@@ -361,20 +404,17 @@ def _max_step(x, dx):
     a = dx[0] * dx[0] - dx[1] * dx[1] - dx[2] * dx[2]
     b = 2.0 * (x[0] * dx[0] - x[1] * dx[1] - x[2] * dx[2])
     c = x[0] * x[0] - x[1] * x[1] - x[2] * x[2]
-    if a == 0.0:
-        return -c / b if b < 0.0 else 1e30
-    disc = b * b - 4.0 * a * c
-    if disc < 0.0:
-        return 1e30      # a > 0 and no real root: dx points into the cone
-    root = np.sqrt(disc)
-    q = -0.5 * (b + root) if b >= 0.0 else -0.5 * (b - root)
-    best = 1e30
-    for alpha in (q / a, c / q if q != 0.0 else 1e30):
-        if alpha > 0.0:
-            best = min(best, alpha)
-    if a > 0.0 and b >= 0.0:
-        return 1e30      # both roots negative: dx lies in the cone
-    return best
+    # The smallest positive root of a alpha^2 + b alpha + c (c > 0), one division:
+    # 2c / (sqrt(D) - b) for b < 0 (both terms positive, no cancellation); for b >= 0 a
+    # positive root needs a < 0, and is (-b - sqrt(D)) / (2a), again without cancellation.
+    if b < 0.0:
+        disc = b * b - 4.0 * a * c
+        if disc < 0.0:
+            return 1e30      # a > 0 and no real root: dx points into the cone
+        return 2.0 * c / (np.sqrt(disc) - b)
+    if a < 0.0:
+        return (-b - np.sqrt(b * b - 4.0 * a * c)) / (2.0 * a)
+    return 1e30          # both roots negative (or none): dx lies in the cone
 
 
 def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signed_level,
@@ -391,17 +431,17 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
     optimum's multipliers).
 
     The remaining arguments are scratch space of the batch, reused from grasp to grasp
-    (allocating it per grasp cost ~25% of the run time): work3 (12, n, 3), work6 (14, 6),
+    (allocating it per grasp cost ~25% of the run time): work3 (12, n, 3), work6 (13, 6),
     rows (3, n, 6), a_mat (n, 6, 3), scalings (n, 3, 3), mats (4, 6, 6), work_n (2, n),
     a_gram (n, 6, 6).
     """
     n = unit.shape[0]
-    (tangent, bitangent, z, s, candidate, jv, lam, dz, ds, rhs_c, winv_q,
+    (tangent, bitangent, z, s, candidate, jv, lam, dz, ds, u_aff, winv_q,
      projected) = (work3[0], work3[1], work3[2], work3[3], work3[4], work3[5], work3[6],
                    work3[7], work3[8], work3[9], work3[10], work3[11])
-    d, trial, g_sum, solved, gg_d, y6, w, residual, g, rhs, dw, scratch, check, y = (
+    d, trial, g_sum, solved, gg_d, y6, w, g, rhs, dw, scratch, check, y = (
         work6[0], work6[1], work6[2], work6[3], work6[4], work6[5], work6[6], work6[7],
-        work6[8], work6[9], work6[10], work6[11], work6[12], work6[13])
+        work6[8], work6[9], work6[10], work6[11], work6[12])
     b_n, b_t1, b_t2 = rows[0], rows[1], rows[2]
     gram, gram_factor, hessian, factor = mats[0], mats[1], mats[2], mats[3]
     inv_eta2, normal_work = work_n[0], work_n[1]
@@ -505,7 +545,9 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
         t_p = (1.0 - total_z0) / sigma
         wide = (want_optimum and not signed and not last and iteration < MAX_ITERATIONS
                 and (1.0 + d_w) / sigma - t_p > CHECK_GAP)
-        if not (wide and t_p < t_hi - CHECK_GAP):
+        if not (wide and t_p < t_hi - CHECK_GAP) and (
+                want_optimum or signed
+                or _unprojected_depth(z, mu, t_p) > max(t_lo, 0.0) - WITNESS_SKIP_SLACK):
             depth = _witness(unit, normals, tangent, bitangent, mu, z, sigma, gram_factor,
                              sigma_min, grasp_norm, candidate, projected, y, check, scratch)
             if depth > t_lo:
@@ -535,12 +577,11 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
         if last or iteration == MAX_ITERATIONS:
             break
 
-        # Newton system: H dw = -r_p - sum A_i W_i^-1 q_i, H = sum A_i W_i^-2 A_i^T,
-        # with W_i^-2 = (2 (Jv)(Jv)^T - J) / eta^2: A_i W_i^-2 A_i^T = (2 g g^T - A_i J
-        # A_i^T) / eta^2, g = A_i J v; A_i J A_i^T does not change, so it is kept from
-        # the first iteration (a_gram) and each later one costs a rank-one update.
+        # Newton system: H dw = rhs, H = sum A_i W_i^-2 A_i^T, with W_i^-2 = (2 (Jv)(Jv)^T
+        # - J) / eta^2: A_i W_i^-2 A_i^T = (2 g g^T - A_i J A_i^T) / eta^2, g = A_i J v;
+        # A_i J A_i^T does not change, so it is kept from the first iteration (a_gram)
+        # and each later one costs a rank-one update.
         hessian[:] = 0.0
-        residual[:] = d
         gap = 0.0
         finite = True
         for i in range(n):
@@ -552,7 +593,6 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
                 lam[i, r] = scalings[i, r, 0] * z[i, 0] + scalings[i, r, 1] * z[i, 1] + scalings[i, r, 2] * z[i, 2]
             for r in range(6):
                 g[r] = a_mat[i, r, 0] * jv[i, 0] + a_mat[i, r, 1] * jv[i, 1] + a_mat[i, r, 2] * jv[i, 2]
-                residual[r] += a_mat[i, r, 0] * z[i, 0] + a_mat[i, r, 1] * z[i, 1] + a_mat[i, r, 2] * z[i, 2]
             if iteration == 0:
                 for r in range(6):
                     for c in range(r + 1):
@@ -571,51 +611,62 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
         if not _cholesky(hessian, factor):
             last = True
             continue
-        mean_gap = gap / n
+        # Predictor (affine) direction: lam o (W dz + W^-1 ds) = -lam o lam gives
+        # W dz + W^-1 ds = -lam, W^-1 (-lam) = -z, and the right-hand side -r_p + sum_i
+        # A_i z_i is -d exactly (r_p = sum_i A_i z_i + d): no residual, no Jordan division.
+        # In scaled form, u = W^-1 ds and W dz = -lam - u; W maps the cone onto itself,
+        # so the step to its boundary is that of lam along u and along -lam - u.
+        for r in range(6):
+            rhs[r] = -d[r]
+        _cholesky_solve(factor, rhs, dw, scratch)
+        alpha = 1e30
         for i in range(n):
-            _jordan_product_into(lam[i], lam[i], rhs_c[i])
             for k in range(3):
-                rhs_c[i, k] = -rhs_c[i, k]
-        for corrector in range(2):
-            for r in range(6):
-                rhs[r] = -residual[r]
-            for i in range(n):
-                _jordan_divide_into(lam[i], rhs_c[i], q)
-                _inverse_apply(scalings[i], q, winv_q[i])
+                acc = 0.0
                 for r in range(6):
-                    rhs[r] -= (a_mat[i, r, 0] * winv_q[i, 0] + a_mat[i, r, 1] * winv_q[i, 1]
-                               + a_mat[i, r, 2] * winv_q[i, 2])
-            _cholesky_solve(factor, rhs, dw, scratch)
-            alpha = 1e30
-            for i in range(n):
-                for k in range(3):
-                    acc = 0.0
-                    for r in range(6):
-                        acc -= a_mat[i, r, k] * dw[r]
-                    ds[i, k] = acc
-                # dz = W^-1 q - W^-2 ds, W^-2 ds = (2 Jv (Jv . ds) - J ds) / eta^2
-                proj = jv[i, 0] * ds[i, 0] + jv[i, 1] * ds[i, 1] + jv[i, 2] * ds[i, 2]
-                for k in range(3):
-                    j_ds = ds[i, k] if k == 0 else -ds[i, k]
-                    dz[i, k] = winv_q[i, k] - inv_eta2[i] * (2.0 * jv[i, k] * proj - j_ds)
-                alpha = min(alpha, _max_step(z[i], dz[i]), _max_step(s[i], ds[i]))
-            if corrector == 0:
-                alpha = min(1.0, alpha)
-                predicted = 0.0
-                for i in range(n):
-                    for k in range(3):
-                        predicted += (z[i, k] + alpha * dz[i, k]) * (s[i, k] + alpha * ds[i, k])
-                centring = (predicted / gap) ** 3
-                for i in range(n):
-                    _inverse_apply(scalings[i], ds[i], q)
-                    for k in range(3):
-                        w_dz[k] = (scalings[i, k, 0] * dz[i, 0] + scalings[i, k, 1] * dz[i, 1]
-                                   + scalings[i, k, 2] * dz[i, 2])
-                    _jordan_product_into(q, w_dz, second_order)
-                    _jordan_product_into(lam[i], lam[i], rhs_c[i])
-                    for k in range(3):
-                        rhs_c[i, k] = -rhs_c[i, k] - second_order[k]
-                    rhs_c[i, 0] += centring * mean_gap
+                    acc -= a_mat[i, r, k] * dw[r]
+                ds[i, k] = acc
+            _scaled_inverse_apply(scalings[i], inv_eta2[i], ds[i], u_aff[i])
+            for k in range(3):
+                w_dz[k] = -lam[i, k] - u_aff[i, k]
+            alpha = min(alpha, _max_step(lam[i], u_aff[i]), _max_step(lam[i], w_dz))
+        # Mehrotra's centring from the affine step: for feasible iterates dz . ds = 0,
+        # so that step would leave the gap (1 - alpha) gap.
+        shrink = 1.0 - min(1.0, alpha)
+        if want_optimum:
+            centring = min(OPTIMUM_CENTRING_CAP, shrink ** OPTIMUM_CENTRING_POWER)
+        else:
+            centring = shrink ** 3
+        target = centring * (gap / n)
+        # Corrector: lam o (W dz + W^-1 ds) = -lam o lam - u o (-lam - u) + target e, so
+        # W dz + W^-1 ds = -lam + p with p = lam \ (u o (lam + u) + target e); as above
+        # the right-hand side becomes -d - sum_i A_i W^-1 p_i and dz = -z + W^-1 p - W^-2 ds.
+        for r in range(6):
+            rhs[r] = -d[r]
+        for i in range(n):
+            for k in range(3):
+                w_dz[k] = lam[i, k] + u_aff[i, k]     # -W dz of the predictor
+            _jordan_product_into(u_aff[i], w_dz, second_order)
+            second_order[0] += target
+            _jordan_divide_into(lam[i], second_order, q)
+            _scaled_inverse_apply(scalings[i], inv_eta2[i], q, winv_q[i])
+            for r in range(6):
+                rhs[r] -= (a_mat[i, r, 0] * winv_q[i, 0] + a_mat[i, r, 1] * winv_q[i, 1]
+                           + a_mat[i, r, 2] * winv_q[i, 2])
+        _cholesky_solve(factor, rhs, dw, scratch)
+        alpha = 1e30
+        for i in range(n):
+            for k in range(3):
+                acc = 0.0
+                for r in range(6):
+                    acc -= a_mat[i, r, k] * dw[r]
+                ds[i, k] = acc
+            # W^-2 ds = (2 Jv (Jv . ds) - J ds) / eta^2
+            proj = jv[i, 0] * ds[i, 0] + jv[i, 1] * ds[i, 1] + jv[i, 2] * ds[i, 2]
+            for k in range(3):
+                j_ds = ds[i, k] if k == 0 else -ds[i, k]
+                dz[i, k] = winv_q[i, k] - z[i, k] - inv_eta2[i] * (2.0 * jv[i, k] * proj - j_ds)
+            alpha = min(alpha, _max_step(z[i], dz[i]), _max_step(s[i], ds[i]))
         alpha = min(1.0, STEP_FRACTION * alpha)
         if not alpha > MIN_STEP:
             last = True
@@ -642,7 +693,7 @@ def _solve_all(unit, normals, mu, want_optimum, want_wrench, signed_gap, signed_
     forces = np.full((n_grasps, n_contacts, 3), np.nan)
     wrench = np.full((n_grasps, 6), np.nan)
     work3 = np.empty((12, n_contacts, 3))
-    work6 = np.empty((14, 6))
+    work6 = np.empty((13, 6))
     rows = np.empty((3, n_contacts, 6))
     a_mat = np.empty((n_contacts, 6, 3))
     scalings = np.empty((n_contacts, 3, 3))
@@ -657,9 +708,10 @@ def _solve_all(unit, normals, mu, want_optimum, want_wrench, signed_gap, signed_
 
 
 for _name in ("_frames", "_wrench_rows", "_work_at", "_normal_split", "_gram", "_apply_grasp_map", "_cholesky_solve",
-              "_cholesky", "_triangular_inverse_norm2", "_certified_rank", "_witness", "_bound",
-              "_nt_scaling", "_inverse_apply", "_jordan_product_into", "_jordan_divide_into",
-              "_max_step", "_solve_grasp", "_solve_all"):
+              "_cholesky", "_triangular_inverse_norm2", "_certified_rank", "_witness",
+              "_unprojected_depth", "_bound", "_nt_scaling", "_scaled_inverse_apply",
+              "_inverse_apply", "_jordan_product_into", "_jordan_divide_into", "_max_step",
+              "_solve_grasp", "_solve_all"):
     globals()[_name] = _jit(globals()[_name])
 
 
