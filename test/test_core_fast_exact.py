@@ -305,3 +305,34 @@ def test_verdicts_just_above_the_threshold_are_certified_by_the_fast_stage():
             if closure:
                 assert verify_certificates(positions[g], normals[g], mu,
                                            result.contact_forces)[0]
+
+
+def _compiled_signatures() -> int:
+    from grasp_fc_ros.core import force_interior_point, interior_point, one_grasp, positive_span
+    kernels = (interior_point._solve_all, one_grasp._prepare_one,
+               force_interior_point._solve_all, positive_span._pair_test_kernel)
+    return sum(len(kernel.signatures) for kernel in kernels)
+
+
+def test_read_only_input_compiles_nothing_after_warm_up():
+    # The node decodes queries with np.frombuffer: read-only arrays, a numba type of
+    # their own. After warm_up no entry point may compile a kernel for them.
+    from grasp_fc_ros.core import minimum_friction, optimal_contact_forces
+    warm_up()
+    rng = np.random.default_rng(5)
+    grasps = [sample_grasps(make_object("box"), 6, n, rng) for n in (6, 4)]
+    for positions, normals in grasps:
+        positions.setflags(write=False)
+        normals.setflags(write=False)
+    mu = np.full((6, 6), 0.5)
+    mu.setflags(write=False)
+    (positions, normals), (four_p, four_n) = grasps
+    before = _compiled_signatures()
+    check_force_closure(positions[0], normals[0], 0.5)  # the one-grasp path
+    for margin in ("bound", "optimum"):
+        check_force_closure(positions, normals, mu, margin=margin)
+    check_force_closure(positions, normals, mu, certificates=True)
+    check_force_closure(four_p, four_n, mu[:, :4], use_filter=True)  # the pair test
+    minimum_friction(positions, normals, mu)
+    optimal_contact_forces(positions[0], normals[0], mu[0], np.array([0, 0, -1.0, 0, 0, 0]))
+    assert _compiled_signatures() == before

@@ -551,9 +551,9 @@ def solve_fast_forces(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray,
     wrench : ndarray, shape (N, 6)
         The dual wrench w (SOLVED and INFEASIBLE), NaN elsewhere.
     """
-    return _solve_all(np.ascontiguousarray(unit), np.ascontiguousarray(normals),
-                      np.ascontiguousarray(mu), np.ascontiguousarray(limits),
-                      np.ascontiguousarray(direction), STOP_FRACTION * float(force_tol),
+    return _solve_all(ip.kernel_array(unit), ip.kernel_array(normals),
+                      ip.kernel_array(mu), ip.kernel_array(limits),
+                      ip.kernel_array(direction), STOP_FRACTION * float(force_tol),
                       STOP_FRACTION * float(optimality_tol), 2.0 * float(infeasible_bound))
 
 

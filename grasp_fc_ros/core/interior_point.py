@@ -109,6 +109,18 @@ def _jit(function):
         return numba.njit(cache=False, error_model="numpy")(function)
 
 
+def kernel_array(values) -> np.ndarray:
+    """``values`` as a C-contiguous, writable float64 array, to pass to a compiled kernel.
+
+    numba compiles a kernel once per argument type, and a read-only array (from
+    ``np.frombuffer``, ``np.broadcast_to`` or an unpickled buffer) is a type of its own:
+    passed as it is, it made the node's first queries compile the exact stage again
+    after :func:`warm_up` (~15 s of CPU in a fresh install, a cache load in every later
+    process). Only such arrays are copied.
+    """
+    return np.require(values, np.float64, ("C", "W"))
+
+
 def _frames(normals, first, second):
     """Duff et al.'s branch-free tangents (n, 3) into ``first`` and ``second``, for unit
     normals (n, 3)."""
@@ -750,8 +762,8 @@ def solve_fast(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray,
     wrench : ndarray, shape (N, 6)
         Wrench about the centroid of the unit-size grasp giving t_hi, NaN where none.
     """
-    return _solve_all(np.ascontiguousarray(unit), np.ascontiguousarray(normals),
-                      np.ascontiguousarray(mu), bool(want_optimum), bool(want_wrench),
+    return _solve_all(kernel_array(unit), kernel_array(normals),
+                      kernel_array(mu), bool(want_optimum), bool(want_wrench),
                       float(signed_gap), float(signed_level))
 
 

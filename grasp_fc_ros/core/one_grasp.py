@@ -80,7 +80,8 @@ def check_one(positions, normals, mu: float, want_optimum: bool):
 
     Parameters
     ----------
-    positions, normals : ndarray of float64, shape (n, 3), C-contiguous
+    positions, normals : ndarray of float64, shape (n, 3), C-contiguous and writable
+        (:func:`~.interior_point.kernel_array`)
     mu : float
     want_optimum : bool
         As ``margin="optimum"``.

@@ -30,6 +30,7 @@ import numpy as np
 from .certificates import normalise_positions, to_caller_wrench, verify_certificates
 from .exact_test import MARGIN_CHOICES, solve_exact
 from .grasp_input import MIN_CONTACTS, GraspBatch, prepare_grasps
+from .interior_point import kernel_array
 from .one_grasp import MAX_FAST_CONTACTS, check_one
 from .torque_space_filter import passes_torque_filter, resolve_use_filter
 
@@ -170,8 +171,8 @@ def _one_grasp(positions, normals, mu, use_filter, origins, margin):
             and not resolve_use_filter(use_filter, positions.shape[0], origins)):
         return None
     start = time.perf_counter()
-    decided = check_one(np.ascontiguousarray(positions), np.ascontiguousarray(normals),
-                        float(mu), margin == "optimum")
+    decided = check_one(kernel_array(positions), kernel_array(normals), float(mu),
+                        margin == "optimum")
     if decided is None:
         return None
     force_closure, t_lo, t_hi = decided

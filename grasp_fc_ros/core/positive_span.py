@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-from .interior_point import _jit
+from .interior_point import _jit, kernel_array
 from .tolerances import PARALLEL_TOL, SPAN_TOL
 from .torque_sets import TorqueSetKind, TorqueSets, cross, dot
 
@@ -206,7 +206,7 @@ def _pair_test(vectors: np.ndarray) -> np.ndarray:
     ndarray, shape (3, B)
         Unit separating directions; NaN where the vectors positively span R^3.
     """
-    found, on_a_line = _pair_test_kernel(np.ascontiguousarray(vectors))
+    found, on_a_line = _pair_test_kernel(kernel_array(vectors))
     if on_a_line.any():
         found[:, on_a_line] = _perpendicular(vectors[:, :, on_a_line])
     return found
