@@ -161,7 +161,8 @@ ACTION_RESULT_DELIVERY_S = 0.25
 MAX_TAKE = 2_000
 # Batches whose chunks may be queued for the workers at once. With one, the workers
 # idled while a decided batch was answered and the next one converted and chunked:
-# 43,000 grasps/s for batches of 1,000 against 92,000 for batches of 10,000 (same node).
+# batches of 1,000 went at 0.94-0.99x the core alone, 1.11-1.20x with two
+# (benchmarks/bench_ros.py: one client, two batches in flight; alternating runs).
 BATCHES_IN_PROGRESS = 2
 # Verdict message of queries still queued when the node is destroyed.
 SHUTDOWN_MESSAGE = "node shutting down: query not evaluated"
