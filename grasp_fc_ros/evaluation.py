@@ -316,8 +316,9 @@ def find_invalid(packed: PackedGrasps, mu: np.ndarray, settings: Settings
 
 def _all_contacts_valid(packed: PackedGrasps, mu: np.ndarray) -> bool:
     """True iff no contact has a problem: all contacts as one grasp through the core's
-    :func:`validate_grasps`, whose all-valid fast path is ~3x cheaper than the
-    per-contact call for a one-grasp query."""
+    :func:`validate_grasps`, whose all-valid fast path is cheaper than the per-contact
+    call (measured: 23 against 28 us for one 6-finger grasp, 41 against 155 us for a
+    chunk of 682)."""
     if len(mu) < MIN_CONTACTS:
         return False
     torsional = 0.0 if packed.torsional is None else packed.torsional[None]
