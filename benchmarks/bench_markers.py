@@ -31,6 +31,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
+from timing import ratio_or_nan
 
 from grasp_fc_ros.core import check_force_closure
 from grasp_fc_ros.markers import grasp_markers
@@ -214,7 +215,7 @@ def bench_node(queries: int, rounds: int) -> None:
         sent_off = sum(len(times[(i, False)]) for i in interfaces)
         print(f"  CPU per query: node process off {1e3 * node_cpu[False] / sent_off:.3f} ms, "
               f"on {1e3 * node_cpu[True] / sent_on:.3f} ms (ratio "
-              f"{node_cpu[True] / sent_on / (node_cpu[False] / sent_off):.2f}); marker "
+              f"{ratio_or_nan(node_cpu[True] / sent_on, node_cpu[False] / sent_off):.2f}); marker "
               f"process {1e3 * marker_cpu / sent_on:.3f} ms per query answered with markers on")
         print(f"  marker arrays received by a listener process {received} for {sent_on} "
               f"queries answered with "

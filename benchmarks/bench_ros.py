@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 import rclpy
+from timing import ratio_or_nan
 
 from grasp_fc_ros.client import GraspClient
 from grasp_fc_ros.core import check_force_closure
@@ -216,9 +217,9 @@ def main(argv=None) -> int:
               f"[target >= {TARGET_SINGLE_PER_S}/s: "
               f"{verdict(lossless and rate >= TARGET_SINGLE_PER_S)}]")
         print(f"    node CPU per query {1e3 * single_cpu:.3f} ms (node and workers) -> at most "
-              f"{os.cpu_count() / single_cpu:.0f} queries/s on {os.cpu_count()} idle cores; "
+              f"{ratio_or_nan(os.cpu_count(), single_cpu):.0f} queries/s on {os.cpu_count()} idle cores; "
               f"client (this process) {1e3 * client_cpu:.3f} ms -> both on these cores at most "
-              f"{os.cpu_count() / (single_cpu + client_cpu):.0f} queries/s")
+              f"{ratio_or_nan(os.cpu_count(), single_cpu + client_cpu):.0f} queries/s")
 
         # Core alone and through the node in alternating rounds, the ratio taken per
         # round and its median reported: the load of a shared machine drifts within

@@ -1,4 +1,5 @@
-"""What the benchmark scripts share: the paper's friction and a median timer.
+"""What the benchmark scripts share: the paper's friction, a median timer and a ratio
+of measured quantities.
 
 Imported by the scripts beside it (their folder is first on sys.path when they run).
 """
@@ -21,3 +22,13 @@ def median_seconds(function, repeats):
         function()
         times.append(time.perf_counter() - start)
     return statistics.median(times)
+
+
+def ratio_or_nan(numerator: float, denominator: float) -> float:
+    """``numerator / denominator``, or NaN (printed "nan") when the denominator is not
+    positive.
+
+    CPU times come from the kernel in ticks (~10 ms), so a short run can measure 0 s: a
+    benchmark run with tiny sizes then prints "nan" instead of failing on a division.
+    """
+    return numerator / denominator if denominator > 0 else float("nan")
