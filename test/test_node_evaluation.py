@@ -125,6 +125,32 @@ def test_invalid_grasps_are_structured_and_spare_the_others(mixed):
                                  messages=[]), [grasps[i] for i in good], 0.5)
 
 
+@pytest.mark.parametrize("spoil, message", [
+    (lambda p, n, mu: p.__setitem__((2, 0), np.nan), "contact 2: position is not finite"),
+    (lambda p, n, mu: n.__setitem__(1, 0.0), "contact 1: normal has zero length"),
+    (lambda p, n, mu: mu.fill(np.inf), "contact 0: friction coefficient is not finite"),
+])
+def test_a_lone_invalid_grasp_is_named_like_one_in_a_batch(mixed, spoil, message):
+    p, n = (a.copy() for a in next(g for g in mixed if len(g[0]) == 6))
+    mu = np.zeros(6)
+    spoil(p, n, mu)
+    verdicts, _ = evaluate(pack([(p, n)], mu, name_by_id=True, ids=[7]), Settings())
+    assert verdicts.status[0] == Status.INVALID_INPUT
+    assert verdicts.messages == [f"query id 7, {message}"]
+
+
+def test_a_lone_grasp_whose_core_call_fails_gets_solver_failure(mixed, monkeypatch):
+    from grasp_fc_ros import evaluation
+
+    def explodes(*args, **kwargs):
+        raise RuntimeError("solver exploded")
+
+    monkeypatch.setattr(evaluation, "check_force_closure", explodes)
+    verdicts, _ = evaluate(pack(mixed[:1]), Settings())
+    assert verdicts.status[0] == Status.SOLVER_FAILURE
+    assert verdicts.messages == ["internal error: solver exploded"]
+
+
 def test_single_queries_are_named_by_id_and_chunks_by_batch_index(mixed):
     grasps = [(p.copy(), n.copy()) for p, n in mixed[:3]]
     grasps[2][1][0] = 0.0
