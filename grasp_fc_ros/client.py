@@ -85,7 +85,8 @@ class GraspClient:
     name : str, optional
         Name of the client's own ROS node (default: a unique one).
 
-    Requires ``rclpy.init()``; the client spins its own node on a thread of its own.
+    Requires ``rclpy.init()``; the client spins its own nodes (one for the topics and the
+    action, one for the services) on threads of their own.
     """
 
     def __init__(self, node_name: str = NODE_NAME, max_in_flight: int = DEFAULT_IN_FLIGHT,
@@ -116,20 +117,31 @@ class GraspClient:
                                       QUERY_QOS, raw=self._raw)
         self._diag_name = f"{prefix}/{base}:"  # the node's diagnostics status name starts so
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
-        self._service = self.node.create_client(CheckForceClosure,
-                                                f"{prefix}/check_force_closure")
-        self._forces_service = self.node.create_client(ComputeContactForces,
-                                                       f"{prefix}/compute_contact_forces")
+        # The services on a small node of their own, spun by a thread of its own: the
+        # executor wakes up for each response, and one that also waits on the topics,
+        # the timer and the action here took ~0.5 ms longer per call (measured).
+        self._service_node = Node(f"{self.node.get_name()}_service",
+                                  start_parameter_services=False)
+        self._service = self._service_node.create_client(CheckForceClosure,
+                                                         f"{prefix}/check_force_closure")
+        self._forces_service = self._service_node.create_client(
+            ComputeContactForces, f"{prefix}/compute_contact_forces")
         self._label_action = ActionClient(self.node, LabelGrasps, f"{prefix}/label_grasps")
         # GoalStatus code of the last label_grasps goal (STATUS_UNKNOWN before any).
         self.last_goal_status = GoalStatus.STATUS_UNKNOWN
         self._matched = 0
         self._closed = False
         self.node.create_timer(WATCH_PERIOD_S, self._watch_node)
-        self._executor = SingleThreadedExecutor(context=self.node.context)
-        self._executor.add_node(self.node)
-        self._spinner = threading.Thread(target=self._spin, daemon=True, name="grasp_client")
-        self._spinner.start()
+        self._executors, self._spinners = [], []
+        for node, thread_name in ((self.node, "grasp_client"),
+                                  (self._service_node, "grasp_client_service")):
+            executor = SingleThreadedExecutor(context=node.context)
+            executor.add_node(node)
+            spinner = threading.Thread(target=self._spin, args=(executor,), daemon=True,
+                                       name=thread_name)
+            spinner.start()
+            self._executors.append(executor)
+            self._spinners.append(spinner)
 
     # --- connection -------------------------------------------------------------------
 
@@ -535,9 +547,10 @@ class GraspClient:
 
     # --- lifetime -----------------------------------------------------------------------
 
-    def _spin(self):
+    @staticmethod
+    def _spin(executor: SingleThreadedExecutor):
         try:
-            self._executor.spin()
+            executor.spin()
         except Exception:  # noqa: BLE001 - rclpy shut down while spinning: end quietly
             pass
 
@@ -549,8 +562,10 @@ class GraspClient:
         if self._closed:
             return
         self._closed = True
-        self._executor.shutdown()
-        self._spinner.join(timeout=5.0)
+        for executor, spinner in zip(self._executors, self._spinners):
+            executor.shutdown()
+            spinner.join(timeout=5.0)
+        self._service_node.destroy_node()
         self.node.destroy_node()
         with self._cond:
             pending = [f for _, f in self._singles.values()] + [
