@@ -53,6 +53,7 @@ from grasp_fc_ros.conversions import (
 )
 from grasp_fc_ros.evaluation import ContactForces, Verdicts
 from grasp_fc_ros.node import NODE_NAME, QUERY_QOS
+from grasp_fc_ros.service_loop import ServiceCaller
 
 # Single queries unanswered at most (more submit() calls wait): well inside what the
 # node's KEEP_ALL reader takes without pushing back for long.
@@ -85,8 +86,8 @@ class GraspClient:
     name : str, optional
         Name of the client's own ROS node (default: a unique one).
 
-    Requires ``rclpy.init()``; the client spins its own nodes (one for the topics and the
-    action, one for the services) on threads of their own.
+    Requires ``rclpy.init()``; the client spins its own node on a thread of its own
+    (service calls wait for their responses in the calling thread).
     """
 
     def __init__(self, node_name: str = NODE_NAME, max_in_flight: int = DEFAULT_IN_FLIGHT,
@@ -117,31 +118,28 @@ class GraspClient:
                                       QUERY_QOS, raw=self._raw)
         self._diag_name = f"{prefix}/{base}:"  # the node's diagnostics status name starts so
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
-        # The services on a small node of their own, spun by a thread of its own: the
-        # executor wakes up for each response, and one that also waits on the topics,
-        # the timer and the action here took ~0.5 ms longer per call (measured).
+        # The services on a small node of their own that no executor spins: each call
+        # waits for its response in the caller's thread (ServiceCaller). An executor
+        # thread that also waits on the topics, the timer and the action took ~0.5 ms
+        # longer per call (measured).
         self._service_node = Node(f"{self.node.get_name()}_service",
                                   start_parameter_services=False)
         self._service = self._service_node.create_client(CheckForceClosure,
                                                          f"{prefix}/check_force_closure")
         self._forces_service = self._service_node.create_client(
             ComputeContactForces, f"{prefix}/compute_contact_forces")
+        self._callers = {client: ServiceCaller(client)
+                         for client in (self._service, self._forces_service)}
         self._label_action = ActionClient(self.node, LabelGrasps, f"{prefix}/label_grasps")
         # GoalStatus code of the last label_grasps goal (STATUS_UNKNOWN before any).
         self.last_goal_status = GoalStatus.STATUS_UNKNOWN
         self._matched = 0
         self._closed = False
         self.node.create_timer(WATCH_PERIOD_S, self._watch_node)
-        self._executors, self._spinners = [], []
-        for node, thread_name in ((self.node, "grasp_client"),
-                                  (self._service_node, "grasp_client_service")):
-            executor = SingleThreadedExecutor(context=node.context)
-            executor.add_node(node)
-            spinner = threading.Thread(target=self._spin, args=(executor,), daemon=True,
-                                       name=thread_name)
-            spinner.start()
-            self._executors.append(executor)
-            self._spinners.append(spinner)
+        self._executor = SingleThreadedExecutor(context=self.node.context)
+        self._executor.add_node(self.node)
+        self._spinner = threading.Thread(target=self._spin, daemon=True, name="grasp_client")
+        self._spinner.start()
 
     # --- connection -------------------------------------------------------------------
 
@@ -381,13 +379,7 @@ class GraspClient:
 
     def call_request(self, request, timeout: float = DEFAULT_TIMEOUT_S) -> Verdicts:
         """Send a prepared CheckForceClosure request; its :class:`Verdicts` in order."""
-        done = threading.Event()
-        future = self._service.call_async(request)
-        future.add_done_callback(lambda _: done.set())
-        if not done.wait(timeout):
-            self._service.remove_pending_request(future)
-            raise TimeoutError(f"no service response within {timeout} s")
-        replies = future.result().verdicts
+        replies = self._callers[self._service].call(request, timeout).verdicts
         return verdict_msgs_to_numpy(replies, [len(g.contacts) for g in request.grasps])
 
     def compute_contact_forces(self, positions, normals, wrench, mu=0.0,
@@ -439,23 +431,12 @@ class GraspClient:
         # discovered a moment later, and a request sent before would go unanswered.
         if not self._forces_service.wait_for_service(timeout_sec=timeout):
             raise TimeoutError(f"service compute_contact_forces not found within {timeout} s")
-        response = self._wait(self._forces_service, request, timeout)
+        response = self._callers[self._forces_service].call(request, timeout)
         forces = np.array([(v.x, v.y, v.z) for v in response.contact_forces],
                           dtype=np.float64).reshape(-1, 3)
         return ContactForces(bool(response.feasible), float(response.max_normal_force),
                              forces, np.array(response.contact_torques, dtype=np.float64),
                              response.message)
-
-    @staticmethod
-    def _wait(service, request, timeout: float):
-        """Call ``service`` and wait for its response (TimeoutError after ``timeout``)."""
-        done = threading.Event()
-        future = service.call_async(request)
-        future.add_done_callback(lambda _: done.set())
-        if not done.wait(timeout):
-            service.remove_pending_request(future)
-            raise TimeoutError(f"no service response within {timeout} s")
-        return future.result()
 
     # --- the label_grasps action ------------------------------------------------------
 
@@ -547,10 +528,9 @@ class GraspClient:
 
     # --- lifetime -----------------------------------------------------------------------
 
-    @staticmethod
-    def _spin(executor: SingleThreadedExecutor):
+    def _spin(self):
         try:
-            executor.spin()
+            self._executor.spin()
         except Exception:  # noqa: BLE001 - rclpy shut down while spinning: end quietly
             pass
 
@@ -562,9 +542,8 @@ class GraspClient:
         if self._closed:
             return
         self._closed = True
-        for executor, spinner in zip(self._executors, self._spinners):
-            executor.shutdown()
-            spinner.join(timeout=5.0)
+        self._executor.shutdown()
+        self._spinner.join(timeout=5.0)
         self._service_node.destroy_node()
         self.node.destroy_node()
         with self._cond:

@@ -1,29 +1,35 @@
-"""Serve rclpy services from one thread with a bare wait set instead of an executor.
+"""Serve and call rclpy services with a bare wait set instead of an executor.
 
 rclpy's executors rebuild their wait set from every entity of their nodes at each
-wake-up and run each request as a Task; for a one-grasp ``check_force_closure`` request
-that costs more than deciding it. A round trip to a bare server of this service type
-that does no work took 1.05-1.56 ms p50 on an executor and 0.70-0.77 ms on this loop
-(same client, same machine, alternating servers).
+wake-up and run each request and each response as a Task; for a one-grasp
+``check_force_closure`` call that costs more than deciding the grasp. A round trip to a
+bare server of this service type that does no work took 1.05-1.56 ms p50 on an executor
+and 0.70-0.77 ms on :class:`ServiceLoop` (same client, same machine, alternating
+servers).
 
-The loop takes one request at a time, calls its service's callback and sends the
-response, as ``SingleThreadedExecutor`` would. It uses rclpy's wait-set and service
-handles, which rclpy's own executors and ``rclpy.wait_for_message`` use too (rclpy is
-pinned in requirements.txt).
+:class:`ServiceLoop` takes one request at a time, calls its service's callback and sends
+the response, as ``SingleThreadedExecutor`` would; :class:`ServiceCaller` sends a
+request and waits for its response in the calling thread. Both use rclpy's wait-set,
+service and client handles, which rclpy's own executors and ``rclpy.wait_for_message``
+use too (rclpy is pinned in requirements.txt).
 """
 
 from __future__ import annotations
 
 import threading
-from typing import Callable
+import time
+from typing import Any, Callable
 
+from rclpy.client import Client
+from rclpy.context import Context
 from rclpy.exceptions import InvalidHandle
 from rclpy.guard_condition import GuardCondition
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.service import Service
 
-# How long one wait lasts (ns) before the loop looks at its stop flag again; stop()
-# also wakes it at once through a guard condition.
+# How long one wait lasts (ns) before the loop looks at its stop flag again (stop() also
+# wakes it at once through a guard condition), or a caller at rclpy's state and at
+# Python's signal handlers (Ctrl-C).
 WAIT_NS = 100_000_000
 
 
@@ -42,7 +48,7 @@ class ServiceLoop:
         The thread's name.
     """
 
-    def __init__(self, services: list[Service], context,
+    def __init__(self, services: list[Service], context: Context,
                  on_error: Callable[[Service, Exception], None], name: str = "service"):
         self._services = list(services)
         self._context = context
@@ -57,7 +63,7 @@ class ServiceLoop:
         """True until the thread has ended (after :meth:`stop`, or rclpy's shutdown)."""
         return self._thread.is_alive()
 
-    def stop(self):
+    def stop(self) -> None:
         """Let the request in progress be answered, then end the thread (a second call
         does nothing)."""
         if self._stopping:
@@ -67,7 +73,7 @@ class ServiceLoop:
         self._thread.join()
         self._wake.destroy()
 
-    def _run(self):
+    def _run(self) -> None:
         try:
             wait_set = _rclpy.WaitSet(0, 1, 0, 0, len(self._services), 0,
                                       self._context.handle)
@@ -85,15 +91,71 @@ class ServiceLoop:
             if self._context.ok() and not self._stopping:
                 raise  # a bug, not a shutdown: the thread's traceback shows it
 
-    def _serve_one(self, service: Service):
+    def _serve_one(self, service: Service) -> None:
+        srv_type: Any = service.srv_type  # a generated service type: Request, Response
         with service.handle:
-            request, header = service.handle.service_take_request(service.srv_type.Request)
+            request, header = service.handle.service_take_request(srv_type.Request)
         if header is None:
             return  # the wait set saw a request that another reader took
         try:
-            response = service.callback(request, service.srv_type.Response())
+            response = service.callback(request, srv_type.Response())
             service.send_response(response, header)
         except Exception as exc:  # noqa: BLE001 - one request must not end the loop
             if isinstance(exc, InvalidHandle) or not self._context.ok():
                 raise  # destroyed or shut down: nothing more can be sent
             self._on_error(service, exc)  # e.g. the client left before its response
+
+
+class ServiceCaller:
+    """Call one service and wait for each response in the calling thread.
+
+    Parameters
+    ----------
+    client : rclpy.client.Client
+        Created on a node that no executor spins (this object takes its responses).
+
+    Calls from several threads take turns: each holds a lock from its request to its
+    response (the node serves one request at a time anyway). A response that comes
+    after its call timed out is dropped when the next call waits.
+    """
+
+    def __init__(self, client: Client) -> None:
+        self._client = client
+        self._lock = threading.Lock()
+        self._wait_set = _rclpy.WaitSet(0, 0, 0, 1, 0, 0, client.context.handle)
+
+    def call(self, request: Any, timeout: float) -> Any:
+        """The response to ``request``.
+
+        Raises
+        ------
+        TimeoutError
+            If it did not come within ``timeout`` seconds (a busy caller's time counts).
+        RuntimeError
+            If rclpy shut down while waiting.
+        """
+        deadline = time.monotonic() + timeout
+        if not self._lock.acquire(timeout=max(timeout, 0.0)):
+            raise TimeoutError(f"no service response within {timeout} s")
+        try:
+            handle = self._client.handle
+            with handle:
+                sequence = handle.send_request(request)
+            while True:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    raise TimeoutError(f"no service response within {timeout} s")
+                if not self._client.context.ok():
+                    raise RuntimeError("rclpy shut down while waiting for a response")
+                self._wait_set.clear_entities()
+                self._wait_set.add_client(handle)
+                self._wait_set.wait(min(int(remaining * 1e9), WAIT_NS))
+                if handle.pointer not in self._wait_set.get_ready_entities("client"):
+                    continue
+                srv_type: Any = self._client.srv_type
+                with handle:
+                    header, response = handle.take_response(srv_type.Response)
+                if header is not None and header.request_id.sequence_number == sequence:
+                    return response
+        finally:
+            self._lock.release()
