@@ -167,6 +167,8 @@ MAX_TAKE = 2_000
 BATCHES_IN_PROGRESS = 2
 # Verdict message of queries still queued when the node is destroyed.
 SHUTDOWN_MESSAGE = "node shutting down: query not evaluated"
+# A plain integer: comparing an array with an IntEnum member costs microseconds a call.
+_INVALID_INPUT = int(Status.INVALID_INPUT)
 
 # The QoS clients use on all four grasp topics, and the node's query subscriptions.
 # Reliable + KEEP_ALL: a reader never overwrites a sample it has not handed over, so a
@@ -303,11 +305,12 @@ class _Statistics:
         ``processing_s`` is None for answers that did no real work (failures), which
         must not pull the mean and p99 processing time down.
         """
-        codes, counts = np.unique(status, return_counts=True)
+        # bincount over the few codes: a fraction of np.unique's cost on a 1-query answer.
+        per_code = np.bincount(status, minlength=len(Status)).tolist()
         with self._lock:
             self.answered += len(status)
-            for code, count in zip(codes.tolist(), counts.tolist()):
-                self.counts[Status(code)] += count
+            for status_code, count in zip(Status, per_code):
+                self.counts[status_code] += count
             for key in self.seconds:
                 self.seconds[key] += seconds.get(key, 0.0)
             if processing_s is not None:
@@ -1230,8 +1233,9 @@ class ForceClosureNode(Node):
         return verdicts, seconds
 
     def _warn_invalid(self, verdicts: Verdicts):
-        invalid = np.flatnonzero(verdicts.status == Status.INVALID_INPUT)
-        if len(invalid) and self._may_log("invalid"):
+        invalid = verdicts.status == _INVALID_INPUT
+        if invalid.any() and self._may_log("invalid"):
+            invalid = np.flatnonzero(invalid)
             self.get_logger().warning(
                 f"{len(invalid)} of {len(verdicts)} queries invalid, e.g. "
                 f"{verdicts.messages[invalid[0]]}")
