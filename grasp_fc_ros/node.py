@@ -466,7 +466,14 @@ class ForceClosureNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         self._stats = _Statistics()
         self._may_log = _Throttle(WARN_THROTTLE_S)
-        self._lock = threading.Condition()
+        self._lock = threading.RLock()
+        # One condition per kind of waiting thread, all on that lock: a notify wakes the
+        # thread that has work, not every thread of the node (with one condition, each
+        # batch woke ~20 threads, a few ms of GIL per batch).
+        self._goal_queued = threading.Condition(self._lock)
+        self._single_queued = threading.Condition(self._lock)
+        self._batch_startable = threading.Condition(self._lock)
+        self._batch_started = threading.Condition(self._lock)
         # Single-grasp topic queries and batches waiting for their threads, oldest first.
         self._pending: deque[ContactArray] = deque()
         self._batches: deque[ContactArrayBatch] = deque()
@@ -649,7 +656,7 @@ class ForceClosureNode(Node):
             queue_it = not self._stopping and not goal_handle.is_cancel_requested
             if queue_it:
                 self._goals.append(goal)
-                self._lock.notify_all()
+                self._goal_queued.notify()
         if not queue_it:  # canceled before it was queued, or the node is stopping
             self._end_goal(goal, self._empty_goal_reply(goal), aborted=self._stopping)
         try:
@@ -698,7 +705,7 @@ class ForceClosureNode(Node):
     def _next_goal(self):
         """Decide the oldest queued goal in chunks and end it."""
         with self._lock:
-            self._lock.wait_for(lambda: self._goals or self._stopping)
+            self._goal_queued.wait_for(lambda: self._goals or self._stopping)
             if self._stopping:
                 return
             goal = self._goals.popleft()
@@ -855,7 +862,7 @@ class ForceClosureNode(Node):
                 accepted = not self._stopping and pending < self._settings.max_batch
                 if accepted:
                     self._pending.append(msg)
-                    self._lock.notify_all()
+                    self._single_queued.notify()
             if not accepted:
                 self._refuse_single(msg, pending)
         except Exception as exc:  # noqa: BLE001
@@ -872,7 +879,7 @@ class ForceClosureNode(Node):
                 self._pending.extend(raws[:room])
                 pending = len(self._pending)
                 if room:
-                    self._lock.notify_all()
+                    self._single_queued.notify()
             for refused in raws[room:]:
                 self._refuse_single(deserialize_message(refused, ContactArray), pending)
         except Exception as exc:  # noqa: BLE001
@@ -923,7 +930,7 @@ class ForceClosureNode(Node):
                 if accepted:
                     self._batches.append(msg)
                     self._queued_batch_grasps += n_grasps
-                    self._lock.notify_all()
+                    self._batch_startable.notify()
             if not accepted:
                 message = (SHUTDOWN_MESSAGE if self._stopping else self._overloaded(
                     f"{queued} batch grasps pending", n_grasps))
@@ -1016,7 +1023,7 @@ class ForceClosureNode(Node):
     def _single_queries(self):
         """Decide the queued single-grasp queries together, in arrival order."""
         with self._lock:
-            self._lock.wait_for(lambda: self._pending or self._stopping)
+            self._single_queued.wait_for(lambda: self._pending or self._stopping)
             if self._stopping:
                 return
             take = min(len(self._pending), self._settings.max_batch)
@@ -1135,7 +1142,7 @@ class ForceClosureNode(Node):
         """Start the oldest queued batch on the workers, once fewer than
         :data:`BATCHES_IN_PROGRESS` are in progress; :meth:`_answer_batch` answers it."""
         with self._lock:
-            self._lock.wait_for(lambda: self._stopping or (
+            self._batch_startable.wait_for(lambda: self._stopping or (
                 self._batches and len(self._in_progress) < BATCHES_IN_PROGRESS))
             if self._stopping:
                 return
@@ -1145,7 +1152,7 @@ class ForceClosureNode(Node):
         batch = self._start_batch(msg)
         with self._lock:
             self._in_progress.append(batch)
-            self._lock.notify_all()
+            self._batch_started.notify()
 
     def _start_batch(self, msg: ContactArrayBatch) -> _BatchInProgress:
         """Convert a batch and queue its chunks; a failure becomes its answer."""
@@ -1167,7 +1174,7 @@ class ForceClosureNode(Node):
     def _answer_batch(self):
         """Publish the answer to the oldest batch in progress once it is decided."""
         with self._lock:
-            self._lock.wait_for(lambda: self._in_progress or self._stopping)
+            self._batch_started.wait_for(lambda: self._in_progress or self._stopping)
             if self._stopping:
                 return  # destroy_node answers the batches in progress
             batch = self._in_progress[0]
@@ -1182,7 +1189,7 @@ class ForceClosureNode(Node):
                 with self._lock:
                     self._in_progress.popleft()
                     self._busy_batch_grasps -= len(batch.msg.ids)
-                    self._lock.notify_all()
+                    self._batch_startable.notify()
         self._batch_pub.publish(answer)
         if self._marker_settings.enabled:
             self._offer_markers(self._markers.offer_batch, batch.msg, verdicts)
@@ -1255,7 +1262,9 @@ class ForceClosureNode(Node):
         """
         with self._lock:
             self._stopping = True
-            self._lock.notify_all()
+            for condition in (self._goal_queued, self._single_queued, self._batch_startable,
+                              self._batch_started):
+                condition.notify_all()
         if self._service_loop is not None:
             self._service_loop.stop()
             self._service_node.destroy_node()
