@@ -190,7 +190,7 @@ def main(argv=None) -> int:
     parser.add_argument("--rounds", type=int, default=3,
                         help="alternating rounds of the batches, core alone and node")
     parser.add_argument("--service-calls", type=int, default=500, help="service round trips")
-    parser.add_argument("--big-batch", type=int, default=20_000,
+    parser.add_argument("--big-batch", type=int, default=100_000,
                         help="grasps of the batch decided while the service is timed")
     parser.add_argument("--object", default="box", help="built-in object")
     args = parser.parse_args(argv)
