@@ -966,6 +966,9 @@ class ForceClosureNode(Node):
             replies = verdicts_to_msgs(verdicts, grasps)
             self._stats.record(verdicts.status, seconds, time.perf_counter() - start)
             return replies
+        except Cancelled:  # the node is shutting down: the client still gets its answer
+            self._stats.record_failures(len(grasps))
+            return _failure_replies(grasps, Status.SOLVER_FAILURE, SHUTDOWN_MESSAGE)
         except Exception as exc:  # noqa: BLE001
             self._internal_error(f"a service request of {len(grasps)} grasps", exc)
             self._stats.record_failures(len(grasps))

@@ -8,7 +8,7 @@ from bench_scripts import run_benchmark
 def test_ros_benchmark_prints_every_figure_without_losing_queries():
     out = run_benchmark(
         "bench_ros", "--queries", "300", "--batches", "2", "--batch-size", "100",
-        "--service-calls", "20", timeout=240)
+        "--service-calls", "20", "--big-batch", "20000", timeout=240)
     assert "single-grasp topic:" in out and "no loss, in order" in out
     assert "batches of 100:" in out and "INCOMPLETE" not in out
     assert "service round trip (one grasp): p50" in out

@@ -209,3 +209,26 @@ def test_two_clients_with_the_same_ids_get_only_their_own_verdicts(own_node, gra
     finally:
         first.close()
         second.close()
+
+
+def test_a_service_request_in_progress_at_shutdown_gets_its_answer(own_node, grasps):
+    node, spinner, _ = own_node("/service_shutdown_test", workers=1)
+    positions, normals = (np.tile(a, (10, 1, 1)) for a in grasps)  # seconds on one worker
+    client = GraspClient("/service_shutdown_test/force_closure")
+    try:
+        assert client.wait_for_node(REPLY_TIMEOUT_S)
+        answer: list = []
+        caller = threading.Thread(target=lambda: answer.append(
+            client.call(positions, normals, timeout=LOAD_TIMEOUT_S)))
+        caller.start()
+        deadline = time.monotonic() + LOAD_TIMEOUT_S
+        while node._stats.received < len(positions):  # being decided now
+            assert time.monotonic() < deadline, "the node never received the request"
+            time.sleep(0.01)
+        spinner.stop()
+        caller.join(LOAD_TIMEOUT_S)
+        [verdicts] = answer
+        assert set(verdicts.status) == {Status.SOLVER_FAILURE}
+        assert set(verdicts.messages) == {SHUTDOWN_MESSAGE}
+    finally:
+        client.close()
