@@ -468,8 +468,8 @@ class ForceClosureNode(Node):
         self._may_log = _Throttle(WARN_THROTTLE_S)
         self._lock = threading.RLock()
         # One condition per kind of waiting thread, all on that lock: a notify wakes the
-        # thread that has work, not every thread of the node (with one condition, each
-        # batch woke ~20 threads, a few ms of GIL per batch).
+        # thread that has work. With one condition for all, each batch's three
+        # notify_all calls woke all seven waiting threads (~20 wake-ups per batch).
         self._goal_queued = threading.Condition(self._lock)
         self._single_queued = threading.Condition(self._lock)
         self._batch_startable = threading.Condition(self._lock)
