@@ -492,6 +492,7 @@ class GraspClient:
         if not goal_handle.accepted:
             raise RuntimeError("the node rejected the label_grasps goal (shutting down?)")
         result_future = goal_handle.get_result_async()
+        started = time.monotonic()
         done = threading.Event()
         result_future.add_done_callback(lambda _: done.set())
         with tqdm(total=n_grasps, unit="grasp", disable=not progress, dynamic_ncols=True,
@@ -504,8 +505,12 @@ class GraspClient:
                     raise
             response = result_future.result()
             verdicts = verdict_array_to_numpy(response.result.verdicts)
-            _show_progress(bar, latest[0])
-            bar.update(len(verdicts) - bar.n)  # the last feedback may predate the end
+            # The last feedback may predate the end (a short goal may have none after its
+            # first): the bar ends on the verdicts themselves.
+            elapsed = max(time.monotonic() - started, 1e-9)
+            bar.set_postfix(force_closure=int(np.count_nonzero(verdicts.force_closure)),
+                            rate=f"{len(verdicts) / elapsed:.0f}/s", refresh=False)
+            bar.update(len(verdicts) - bar.n)
         self.last_goal_status = response.status
         return verdicts
 

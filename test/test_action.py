@@ -275,6 +275,18 @@ def test_client_label_grasps_returns_all_verdicts_in_order(grasps, served):
     np.testing.assert_array_equal(verdicts.status, expected)
 
 
+def test_client_progress_bar_ends_on_the_verdicts_counts(grasps, served, capsys):
+    # A short goal is done before a feedback after its first: the bar's last line must
+    # still show how many grasps are force closure.
+    _, client = served
+    positions, normals, expected = grasps
+    verdicts = client.label_grasps(positions, normals, progress=True, timeout=WAIT_S)
+    assert len(verdicts) == N_UNIQUE
+    last_line = capsys.readouterr().err.replace("\r", "\n").strip().splitlines()[-1]
+    assert f"{N_UNIQUE}/{N_UNIQUE}" in last_line
+    assert f"force_closure={np.count_nonzero(expected == Status.FORCE_CLOSURE)}" in last_line
+
+
 def test_client_ctrl_c_cancels_and_returns_the_decided_prefix(grasps, served, long_goal,
                                                               monkeypatch):
     import grasp_fc_ros.client as client_module
