@@ -27,7 +27,7 @@ Callbacks only queue: single-grasp queries wait for the ``single_queries`` threa
 most ``max_batch`` of them; more are answered at once with SOLVER_FAILURE "node
 overloaded"), batches for the ``next_batch`` thread, which queues the chunks of up to
 :data:`BATCHES_IN_PROGRESS` batches for the workers while ``answer_batch`` answers them
-in order; the service has an executor of its own
+in order; the services have a thread of their own
 (see :meth:`ForceClosureNode._start_service`). All three decide
 through :class:`~grasp_fc_ros.workers.EvaluationPool`: tiny requests at once, larger ones
 in chunks on the worker processes, interactive ones (service, single queries) ahead of
