@@ -374,11 +374,8 @@ def evaluate(packed: PackedGrasps, settings: Settings) -> tuple[Verdicts, dict]:
         group = np.flatnonzero(eligible & (counts == n))
         rows = starts[group, None] + np.arange(n)
         try:
-            result = check_force_closure(
-                *_core_arguments(packed, rows, mu, settings),
-                use_filter="auto" if settings.use_filter else False,
-                origins=settings.filter_origins, certificates=settings.certificates,
-                torsional_friction=0.0 if packed.torsional is None else packed.torsional[rows])
+            result = _check_group(_core_arguments(packed, rows, mu, settings), packed, rows,
+                                  settings)
         except Exception as exc:  # noqa: BLE001 - one group must not spoil the others
             verdicts.status[group] = Status.SOLVER_FAILURE
             for i in group:
@@ -412,24 +409,24 @@ def _decide_lone_grasp(packed: PackedGrasps, settings: Settings
     """:func:`evaluate` of one hard grasp with one friction coefficient and no extras, in
     one core call that also validates it; None where the general path must decide.
 
-    A service call or a lone single query is such a grasp. The general path validates
-    it first (per contact, so that it can name a bad one) and then calls the core, which
-    validates it again; this path calls the core alone, with the same arguments as the
-    general path's (:func:`_core_arguments`), so the verdict is the same. Measured on one
-    6-finger grasp: 35 against 117 us. Invalid input makes the core raise ValueError: the
-    general path then decides the grasp again and says which contact is wrong.
+    A service call or a lone single query is such a grasp: one the general path would
+    give the core in its one-grasp form (:func:`_core_arguments`). The general path
+    validates it first (per contact, so that it can name a bad one) and then calls the
+    core, which validates it again; this path makes the same core call
+    (:func:`_check_group`) alone, so the verdict is the same. Measured on one 6-finger
+    grasp: 35 against 117 us. Invalid input makes the core raise ValueError: the general
+    path then decides the grasp again and says which contact is wrong.
     """
-    if (len(packed) != 1 or packed.torsional is not None or settings.certificates
-            or settings.compute_min_friction
+    if (len(packed) != 1 or settings.compute_min_friction
             or not MIN_CONTACTS <= packed.counts[0] <= settings.max_contacts):
         return None
     mu = effective_friction(packed.mu, settings.friction_coefficient)
-    if not (mu == mu[0]).all():
-        return None
+    rows = np.arange(packed.counts[0])[None]
+    arguments = _core_arguments(packed, rows, mu, settings)
+    if not isinstance(arguments[2], float):
+        return None  # mixed friction, soft contacts or certificates
     try:
-        result = check_force_closure(packed.positions, packed.normals, float(mu[0]),
-                                     use_filter="auto" if settings.use_filter else False,
-                                     origins=settings.filter_origins)
+        result = _check_group(arguments, packed, rows, settings)
     except ValueError:  # invalid input: the general path says what and where
         return None
     except Exception as exc:  # noqa: BLE001 - as a failing group of the general path
@@ -440,6 +437,16 @@ def _decide_lone_grasp(packed: PackedGrasps, settings: Settings
     # The core validated the grasp inside this call, not timed apart: validation_s 0.
     return verdicts, {"validation_s": 0.0, "filter_s": result.timing.get("filter_s", 0.0),
                       "exact_s": result.timing.get("exact_s", 0.0)}
+
+
+def _check_group(arguments: tuple, packed: PackedGrasps, rows: np.ndarray,
+                 settings: Settings):
+    """The core's result for the same-size grasps ``rows`` (G, n) of ``packed``, given
+    their :func:`_core_arguments`, with the filter and certificates the settings ask."""
+    return check_force_closure(
+        *arguments, use_filter="auto" if settings.use_filter else False,
+        origins=settings.filter_origins, certificates=settings.certificates,
+        torsional_friction=0.0 if packed.torsional is None else packed.torsional[rows])
 
 
 def _core_arguments(packed: PackedGrasps, rows: np.ndarray, mu: np.ndarray,
