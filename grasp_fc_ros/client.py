@@ -128,8 +128,8 @@ class GraspClient:
                                                          f"{prefix}/check_force_closure")
         self._forces_service = self._service_node.create_client(
             ComputeContactForces, f"{prefix}/compute_contact_forces")
-        self._callers = {client: ServiceCaller(client)
-                         for client in (self._service, self._forces_service)}
+        self._service_caller = ServiceCaller(self._service)
+        self._forces_caller = ServiceCaller(self._forces_service)
         self._label_action = ActionClient(self.node, LabelGrasps, f"{prefix}/label_grasps")
         # GoalStatus code of the last label_grasps goal (STATUS_UNKNOWN before any).
         self.last_goal_status = GoalStatus.STATUS_UNKNOWN
@@ -379,7 +379,7 @@ class GraspClient:
 
     def call_request(self, request, timeout: float = DEFAULT_TIMEOUT_S) -> Verdicts:
         """Send a prepared CheckForceClosure request; its :class:`Verdicts` in order."""
-        replies = self._callers[self._service].call(request, timeout).verdicts
+        replies = self._service_caller.call(request, timeout).verdicts
         return verdict_msgs_to_numpy(replies, [len(g.contacts) for g in request.grasps])
 
     def compute_contact_forces(self, positions, normals, wrench, mu=0.0,
@@ -431,7 +431,7 @@ class GraspClient:
         # discovered a moment later, and a request sent before would go unanswered.
         if not self._forces_service.wait_for_service(timeout_sec=timeout):
             raise TimeoutError(f"service compute_contact_forces not found within {timeout} s")
-        response = self._callers[self._forces_service].call(request, timeout)
+        response = self._forces_caller.call(request, timeout)
         forces = np.array([(v.x, v.y, v.z) for v in response.contact_forces],
                           dtype=np.float64).reshape(-1, 3)
         return ContactForces(bool(response.feasible), float(response.max_normal_force),
