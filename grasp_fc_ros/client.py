@@ -53,7 +53,7 @@ from grasp_fc_ros.conversions import (
 )
 from grasp_fc_ros.evaluation import ContactForces, Verdicts
 from grasp_fc_ros.node import NODE_NAME, QUERY_QOS
-from grasp_fc_ros.service_loop import ServiceCaller
+from grasp_fc_ros.service_loop import ServiceCaller, SubscriptionLoop
 
 # Single queries unanswered at most (more submit() calls wait): well inside what the
 # node's KEEP_ALL reader takes without pushing back for long.
@@ -68,7 +68,7 @@ PROGRESS_POLL_S = 0.1
 # How long label_grasps waits for the decided prefix after it cancelled its goal (s):
 # the node ends a canceled goal within ~0.1 s.
 CANCEL_WAIT_S = 10.0
-# Serialized verdicts taken per executor wake-up at most (one wake-up costs about as
+# Verdicts taken per wake-up of the verdicts loop at most (one wake-up costs about as
 # much as a verdict).
 MAX_TAKE = 2_000
 
@@ -110,9 +110,12 @@ class GraspClient:
         # Queries go out and verdicts come in serialized (grasp_fc_ros.wire), unless this
         # rmw's layout is not the one wire writes: ~20 Python objects less per query.
         self._raw = wire.layout_matches()
-        self._verdict_sub = self.node.create_subscription(
-            ForceClosureVerdict, f"{prefix}/verdicts",
-            self._on_raw_verdict if self._raw else self._on_verdict, QUERY_QOS, raw=self._raw)
+        # Single verdicts come in many at a time: taken by a loop of their own, every
+        # verdict the subscription holds at each wake-up (see SubscriptionLoop).
+        self._verdict_loop = SubscriptionLoop(
+            self.node, ForceClosureVerdict, f"{prefix}/verdicts", QUERY_QOS,
+            self._on_raw_verdicts if self._raw else self._on_verdicts, self._on_loop_error,
+            raw=self._raw, max_take=MAX_TAKE, name="grasp_client_verdicts")
         self.node.create_subscription(ForceClosureVerdictArray, f"{prefix}/verdicts_batch",
                                       self._on_raw_batch if self._raw else self._on_batch,
                                       QUERY_QOS, raw=self._raw)
@@ -239,10 +242,10 @@ class GraspClient:
         return wire.encode_contact_array(query_id, self.client_id, contacts, frame_id,
                                          self.node.get_clock().now().seconds_nanoseconds())
 
-    def _on_raw_verdict(self, raw: bytes):
-        """Resolve the futures of this and up to MAX_TAKE more serialized verdicts."""
+    def _on_raw_verdicts(self, raws: list[bytes]):
+        """Resolve the futures of serialized verdicts of this client."""
         mine = []
-        for data in [raw] + self._take_raw_verdicts(MAX_TAKE - 1):
+        for data in raws:
             if data[:len(wire.CDR_LE)] == wire.CDR_LE:
                 client_id, query_id = wire.verdict_ids(data)
                 if client_id == self.client_id:  # others' verdicts are not decoded
@@ -259,24 +262,17 @@ class GraspClient:
                 entry[1].set_result(wire.decode_verdict(data) if data[:4] == wire.CDR_LE
                                     else deserialize_message(data, ForceClosureVerdict))
 
-    def _take_raw_verdicts(self, limit: int) -> list[bytes]:
-        taken = []
-        with self._verdict_sub.handle:
-            while len(taken) < limit:
-                info = self._verdict_sub.handle.take_message(ForceClosureVerdict, True)
-                if info is None:
-                    break
-                taken.append(info[0])
-        return taken
-
-    def _on_verdict(self, msg: ForceClosureVerdict):
-        if msg.client_id != self.client_id:
-            return  # another client's verdict
+    def _on_verdicts(self, msgs: list[ForceClosureVerdict]):
         with self._cond:
-            entry = self._singles.pop(msg.id, None)
+            entries = [(self._singles.pop(msg.id, None), msg) for msg in msgs
+                       if msg.client_id == self.client_id]  # not another client's
             self._cond.notify_all()
-        if entry is not None:
-            entry[1].set_result(msg)
+        for entry, msg in entries:
+            if entry is not None:
+                entry[1].set_result(msg)
+
+    def _on_loop_error(self, exc: Exception):
+        self.node.get_logger().error(f"reading verdicts failed: {exc!r}")
 
     @property
     def in_flight(self) -> int:
@@ -547,6 +543,7 @@ class GraspClient:
         if self._closed:
             return
         self._closed = True
+        self._verdict_loop.stop()
         self._executor.shutdown()
         self._spinner.join(timeout=5.0)
         self._service_node.destroy_node()

@@ -112,7 +112,7 @@ from grasp_fc_ros.marker_publisher import (
     MarkerSettings,
 )
 from grasp_fc_ros.markers import DEFAULT_LIFETIME_S
-from grasp_fc_ros.service_loop import ServiceLoop
+from grasp_fc_ros.service_loop import ServiceLoop, SubscriptionLoop
 from grasp_fc_ros.workers import (
     PRIORITY_BATCH,
     PRIORITY_INTERACTIVE,
@@ -156,9 +156,9 @@ ACTION_RESULT_SEND_TIMEOUT_S = 2.0
 # 0.05 s and then 0.5 s after the goals ended (not after the send) each lost an aborted
 # goal's result once in a clean-clone CI run.
 ACTION_RESULT_DELIVERY_S = 0.25
-# Serialized single-grasp queries taken per executor wake-up at most (the first one,
-# then whatever else the subscription holds): one wake-up, its wait set and callback
-# cost as much as deciding a query. A client keeps at most 2,000 in flight.
+# Single-grasp queries taken per wake-up of the contacts loop at most (whatever the
+# subscription holds): one wake-up costs about as much as deciding a query. A client
+# keeps at most 2,000 in flight.
 MAX_TAKE = 2_000
 # Batches whose chunks may be queued for the workers at once. With one, the workers
 # idled while a decided batch was answered and the next one converted and chunked:
@@ -505,6 +505,7 @@ class ForceClosureNode(Node):
         self._pool = EvaluationPool(self.get_parameter("workers").value)
         self._threads: list[threading.Thread] = []
         self._service_loop = None
+        self._contacts_loop = None
         try:
             self._start_interfaces()
         except BaseException:
@@ -532,10 +533,13 @@ class ForceClosureNode(Node):
         # Serialized single queries in, serialized verdicts and batch answers out
         # (grasp_fc_ros.wire), unless this rmw's layout is not the one wire reads.
         self._use_wire = wire.layout_matches()
-        self._contacts_sub = self.create_subscription(
-            ContactArray, "contacts",
-            self._on_raw_contacts if self._use_wire else self._on_contacts,
-            copy.copy(QUERY_QOS), qos_overriding_options=overridable, raw=self._use_wire)
+        # Single queries come in many at a time: taken by a loop of their own, every
+        # query the subscription holds at each wake-up (see SubscriptionLoop).
+        self._contacts_loop = SubscriptionLoop(
+            self, ContactArray, "contacts", copy.copy(QUERY_QOS), self._on_contacts,
+            lambda exc: self._internal_error("single-grasp queries", exc),
+            raw=self._use_wire, max_take=MAX_TAKE, name="contacts",
+            qos_overriding_options=overridable)
         self.create_subscription(ContactArrayBatch, "contacts_batch", self._on_batch,
                                  copy.copy(QUERY_QOS), qos_overriding_options=overridable)
         # Markers are built and published by a process of its own, started when
@@ -854,48 +858,21 @@ class ForceClosureNode(Node):
 
     # --- callbacks: they only queue, and nothing may escape them ----------------------
 
-    def _on_contacts(self, msg: ContactArray):
-        try:
-            self._stats.count_received(1)
-            with self._lock:
-                pending = len(self._pending)
-                accepted = not self._stopping and pending < self._settings.max_batch
-                if accepted:
-                    self._pending.append(msg)
-                    self._single_queued.notify()
-            if not accepted:
-                self._refuse_single(msg, pending)
-        except Exception as exc:  # noqa: BLE001
-            self._internal_error("a single-grasp query", exc)
-
-    def _on_raw_contacts(self, raw: bytes):
-        """Queue serialized queries: this one and up to MAX_TAKE more already received."""
-        try:
-            raws = [raw] + self._take_raw(MAX_TAKE - 1)
-            self._stats.count_received(len(raws))
-            with self._lock:
-                pending = len(self._pending)
-                room = 0 if self._stopping else max(0, self._settings.max_batch - pending)
-                self._pending.extend(raws[:room])
-                pending = len(self._pending)
-                if room:
-                    self._single_queued.notify()
-            for refused in raws[room:]:
-                self._refuse_single(deserialize_message(refused, ContactArray), pending)
-        except Exception as exc:  # noqa: BLE001
-            self._internal_error("serialized single-grasp queries", exc)
-
-    def _take_raw(self, limit: int) -> list[bytes]:
-        """Up to ``limit`` more serialized queries the contacts subscription holds now."""
-        taken = []
-        subscription = self._contacts_sub
-        with subscription.handle:
-            while len(taken) < limit:
-                info = subscription.handle.take_message(ContactArray, True)
-                if info is None:
-                    break
-                taken.append(info[0])
-        return taken
+    def _on_contacts(self, queries: list):
+        """Queue single-grasp queries (serialized, or messages without wire), oldest
+        first; those beyond ``max_batch`` pending are answered at once."""
+        self._stats.count_received(len(queries))
+        with self._lock:
+            pending = len(self._pending)
+            room = 0 if self._stopping else max(0, self._settings.max_batch - pending)
+            self._pending.extend(queries[:room])
+            pending = len(self._pending)
+            if room:
+                self._single_queued.notify()
+        for refused in queries[room:]:
+            if isinstance(refused, bytes):
+                refused = deserialize_message(refused, ContactArray)
+            self._refuse_single(refused, pending)
 
     def _overloaded(self, what: str, n_queries: int) -> str:
         message = f"node overloaded: {what}"
@@ -1268,6 +1245,8 @@ class ForceClosureNode(Node):
             for condition in (self._goal_queued, self._single_queued, self._batch_startable,
                               self._batch_started):
                 condition.notify_all()
+        if self._contacts_loop is not None:
+            self._contacts_loop.stop()
         if self._service_loop is not None:
             self._service_loop.stop()
             self._service_node.destroy_node()

@@ -1,4 +1,5 @@
-"""Serve and call rclpy services with a bare wait set instead of an executor.
+"""Serve and call rclpy services, and take topic messages, with a bare wait set
+instead of an executor.
 
 rclpy's executors rebuild their wait set from every entity of their nodes at each
 wake-up and run each request and each response as a Task; for a one-grasp
@@ -12,6 +13,11 @@ the response, as ``SingleThreadedExecutor`` would; :class:`ServiceCaller` sends 
 request and waits for its response in the calling thread. Both use rclpy's wait-set,
 service and client handles, which rclpy's own executors and ``rclpy.wait_for_message``
 use too (rclpy is pinned in requirements.txt).
+
+:class:`SubscriptionLoop` does the same for one busy subscription: it takes every
+message the subscription holds at each wake-up and hands them over as one list. On the
+node's executor each wake-up rebuilt a wait set of a dozen entities (parameter services,
+timer, the batch topic) for what was often one query.
 """
 
 from __future__ import annotations
@@ -20,12 +26,16 @@ import threading
 import time
 from typing import Any, Callable
 
+from rclpy.callback_groups import CallbackGroup
 from rclpy.client import Client
 from rclpy.context import Context
 from rclpy.exceptions import InvalidHandle
 from rclpy.guard_condition import GuardCondition
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.node import Node
+from rclpy.qos import QoSProfile
 from rclpy.service import Service
+from rclpy.subscription import Subscription
 
 # How long one wait lasts (ns) before the loop looks at its stop flag again (stop() also
 # wakes it at once through a guard condition), or a caller at rclpy's state and at
@@ -159,3 +169,103 @@ class ServiceCaller:
                     return response
         finally:
             self._lock.release()
+
+
+class OwnThreadGroup(CallbackGroup):
+    """A callback group that no executor runs: its entities are served by a loop of their
+    own (:class:`SubscriptionLoop`), so an executor spinning their node skips them."""
+
+    def can_execute(self, entity) -> bool:
+        return False
+
+    def beginning_execution(self, entity) -> bool:
+        return False
+
+    def ending_execution(self, entity) -> None:
+        pass
+
+
+class SubscriptionLoop:
+    """Subscribe to a topic and hand its messages over in lists, from a thread of its own.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node that owns the subscription (any executor spinning it skips it).
+    msg_type, topic, qos, raw, qos_overriding_options
+        As for ``Node.create_subscription``.
+    on_messages : callable(list)
+        Called with the messages taken at one wake-up, oldest first: serialized bytes
+        if ``raw``, else messages; at most ``max_take`` of them.
+    on_error : callable(Exception)
+        Called when ``on_messages`` raised; the loop goes on.
+    max_take : int
+        Most messages handed over at once.
+    name : str
+        The thread's name.
+    """
+
+    def __init__(self, node: Node, msg_type: Any, topic: str, qos: QoSProfile,
+                 on_messages: Callable[[list], None], on_error: Callable[[Exception], None],
+                 *, raw: bool = False, max_take: int = 2_000, name: str = "subscription",
+                 **subscription_options: Any):
+        self._msg_type = msg_type
+        self._on_messages = on_messages
+        self._on_error = on_error
+        self._max_take = max_take
+        self._raw = raw
+        self._context = node.context
+        self.subscription: Subscription = node.create_subscription(
+            msg_type, topic, on_messages, qos, raw=raw, callback_group=OwnThreadGroup(),
+            **subscription_options)
+        self._stopping = False
+        self._wake = GuardCondition(callback=None, callback_group=None, context=node.context)
+        self._thread = threading.Thread(target=self._run, daemon=True, name=name)
+        self._thread.start()
+
+    @property
+    def running(self) -> bool:
+        """True until the thread has ended (after :meth:`stop`, or rclpy's shutdown)."""
+        return self._thread.is_alive()
+
+    def stop(self) -> None:
+        """Let the messages being handed over finish, then end the thread (a second call
+        does nothing). The subscription stays: its node destroys it."""
+        if self._stopping:
+            return
+        self._stopping = True
+        self._wake.trigger()
+        self._thread.join()
+        self._wake.destroy()
+
+    def _run(self) -> None:
+        try:
+            wait_set = _rclpy.WaitSet(1, 1, 0, 0, 0, 0, self._context.handle)
+            handle = self.subscription.handle
+            while not self._stopping:
+                wait_set.clear_entities()
+                wait_set.add_guard_condition(self._wake.handle)
+                wait_set.add_subscription(handle)
+                wait_set.wait(WAIT_NS)
+                if handle.pointer not in wait_set.get_ready_entities("subscription"):
+                    continue
+                taken = self._take(handle)
+                if not taken:
+                    continue  # the wait set saw a message that another reader took
+                try:
+                    self._on_messages(taken)
+                except Exception as exc:  # noqa: BLE001 - one pass must not end the loop
+                    self._on_error(exc)
+        except Exception:  # noqa: BLE001
+            if self._context.ok() and not self._stopping:
+                raise  # a bug, not a shutdown: the thread's traceback shows it
+
+    def _take(self, handle: Any) -> list:
+        taken = []
+        with handle:
+            while len(taken) < self._max_take:
+                info = handle.take_message(self._msg_type, self._raw)
+                if info is None:
+                    break
+                taken.append(info[0])
+        return taken
