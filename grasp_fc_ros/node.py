@@ -89,7 +89,6 @@ from grasp_fc_ros.conversions import (
     batch_size,
     batch_to_packed,
     contact_arrays_to_packed,
-    nan_wrench,
     verdicts_to_array_msg,
     verdicts_to_msgs,
 )
@@ -112,6 +111,7 @@ from grasp_fc_ros.marker_publisher import (
     MarkerSettings,
 )
 from grasp_fc_ros.markers import DEFAULT_LIFETIME_S
+from grasp_fc_ros.message_slots import nan_wrench
 from grasp_fc_ros.service_loop import ServiceLoop, SubscriptionLoop
 from grasp_fc_ros.workers import (
     PRIORITY_BATCH,
