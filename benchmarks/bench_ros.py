@@ -27,6 +27,7 @@ Usage: python benchmarks/bench_ros.py [--queries N] [--batches B] [--batch-size 
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import shutil
 import signal
@@ -88,13 +89,37 @@ def tree_cpu_s(pid: int) -> float:
     return total / os.sysconf("SC_CLK_TCK")
 
 
-def bench_single(client: GraspClient, positions, normals, n_queries: int):
+class GcTimer:
+    """Seconds this process spent in Python's cyclic garbage collector while entered,
+    and how many full (generation 2) collections that took."""
+
+    def __init__(self):
+        self.seconds, self.full, self._start = 0.0, 0, 0.0
+
+    def _callback(self, phase: str, info: dict):
+        if phase == "start":
+            self._start = time.perf_counter()
+        else:
+            self.seconds += time.perf_counter() - self._start
+            self.full += info["generation"] == 2
+
+    def __enter__(self) -> GcTimer:
+        gc.callbacks.append(self._callback)
+        return self
+
+    def __exit__(self, *exc_info):
+        gc.callbacks.remove(self._callback)
+
+
+def bench_single(client: GraspClient, positions, normals, n_queries: int,
+                 gc_timer: GcTimer | None = None):
     """Queries/s for ``n_queries`` submitted back to back; (rate, lossless)."""
     before = client.next_diagnostics()
     start = time.perf_counter()
-    futures = [client.submit(positions[i % len(positions)], normals[i % len(positions)],
-                             query_id=i, timeout=REPLY_TIMEOUT_S) for i in range(n_queries)]
-    verdicts = [f.result(REPLY_TIMEOUT_S) for f in futures]
+    with gc_timer or GcTimer():
+        futures = [client.submit(positions[i % len(positions)], normals[i % len(positions)],
+                                 query_id=i, timeout=REPLY_TIMEOUT_S) for i in range(n_queries)]
+        verdicts = [f.result(REPLY_TIMEOUT_S) for f in futures]
     elapsed = time.perf_counter() - start
     after = client.next_diagnostics()
     counted = {key: int(after[key]) - int(before[key]) for key in ("received", "answered")}
@@ -208,8 +233,8 @@ def main(argv=None) -> int:
     try:
         print(f"object {args.object}, {N_FINGERS}-finger random grasps; node in a separate "
               f"process, QoS reliable KEEP_ALL; {os.cpu_count()} CPUs")
-        cpu, client_cpu = tree_cpu_s(node.pid), time.process_time()
-        rate, lossless = bench_single(client, positions, normals, args.queries)
+        cpu, client_cpu, gc_timer = tree_cpu_s(node.pid), time.process_time(), GcTimer()
+        rate, lossless = bench_single(client, positions, normals, args.queries, gc_timer)
         single_cpu = (tree_cpu_s(node.pid) - cpu) / args.queries
         client_cpu = (time.process_time() - client_cpu) / args.queries
         print(f"single-grasp topic: {rate:8.0f} queries/s over {args.queries} queries, "
@@ -220,6 +245,9 @@ def main(argv=None) -> int:
               f"{ratio_or_nan(os.cpu_count(), single_cpu):.0f} queries/s on {os.cpu_count()} idle cores; "
               f"client (this process) {1e3 * client_cpu:.3f} ms -> both on these cores at most "
               f"{ratio_or_nan(os.cpu_count(), single_cpu + client_cpu):.0f} queries/s")
+        print(f"    of the client's CPU per query, {1e3 * gc_timer.seconds / args.queries:.3f} ms "
+              f"in Python's garbage collector ({gc_timer.full} full collections: each "
+              f"scans every live object, the futures kept and everything imported)")
 
         # Core alone and through the node in alternating rounds, the ratio taken per
         # round and its median reported: the load of a shared machine drifts within

@@ -175,13 +175,13 @@ class OwnThreadGroup(CallbackGroup):
     """A callback group that no executor runs: its entities are served by a loop of their
     own (:class:`SubscriptionLoop`), so an executor spinning their node skips them."""
 
-    def can_execute(self, entity) -> bool:
+    def can_execute(self, entity: Any) -> bool:
         return False
 
-    def beginning_execution(self, entity) -> bool:
+    def beginning_execution(self, entity: Any) -> bool:
         return False
 
-    def ending_execution(self, entity) -> None:
+    def ending_execution(self, entity: Any) -> None:
         pass
 
 
@@ -261,7 +261,7 @@ class SubscriptionLoop:
                 raise  # a bug, not a shutdown: the thread's traceback shows it
 
     def _take(self, handle: Any) -> list:
-        taken = []
+        taken: list = []
         with handle:
             while len(taken) < self._max_take:
                 info = handle.take_message(self._msg_type, self._raw)
