@@ -355,28 +355,68 @@ def evaluate(packed: PackedGrasps, settings: Settings) -> tuple[Verdicts, dict]:
     if lone is not None:
         return lone
     n_grasps = len(packed)
-    verdicts = Verdicts.failed_grasps(packed, settings, Status.INVALID_INPUT, "")
     if n_grasps > settings.max_batch:
+        verdicts = Verdicts.failed_grasps(packed, settings, Status.INVALID_INPUT, "")
         verdicts.messages = [f"{n_grasps} grasps exceed max_batch={settings.max_batch}"
                              ] * n_grasps
         return verdicts, {}
-    start = time.perf_counter()
     mu = effective_friction(packed.mu, settings.friction_coefficient)
+    if _one_size(packed, settings):
+        try:
+            return _decide_groups(packed, mu, settings, [np.arange(n_grasps)], 0.0,
+                                  invalid_raises=True)
+        except ValueError:
+            pass  # an invalid grasp: the general path says which contact is wrong
+    start = time.perf_counter()
     eligible = np.ones(n_grasps, bool)
-    for problem in find_invalid(packed, mu, settings):
+    problems = find_invalid(packed, mu, settings)
+    for problem in problems:
         eligible[problem.grasp] = False
+    counts = packed.counts
+    groups = [np.flatnonzero(eligible & (counts == n)) for n in np.unique(counts[eligible])]
+    verdicts, seconds = _decide_groups(packed, mu, settings, groups,
+                                       time.perf_counter() - start)
+    for problem in problems:
         verdicts.messages[problem.grasp] = problem.describe(packed)
-    seconds = {"validation_s": time.perf_counter() - start, "filter_s": 0.0, "exact_s": 0.0}
+    return verdicts, seconds
+
+
+def _one_size(packed: PackedGrasps, settings: Settings) -> bool:
+    """Whether all grasps of ``packed`` have one accepted contact count: then
+    :func:`evaluate` gives them to the core as they are, in one call that validates
+    them (views of the packed arrays, no per-group indexing), and takes the general
+    path only if the core finds an invalid grasp. Measured on a worker's chunk of 666
+    6-finger grasps: the general path's validation, grouping and indexing took ~0.4 ms
+    of its ~10 ms."""
+    counts = packed.counts
+    return (len(counts) > 1 and counts[0] == counts[-1] == counts.min() == counts.max()
+            and MIN_CONTACTS <= counts[0] <= settings.max_contacts)
+
+
+def _decide_groups(packed: PackedGrasps, mu: np.ndarray, settings: Settings,
+                   groups: list[np.ndarray], validation_s: float,
+                   invalid_raises: bool = False) -> tuple[Verdicts, dict]:
+    """Verdicts of ``packed`` with the grasps of each group (same contact count, in
+    order) decided by one core call; grasps in no group stay ``INVALID_INPUT``.
+
+    A core failure in a group makes that group ``SOLVER_FAILURE``; with
+    ``invalid_raises`` a ValueError (the core's word for invalid input) is raised
+    instead.
+    """
+    verdicts = Verdicts.failed_grasps(packed, settings, Status.INVALID_INPUT, "")
+    seconds = {"validation_s": validation_s, "filter_s": 0.0, "exact_s": 0.0}
     if settings.compute_min_friction:
         seconds["min_friction_s"] = 0.0
-    starts, counts = packed.starts, packed.counts
-    for n in np.unique(counts[eligible]):
-        group = np.flatnonzero(eligible & (counts == n))
+    starts = packed.starts
+    for group in groups:
+        n = int(packed.counts[group[0]])
         rows = starts[group, None] + np.arange(n)
         try:
             result = _check_group(_core_arguments(packed, rows, mu, settings), packed, rows,
                                   settings)
         except Exception as exc:  # noqa: BLE001 - one group must not spoil the others
+            if invalid_raises and isinstance(exc, ValueError):
+                raise
             verdicts.status[group] = Status.SOLVER_FAILURE
             for i in group:
                 verdicts.messages[i] = f"internal error: {exc}"
@@ -460,6 +500,10 @@ def _core_arguments(packed: PackedGrasps, rows: np.ndarray, mu: np.ndarray,
     if (len(rows) == 1 and packed.torsional is None and not settings.certificates
             and (mu[rows[0]] == mu[rows[0, 0]]).all()):
         return packed.positions[rows[0]], packed.normals[rows[0]], float(mu[rows[0, 0]])
+    if rows.size == len(packed.positions):  # every contact, in order: views, no copies
+        shape = rows.shape
+        return (packed.positions.reshape(*shape, 3), packed.normals.reshape(*shape, 3),
+                mu.reshape(shape))
     return packed.positions[rows], packed.normals[rows], mu[rows]
 
 

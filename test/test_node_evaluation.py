@@ -189,6 +189,63 @@ def test_a_failing_core_group_fails_only_that_group(mixed, monkeypatch):
         assert ("solver exploded" in verdicts.messages[i]) == failed
 
 
+@pytest.fixture(scope="module")
+def six_finger():
+    """30 six-finger grasps on the box."""
+    return list(zip(*sample_grasps(make_object("box"), 30, 6, np.random.default_rng(5))))
+
+
+@pytest.mark.parametrize("extras", [{}, {"certificates": True}, {"compute_min_friction": True}])
+def test_one_size_batches_skip_the_general_path_and_decide_as_it_does(six_finger, extras,
+                                                                     monkeypatch):
+    from grasp_fc_ros import evaluation
+
+    settings_ = Settings(friction_coefficient=0.6, **extras)
+    # A grasp of another size sends the same 30 grasps down the general path.
+    odd_p, odd_n = sample_grasps(make_object("box"), 1, 4, np.random.default_rng(6))
+    general, _ = evaluate(pack(six_finger + [(odd_p[0], odd_n[0])]), settings_)
+    monkeypatch.setattr(evaluation, "find_invalid",
+                        lambda *args: pytest.fail("general path taken"))
+    one_size, seconds = evaluate(pack(six_finger), settings_)
+    assert seconds["validation_s"] == 0.0  # validated inside the core call
+    np.testing.assert_array_equal(one_size.status, general.status[:30])
+    np.testing.assert_array_equal(one_size.force_closure, general.force_closure[:30])
+    np.testing.assert_allclose(one_size.margin, general.margin[:30], rtol=MARGIN_REL_TOL,
+                               atol=MARGIN_ABS_TOL)
+    assert_same_as_core(one_size, six_finger, 0.6)
+    for name in ("contact_forces", "separating_wrench", "min_friction"):
+        ours, theirs = getattr(one_size, name), getattr(general, name)
+        assert (ours is None) == (theirs is None), name
+        if ours is not None:
+            np.testing.assert_allclose(ours, theirs[:len(ours)], rtol=1e-6, atol=1e-9,
+                                       err_msg=name)
+
+
+def test_an_invalid_grasp_in_a_one_size_batch_is_named_and_spares_the_others(six_finger):
+    grasps = [(p.copy(), n.copy()) for p, n in six_finger[:8]]
+    grasps[5][1][3] = 0.0
+    verdicts, _ = evaluate(pack(grasps), Settings())
+    assert verdicts.status[5] == Status.INVALID_INPUT
+    assert verdicts.messages[5] == "grasp 5 (id 105), contact 3: normal has zero length"
+    good = [i for i in range(8) if i != 5]
+    assert all(verdicts.messages[i] == "" for i in good)
+    assert_same_as_core(Verdicts(*(a[good] for a in (verdicts.ids, verdicts.force_closure,
+                                                     verdicts.status, verdicts.margin)),
+                                 messages=[]), [grasps[i] for i in good], 0.5)
+
+
+def test_a_failing_core_call_fails_a_one_size_batch_with_the_reason(six_finger, monkeypatch):
+    from grasp_fc_ros import evaluation
+
+    def explodes(*args, **kwargs):
+        raise RuntimeError("solver exploded")
+
+    monkeypatch.setattr(evaluation, "check_force_closure", explodes)
+    verdicts, _ = evaluate(pack(six_finger[:5]), Settings())
+    assert (verdicts.status == Status.SOLVER_FAILURE).all()
+    assert verdicts.messages == ["internal error: solver exploded"] * 5
+
+
 @settings(max_examples=30, deadline=None)
 @given(sizes=st.lists(st.integers(1, 9), min_size=0, max_size=30),
        bound=st.integers(1, 40))
