@@ -348,8 +348,9 @@ def evaluate(packed: PackedGrasps, settings: Settings) -> tuple[Verdicts, dict]:
         over the grasp's largest, so the grasp is force closure when its largest
         coefficient exceeds mu* (the others scaled along) and not below it.
     seconds : dict
-        Time spent: ``validation_s``, ``filter_s``, ``exact_s`` (certificates
-        included) and, if computed, ``min_friction_s`` (s).
+        Time spent: ``validation_s`` (0 where the core validated the grasps inside its
+        own call: one grasp, or grasps of one size), ``filter_s``, ``exact_s``
+        (certificates included) and, if computed, ``min_friction_s`` (s).
     """
     lone = _decide_lone_grasp(packed, settings)
     if lone is not None:

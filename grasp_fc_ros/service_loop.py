@@ -43,8 +43,62 @@ from rclpy.subscription import Subscription
 WAIT_NS = 100_000_000
 
 
-class ServiceLoop:
-    """Serve ``services`` on a daemon thread until :meth:`stop`.
+class _WaitSetThread:
+    """A daemon thread that waits on a bare rclpy wait set until :meth:`stop`.
+
+    Subclasses call :meth:`_start` with the wait set's sizes and say what it waits on
+    (:meth:`_add_entities`) and what to do when it wakes (:meth:`_on_ready`).
+    """
+
+    def _start(self, context: Context, sizes: tuple[int, int, int, int, int, int],
+               name: str) -> None:
+        """Start the thread; ``sizes``: subscriptions, guard conditions, timers,
+        clients, services and events of the wait set, the guard condition included."""
+        self._context = context
+        self._sizes = sizes
+        self._stopping = False
+        self._wake = GuardCondition(callback=None, callback_group=None, context=context)
+        self._thread = threading.Thread(target=self._run, daemon=True, name=name)
+        self._thread.start()
+
+    @property
+    def running(self) -> bool:
+        """True until the thread has ended (after :meth:`stop`, or rclpy's shutdown)."""
+        return self._thread.is_alive()
+
+    def stop(self) -> None:
+        """Let the work in progress finish, then end the thread (a second call does
+        nothing)."""
+        if self._stopping:
+            return
+        self._stopping = True
+        self._wake.trigger()
+        self._thread.join()
+        self._wake.destroy()
+
+    def _add_entities(self, wait_set: Any) -> None:
+        raise NotImplementedError
+
+    def _on_ready(self, wait_set: Any) -> None:
+        raise NotImplementedError
+
+    def _run(self) -> None:
+        try:
+            wait_set = _rclpy.WaitSet(*self._sizes, self._context.handle)
+            while not self._stopping:
+                wait_set.clear_entities()
+                wait_set.add_guard_condition(self._wake.handle)
+                self._add_entities(wait_set)
+                wait_set.wait(WAIT_NS)
+                self._on_ready(wait_set)
+        except Exception:  # noqa: BLE001
+            if self._context.ok() and not self._stopping:
+                raise  # a bug, not a shutdown: the thread's traceback shows it
+
+
+class ServiceLoop(_WaitSetThread):
+    """Serve ``services`` on a daemon thread until :meth:`stop` (which lets the request
+    in progress be answered).
 
     Parameters
     ----------
@@ -61,45 +115,18 @@ class ServiceLoop:
     def __init__(self, services: list[Service], context: Context,
                  on_error: Callable[[Service, Exception], None], name: str = "service"):
         self._services = list(services)
-        self._context = context
         self._on_error = on_error
-        self._stopping = False
-        self._wake = GuardCondition(callback=None, callback_group=None, context=context)
-        self._thread = threading.Thread(target=self._run, daemon=True, name=name)
-        self._thread.start()
+        self._start(context, (0, 1, 0, 0, len(self._services), 0), name)
 
-    @property
-    def running(self) -> bool:
-        """True until the thread has ended (after :meth:`stop`, or rclpy's shutdown)."""
-        return self._thread.is_alive()
+    def _add_entities(self, wait_set: Any) -> None:
+        for service in self._services:
+            wait_set.add_service(service.handle)
 
-    def stop(self) -> None:
-        """Let the request in progress be answered, then end the thread (a second call
-        does nothing)."""
-        if self._stopping:
-            return
-        self._stopping = True
-        self._wake.trigger()
-        self._thread.join()
-        self._wake.destroy()
-
-    def _run(self) -> None:
-        try:
-            wait_set = _rclpy.WaitSet(0, 1, 0, 0, len(self._services), 0,
-                                      self._context.handle)
-            while not self._stopping:
-                wait_set.clear_entities()
-                wait_set.add_guard_condition(self._wake.handle)
-                for service in self._services:
-                    wait_set.add_service(service.handle)
-                wait_set.wait(WAIT_NS)
-                ready = wait_set.get_ready_entities("service")
-                for service in self._services:
-                    if service.handle.pointer in ready:
-                        self._serve_one(service)
-        except Exception:  # noqa: BLE001
-            if self._context.ok() and not self._stopping:
-                raise  # a bug, not a shutdown: the thread's traceback shows it
+    def _on_ready(self, wait_set: Any) -> None:
+        ready = wait_set.get_ready_entities("service")
+        for service in self._services:
+            if service.handle.pointer in ready:
+                self._serve_one(service)
 
     def _serve_one(self, service: Service) -> None:
         srv_type: Any = service.srv_type  # a generated service type: Request, Response
@@ -185,7 +212,7 @@ class OwnThreadGroup(CallbackGroup):
         pass
 
 
-class SubscriptionLoop:
+class SubscriptionLoop(_WaitSetThread):
     """Subscribe to a topic and hand its messages over in lists, from a thread of its own.
 
     Parameters
@@ -203,6 +230,9 @@ class SubscriptionLoop:
         Most messages handed over at once.
     name : str
         The thread's name.
+
+    :meth:`stop` lets the messages being handed over finish and ends the thread; the
+    subscription stays, for its node to destroy.
     """
 
     def __init__(self, node: Node, msg_type: Any, topic: str, qos: QoSProfile,
@@ -214,51 +244,25 @@ class SubscriptionLoop:
         self._on_error = on_error
         self._max_take = max_take
         self._raw = raw
-        self._context = node.context
         self.subscription: Subscription = node.create_subscription(
             msg_type, topic, on_messages, qos, raw=raw, callback_group=OwnThreadGroup(),
             **subscription_options)
-        self._stopping = False
-        self._wake = GuardCondition(callback=None, callback_group=None, context=node.context)
-        self._thread = threading.Thread(target=self._run, daemon=True, name=name)
-        self._thread.start()
+        self._start(node.context, (1, 1, 0, 0, 0, 0), name)
 
-    @property
-    def running(self) -> bool:
-        """True until the thread has ended (after :meth:`stop`, or rclpy's shutdown)."""
-        return self._thread.is_alive()
+    def _add_entities(self, wait_set: Any) -> None:
+        wait_set.add_subscription(self.subscription.handle)
 
-    def stop(self) -> None:
-        """Let the messages being handed over finish, then end the thread (a second call
-        does nothing). The subscription stays: its node destroys it."""
-        if self._stopping:
+    def _on_ready(self, wait_set: Any) -> None:
+        handle = self.subscription.handle
+        if handle.pointer not in wait_set.get_ready_entities("subscription"):
             return
-        self._stopping = True
-        self._wake.trigger()
-        self._thread.join()
-        self._wake.destroy()
-
-    def _run(self) -> None:
+        taken = self._take(handle)
+        if not taken:
+            return  # the wait set saw a message that another reader took
         try:
-            wait_set = _rclpy.WaitSet(1, 1, 0, 0, 0, 0, self._context.handle)
-            handle = self.subscription.handle
-            while not self._stopping:
-                wait_set.clear_entities()
-                wait_set.add_guard_condition(self._wake.handle)
-                wait_set.add_subscription(handle)
-                wait_set.wait(WAIT_NS)
-                if handle.pointer not in wait_set.get_ready_entities("subscription"):
-                    continue
-                taken = self._take(handle)
-                if not taken:
-                    continue  # the wait set saw a message that another reader took
-                try:
-                    self._on_messages(taken)
-                except Exception as exc:  # noqa: BLE001 - one pass must not end the loop
-                    self._on_error(exc)
-        except Exception:  # noqa: BLE001
-            if self._context.ok() and not self._stopping:
-                raise  # a bug, not a shutdown: the thread's traceback shows it
+            self._on_messages(taken)
+        except Exception as exc:  # noqa: BLE001 - one pass must not end the loop
+            self._on_error(exc)
 
     def _take(self, handle: Any) -> list:
         taken: list = []
