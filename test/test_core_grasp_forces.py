@@ -3,7 +3,7 @@ limits, the LP pyramid bracket, invariances, batches and input errors."""
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from grasp_cases import adversarial_grasps, ellipsoid_grasps, random_rotation
@@ -154,6 +154,9 @@ def test_lp_pyramids_bracket_s_star():
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n_contacts=st.integers(3, 7),
        scale=st.floats(1e-2, 1e2), load=st.floats(1e-3, 1e3))
+# Found by hypothesis: the moved grasp's s* 2.4e-6 above the first frame's, both within
+# their certified accuracy (the test demanded 1e-6).
+@example(seed=6445, n_contacts=3, scale=1.0, load=1.0)
 def test_invariant_under_rigid_motion_and_scaling(seed, n_contacts, scale, load):
     """Moving the grasp and the wrench along leaves s*; scaling lengths by k with the
     torque scaled by k leaves s*; scaling the wrench by c scales s* by c."""
@@ -176,7 +179,10 @@ def test_invariant_under_rigid_motion_and_scaling(seed, n_contacts, scale, load)
     finite = np.isfinite(base)
     for other in (moved, scaled, heavier / load):
         assert (np.isfinite(other) == finite).all()
-        np.testing.assert_allclose(other[finite], base[finite], rtol=1e-6)
+        # Each answer is certified to OPTIMALITY_TOL of its own frame's dual bound, with
+        # forces inside the cones to FORCE_TOL of s*: two frames agree to the accuracy
+        # two stages agree to (assert_same_s_star), not to 1e-6.
+        np.testing.assert_allclose(other[finite], base[finite], rtol=3 * OPTIMALITY_TOL)
 
 
 @settings(max_examples=20, deadline=None)
