@@ -390,8 +390,8 @@ def _one_size(packed: PackedGrasps, settings: Settings) -> bool:
     6-finger grasps: the general path's validation, grouping and indexing took ~0.4 ms
     of its ~10 ms."""
     counts = packed.counts
-    return (len(counts) > 1 and counts[0] == counts[-1] == counts.min() == counts.max()
-            and MIN_CONTACTS <= counts[0] <= settings.max_contacts)
+    return (len(counts) > 1 and MIN_CONTACTS <= counts[0] <= settings.max_contacts
+            and bool((counts == counts[0]).all()))
 
 
 def _decide_groups(packed: PackedGrasps, mu: np.ndarray, settings: Settings,

@@ -75,3 +75,19 @@ def test_window_of_unanswered_queries_is_enforced(lonely):
         lonely.submit(contacts, contacts, query_id=1)
     lonely.close()
     assert all(f.cancelled() for f in futures)
+
+
+def test_queries_are_stamped_with_the_clients_ros_clock(lonely):
+    """System time unless ROS time is active (use_sim_time), then the ROS clock: 0
+    before the first /clock message."""
+    import time
+
+    from rclpy.parameter import Parameter
+
+    before = time.time()
+    sec, nanosec = lonely._stamp()
+    assert before - 1.0 <= sec + nanosec * 1e-9 <= time.time() + 1.0
+    assert 0 <= nanosec < 1_000_000_000
+    lonely.node.set_parameters([Parameter("use_sim_time", Parameter.Type.BOOL, True)])
+    assert lonely.node.get_clock().ros_time_is_active
+    assert lonely._stamp() == (0, 0)
