@@ -32,8 +32,10 @@ import rclpy
 from action_msgs.msg import GoalStatus
 from grasp_fc_msgs.action import LabelGrasps
 from rclpy.action import ActionClient
+from rclpy.node import Node
 
 from bench_ros import REPLY_TIMEOUT_S, start_node, stop_node  # noqa: E402
+from grasp_fc_ros.client import request_on_spin_thread
 from grasp_fc_ros.conversions import grasps_to_batch_msg, verdict_array_to_numpy
 from grasp_fc_ros.core import check_force_closure
 from grasp_fc_ros.objects import make_object, sample_grasps
@@ -47,21 +49,29 @@ TARGET_CANCEL_S = 0.1
 class TimedGoal:
     """A goal, its feedback arrival times, and when its result came."""
 
-    def __init__(self, action: ActionClient, batch):
+    def __init__(self, action: tuple[ActionClient, Node], batch):
+        """``action``: the ActionClient and the node it is on, which another thread
+        spins; requests are made on that thread (rclpy's ActionClient loses a response
+        taken between sending a request and registering its future)."""
+        action_client, node = action
         self.feedback_times: list[float] = []
         self.done_reported = 0
         self.sent = time.monotonic()
+        self._request = lambda request: request_on_spin_thread(node, request)
         accepted = threading.Event()
-        future = action.send_goal_async(LabelGrasps.Goal(grasps=batch),
-                                        feedback_callback=self._on_feedback)
+        future = self._request(lambda: action_client.send_goal_async(
+            LabelGrasps.Goal(grasps=batch), feedback_callback=self._on_feedback))
         future.add_done_callback(lambda _: accepted.set())
         if not accepted.wait(REPLY_TIMEOUT_S) or not future.result().accepted:
             raise RuntimeError("goal not accepted")
         self.handle = future.result()
         self.ended = None
         self._done = threading.Event()
-        self._result = self.handle.get_result_async()
+        self._result = self._request(self.handle.get_result_async)
         self._result.add_done_callback(self._on_result)
+
+    def cancel(self):
+        self._request(self.handle.cancel_goal_async)
 
     def _on_feedback(self, msg):
         self.feedback_times.append(time.monotonic())
@@ -100,7 +110,7 @@ def bench_cancel(action, batch, expected, n_cancels, after_s):
             time.sleep(0.005)
         time.sleep(after_s)
         cancel_at = time.monotonic()
-        goal.handle.cancel_goal_async()
+        goal.cancel()
         status, verdicts = goal.result()
         latencies.append(goal.ended - cancel_at)
         n = len(verdicts)
@@ -142,9 +152,10 @@ def main(argv=None) -> int:
     node, client = start_node("action")
     try:
         namespace = f"/grasp_fc_action_{os.getpid()}"  # as start_node("action") names it
-        action = ActionClient(client.node, LabelGrasps, f"{namespace}/label_grasps")
-        if not action.wait_for_server(timeout_sec=30.0):
+        action_client = ActionClient(client.node, LabelGrasps, f"{namespace}/label_grasps")
+        if not action_client.wait_for_server(timeout_sec=30.0):
             raise RuntimeError("no label_grasps server")
+        action = (action_client, client.node)
         print(f"{args.goal_grasps} {N_FINGERS}-finger grasps per goal on '{args.object}'; "
               "the node has 2 workers; shared machine: figures vary between runs")
         bench_feedback(action, batch, args.goal_grasps)

@@ -41,6 +41,7 @@ from grasp_fc_msgs.srv import CheckForceClosure, ComputeContactForces
 from rclpy.action import ActionClient
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.task import Future as RclpyFuture
 from tqdm import tqdm
 from rclpy.serialization import deserialize_message
 
@@ -490,22 +491,26 @@ class GraspClient:
             raise TimeoutError(f"no label_grasps action server within {wait_s:.1f} s")
         latest: list = [None]  # the newest feedback, written by the spin thread
         goal_handle = _wait_rclpy(
-            self._label_action.send_goal_async(
+            request_on_spin_thread(self.node, lambda: self._label_action.send_goal_async(
                 LabelGrasps.Goal(grasps=batch),
-                feedback_callback=lambda msg: latest.__setitem__(0, msg.feedback)),
+                feedback_callback=lambda msg: latest.__setitem__(0, msg.feedback))),
             deadline, "the label_grasps goal to be accepted")
         if not goal_handle.accepted:
             raise RuntimeError("the node rejected the label_grasps goal (shutting down?)")
-        result_future = goal_handle.get_result_async()
+        result_future = request_on_spin_thread(self.node, goal_handle.get_result_async)
         started = time.monotonic()
         done = threading.Event()
         result_future.add_done_callback(lambda _: done.set())
+
+        def cancel():
+            request_on_spin_thread(self.node, goal_handle.cancel_goal_async)
+
         with tqdm(total=n_grasps, unit="grasp", disable=not progress, dynamic_ncols=True,
                   desc="label_grasps") as bar:
             try:
-                _follow_goal(done, latest, bar, deadline, goal_handle)
+                _follow_goal(done, latest, bar, deadline, cancel)
             except KeyboardInterrupt:
-                goal_handle.cancel_goal_async()
+                cancel()
                 if not done.wait(CANCEL_WAIT_S):
                     raise
             response = result_future.result()
@@ -573,6 +578,23 @@ class GraspClient:
 
 
 
+def request_on_spin_thread(node: Node, request: Callable[[], RclpyFuture]) -> RclpyFuture:
+    """Make ``request()`` on the thread that spins ``node``; a Future of its response.
+
+    For an rclpy ActionClient's ``send_goal_async``, ``get_result_async`` and
+    ``cancel_goal_async``: rclpy 7 registers the request's future only after sending the
+    request, so made from another thread, a response that the spin thread took in
+    between was dropped ("Ignoring unexpected goal response") and the future never
+    completed (a goal the node accepted and the client never learned of: seen once in
+    a CI run). On the spin thread nothing is taken between the two. ``node`` must have
+    been added to an executor that spins.
+    """
+    async def make_request():
+        return await request()
+
+    return node.executor.create_task(make_request)
+
+
 def _wait_rclpy(future, deadline: float | None, what: str):
     """The result of an rclpy Future that the client's spin thread resolves."""
     done = threading.Event()
@@ -584,12 +606,12 @@ def _wait_rclpy(future, deadline: float | None, what: str):
 
 
 def _follow_goal(done: threading.Event, latest: list, bar, deadline: float | None,
-                 goal_handle):
-    """Show a goal's feedback until its result is in; cancel it at ``deadline``."""
+                 cancel: Callable[[], None]):
+    """Show a goal's feedback until its result is in; ``cancel()`` it at ``deadline``."""
     while not done.wait(PROGRESS_POLL_S):
         _show_progress(bar, latest[0])
         if deadline is not None and time.monotonic() > deadline:
-            goal_handle.cancel_goal_async()
+            cancel()
             raise TimeoutError("label_grasps goal not done within its timeout (cancelled)")
 
 

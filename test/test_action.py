@@ -67,24 +67,36 @@ def served(ros):
 
 
 class Goal:
-    """One goal sent with a raw ActionClient: feedback with arrival times, result."""
+    """One goal sent with a raw ActionClient: feedback with arrival times, result.
 
-    def __init__(self, action_client, batch):
+    ``action``: (ActionClient, the node it is on, spun by another thread). Requests are
+    made on that thread (``request_on_spin_thread``: rclpy's ActionClient loses a
+    response taken between sending a request and registering its future).
+    """
+
+    def __init__(self, action, batch):
         from grasp_fc_msgs.action import LabelGrasps
 
+        from grasp_fc_ros.client import request_on_spin_thread
+
+        action_client, node = action
+        self._request = lambda request: request_on_spin_thread(node, request)
         self.feedback: list[tuple[float, object]] = []
         self.sent_at = time.monotonic()
         accepted = threading.Event()
-        future = action_client.send_goal_async(
-            LabelGrasps.Goal(grasps=batch), feedback_callback=self._on_feedback)
+        future = self._request(lambda: action_client.send_goal_async(
+            LabelGrasps.Goal(grasps=batch), feedback_callback=self._on_feedback))
         future.add_done_callback(lambda _: accepted.set())
         assert accepted.wait(WAIT_S), "goal not accepted in time"
         self.handle = future.result()
         assert self.handle.accepted
         self.done = threading.Event()
-        self.result_future = self.handle.get_result_async()
+        self.result_future = self._request(self.handle.get_result_async)
         self.result_future.add_done_callback(self._on_result)
         self.ended_at = None
+
+    def cancel(self):
+        self._request(self.handle.cancel_goal_async)
 
     def _on_feedback(self, msg):
         self.feedback.append((time.monotonic(), msg.feedback))
@@ -115,7 +127,7 @@ def action_client(served):
     _, client = served
     action = ActionClient(client.node, LabelGrasps, "/action_test/label_grasps")
     assert action.wait_for_server(timeout_sec=30.0)
-    return action
+    return action, client.node
 
 
 @pytest.fixture(scope="module")
@@ -181,7 +193,7 @@ def test_cancel_returns_the_decided_prefix_within_a_second(grasps, action_client
     goal = Goal(action_client, batch_msg(positions, normals))
     reported = goal.wait_for_progress()
     cancel_at = time.monotonic()
-    goal.handle.cancel_goal_async()
+    goal.cancel()
     status, verdicts = goal.result()
     latency = goal.ended_at - cancel_at
     assert status == GoalStatus.STATUS_CANCELED
@@ -275,6 +287,26 @@ def test_client_label_grasps_returns_all_verdicts_in_order(grasps, served):
     np.testing.assert_array_equal(verdicts.status, expected)
 
 
+def test_client_makes_its_action_requests_on_its_spin_thread(grasps, served, monkeypatch):
+    # rclpy's ActionClient registers a request's future only after sending it: a response
+    # that the spin thread takes in between is dropped and the goal never resolves (a CI
+    # run lost a goal so). Sent from the spin thread, nothing is taken in between.
+    _, client = served
+    action = client._label_action
+    callers = []
+    for name in ("send_goal_async", "_get_result_async", "_cancel_goal_async"):
+        def record(*args, real=getattr(action, name), **kwargs):
+            callers.append(threading.current_thread())
+            return real(*args, **kwargs)
+        monkeypatch.setattr(action, name, record)
+    positions, normals, expected = grasps
+    verdicts = client.label_grasps(positions, normals, progress=False, timeout=WAIT_S)
+    np.testing.assert_array_equal(verdicts.status, expected)
+    assert len(callers) == 2  # the goal and its result
+    assert threading.current_thread() not in callers
+    assert all(caller.name == "grasp_client" for caller in callers)  # the spin thread
+
+
 def test_client_progress_bar_ends_on_the_verdicts_counts(grasps, served, capsys):
     # A short goal is done before a feedback after its first: the bar's last line must
     # still show how many grasps are force closure.
@@ -325,6 +357,7 @@ def test_destroying_the_node_aborts_its_goals_with_their_prefixes(grasps, ros):
     try:
         action = ActionClient(client.node, LabelGrasps, f"{namespace}/label_grasps")
         assert action.wait_for_server(timeout_sec=30.0)
+        action = (action, client.node)
         positions, normals, expected = tiled(grasps, 60_000)
         # More goals than goal threads: the last one is still queued at shutdown.
         goals = [Goal(action, batch_msg(positions, normals)) for _ in range(ACTION_THREADS + 1)]
@@ -370,6 +403,7 @@ def test_sigterm_aborts_a_running_goal_with_its_prefix_and_the_node_exits(grasps
     try:
         action = ActionClient(client.node, LabelGrasps, f"{namespace}/label_grasps")
         assert action.wait_for_server(timeout_sec=30.0)
+        action = (action, client.node)
         n_grasps = min(long_goal, 100_000)  # the node's default max_batch
         positions, normals, expected = tiled(grasps, n_grasps)
         goal = Goal(action, batch_msg(positions, normals))
