@@ -173,25 +173,21 @@ def _set_wrench(reply: ForceClosureVerdict, values):
     force.x, force.y, force.z, torque.x, torque.y, torque.z = values
 
 
-_NAN6 = (math.nan,) * 6
-
-
 def _set_certificates(reply: ForceClosureVerdict, forces: np.ndarray | None,
                       torques: np.ndarray | None, wrench: np.ndarray | None,
                       min_friction: float):
-    """Fill the certificate fields of one verdict message.
+    """Fill the certificate fields of one verdict message made by
+    :func:`verdicts_to_msgs` (NaN wrench and min_friction, no forces).
 
     ``forces`` (n, 3) and ``torques`` (n,) or None are sent only for a FORCE_CLOSURE
-    verdict (empty otherwise); ``wrench`` (6,) or None (NaN); ``min_friction`` as it is
-    (NaN: not computed).
+    verdict (empty otherwise); ``wrench`` (6,) or None (the NaN stays); ``min_friction``
+    as it is (NaN: not computed).
     """
     if forces is not None and reply.status == ForceClosureVerdict.FORCE_CLOSURE:
         reply.contact_forces = _vectors(forces)
         if torques is not None:
             reply.contact_torques = torques.tolist()
-    if wrench is None or np.isnan(wrench).any():
-        _set_wrench(reply, _NAN6)
-    else:
+    if wrench is not None and not np.isnan(wrench).any():
         _set_wrench(reply, wrench.tolist())
     reply.min_friction = min_friction
 
