@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import array
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -28,7 +29,8 @@ from grasp_fc_ros import message_slots as slots
 from grasp_fc_ros.evaluation import OPTIONAL_FIELDS, PackedGrasps, Verdicts
 
 __all__ = [
-    "MalformedBatch", "PackedGrasps", "Verdicts", "batch_size", "batch_to_packed",
+    "BatchArrays", "MalformedBatch", "PackedGrasps", "Verdicts", "batch_arrays",
+    "batch_msg", "batch_size", "batch_to_packed",
     "contact_arrays_to_packed", "grasp_to_contact_array", "grasps_to_batch_msg",
     "verdict_array_to_numpy", "verdict_msgs_to_numpy", "verdicts_to_array_msg",
     "verdicts_to_msgs",
@@ -51,7 +53,8 @@ def _as_numpy(values, dtype) -> np.ndarray:
 def _to_field(typecode: str, values: np.ndarray) -> array.array:
     """Build an array.array for a message field from numpy data, without a per-item loop."""
     out = array.array(typecode)
-    out.frombytes(np.ascontiguousarray(values, dtype=np.dtype(typecode)).tobytes())
+    out.frombytes(np.ascontiguousarray(values, dtype=np.dtype(typecode)).reshape(-1)
+                  .view(np.uint8))  # bytes-like as it is: no intermediate copy
     return out
 
 
@@ -333,9 +336,25 @@ def verdict_msgs_to_numpy(replies: list[ForceClosureVerdict], counts) -> Verdict
         min_friction=np.array([r.min_friction for r in replies], dtype=np.float64))
 
 
-def grasps_to_batch_msg(ids, positions, normals, mu=None, counts=None, *, client_id=0,
-                        request_id=0, torsional_friction=None) -> ContactArrayBatch:
-    """Build a ContactArrayBatch (client side).
+class BatchArrays(NamedTuple):
+    """The sequence fields of a ContactArrayBatch as flat numpy arrays.
+
+    ``ids`` (N,) uint64, ``contact_counts`` (N,) uint32, ``positions`` and ``normals``
+    (3K,) float64 (m; xyz contact after contact), ``friction_coefficients`` and
+    ``torsional_friction`` (K,) float64 or empty (node default; hard contacts).
+    """
+
+    ids: np.ndarray
+    contact_counts: np.ndarray
+    positions: np.ndarray
+    normals: np.ndarray
+    friction_coefficients: np.ndarray
+    torsional_friction: np.ndarray
+
+
+def batch_arrays(ids, positions, normals, mu=None, counts=None,
+                 torsional_friction=None) -> BatchArrays:
+    """The fields of a ContactArrayBatch of these grasps (client side).
 
     Parameters
     ----------
@@ -344,8 +363,6 @@ def grasps_to_batch_msg(ids, positions, normals, mu=None, counts=None, *, client
     mu : None, scalar, or one value per contact; None or empty means node default
     counts : (N,) int, optional
         Contacts per grasp for stacked (K, 3) input of mixed sizes.
-    client_id, request_id : int
-        Echoed in the verdict array, so that the client recognises its reply.
     torsional_friction : None, scalar, or one value per contact
         gamma of soft contacts (m); None or empty: every contact hard.
 
@@ -363,23 +380,45 @@ def grasps_to_batch_msg(ids, positions, normals, mu=None, counts=None, *, client
             raise ValueError(f"positions of shape {positions.shape} need counts (contacts per "
                              "grasp); without counts pass (N, n, 3)")
         counts = np.full(len(ids), positions.shape[1])
-    n_contacts = positions.size // 3
-    msg = ContactArrayBatch(client_id=int(client_id), request_id=int(request_id))
-    msg.ids = _to_field(_TYPECODE_UINT64, ids)
-    msg.contact_counts = _to_field(_TYPECODE_UINT32, np.asarray(counts))
-    msg.positions = _to_field(_TYPECODE_FLOAT64, positions.reshape(-1))
-    msg.normals = _to_field(_TYPECODE_FLOAT64, normals.reshape(-1))
-    if mu is not None and np.size(mu):
-        mu = np.asarray(mu, dtype=np.float64)
-        if mu.size != n_contacts:
-            mu = np.broadcast_to(mu, positions.shape[:-1])
-        msg.friction_coefficients = _to_field(_TYPECODE_FLOAT64, mu.reshape(-1))
-    if torsional_friction is not None and np.size(torsional_friction):
-        gamma = np.asarray(torsional_friction, dtype=np.float64)
-        if gamma.size != n_contacts:
-            gamma = np.broadcast_to(gamma, positions.shape[:-1])
-        msg.torsional_friction = _to_field(_TYPECODE_FLOAT64, gamma.reshape(-1))
-    return msg
+    return BatchArrays(
+        ids=ids, contact_counts=np.asarray(counts, dtype=np.uint32).reshape(-1),
+        positions=positions.reshape(-1), normals=normals.reshape(-1),
+        friction_coefficients=_per_contact(mu, positions.shape),
+        torsional_friction=_per_contact(torsional_friction, positions.shape))
+
+
+def _per_contact(values, shape: tuple[int, ...]) -> np.ndarray:
+    """(K,) float64 of a scalar or per-contact ``values`` for contacts of ``shape``
+    (..., 3); empty for None or empty."""
+    if values is None or not np.size(values):
+        return np.empty(0)
+    values = np.asarray(values, dtype=np.float64)
+    if values.size * 3 != int(np.prod(shape)):
+        values = np.broadcast_to(values, shape[:-1])
+    return values.reshape(-1)
+
+
+def grasps_to_batch_msg(ids, positions, normals, mu=None, counts=None, *, client_id=0,
+                        request_id=0, torsional_friction=None) -> ContactArrayBatch:
+    """Build a ContactArrayBatch (client side).
+
+    Parameters as :func:`batch_arrays`, and ``client_id``, ``request_id`` (int), echoed
+    in the verdict array, so that the client recognises its reply.
+    """
+    return batch_msg(batch_arrays(ids, positions, normals, mu, counts, torsional_friction),
+                     client_id=client_id, request_id=request_id)
+
+
+def batch_msg(fields: BatchArrays, *, client_id=0, request_id=0,
+              header: Header | None = None) -> ContactArrayBatch:
+    """A ContactArrayBatch holding ``fields`` (``header`` default: empty)."""
+    return slots.contact_array_batch(
+        Header() if header is None else header, int(client_id), int(request_id),
+        [_to_field(typecode, values) for typecode, values in zip(_BATCH_TYPECODES, fields)])
+
+
+# array.array type codes of BatchArrays' fields.
+_BATCH_TYPECODES = (_TYPECODE_UINT64, _TYPECODE_UINT32) + (_TYPECODE_FLOAT64,) * 4
 
 
 def grasp_to_contact_array(grasp_id, positions, normals, mu=0.0, *, client_id=0,

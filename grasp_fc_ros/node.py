@@ -540,8 +540,12 @@ class ForceClosureNode(Node):
             lambda exc: self._internal_error("single-grasp queries", exc),
             raw=self._use_wire, max_take=MAX_TAKE, name="contacts",
             qos_overriding_options=overridable)
-        self.create_subscription(ContactArrayBatch, "contacts_batch", self._on_batch,
-                                 copy.copy(QUERY_QOS), qos_overriding_options=overridable)
+        # Batches come in serialized too: rclpy took 2.6-5.4 ms to convert one of 10,000
+        # grasps, numpy 0.09-0.16 ms (wire.decode_contact_array_batch; measured).
+        self.create_subscription(ContactArrayBatch, "contacts_batch",
+                                 self._on_raw_batch if self._use_wire else self._on_batch,
+                                 copy.copy(QUERY_QOS), raw=self._use_wire,
+                                 qos_overriding_options=overridable)
         # Markers are built and published by a process of its own, started when
         # publish_markers turns on (see grasp_fc_ros.marker_publisher).
         self._markers = MarkerPublisher(
@@ -887,6 +891,18 @@ class ForceClosureNode(Node):
                    else self._overloaded(f"{pending} single-grasp queries pending", 1))
         self._stats.record_failures(1)
         self._verdict_pub.publish(_failure_replies([msg], Status.SOLVER_FAILURE, message)[0])
+
+    def _on_raw_batch(self, raw: bytes):
+        """A serialized batch: read with numpy, or by rclpy if in another layout."""
+        try:
+            try:
+                msg = wire.decode_contact_array_batch(raw)
+            except ValueError:
+                msg = deserialize_message(raw, ContactArrayBatch)
+        except Exception as exc:  # noqa: BLE001 - unreadable: nobody to answer
+            self._internal_error("an unreadable batch (no reply sent)", exc)
+            return
+        self._on_batch(msg)
 
     def _on_batch(self, msg: ContactArrayBatch):
         try:
