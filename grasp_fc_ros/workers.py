@@ -10,8 +10,10 @@ the next request before this one is collected. Requests of at most
 GIL, and no waiting for a worker busy with a batch chunk. Everything larger goes to the
 workers, so the core never holds the node's GIL for long.
 
-Each worker is a fresh interpreter, ``python -m grasp_fc_ros.workers``, fed pickled
-chunks on its stdin and answering on its stdout. Not multiprocessing: its spawn and
+Each worker is a fresh interpreter, ``python -m grasp_fc_ros.workers FD``, answering on
+its stdout the chunks announced on its stdin: a chunk's arrays are in memory shared
+with it (:class:`SharedChunk`, the memory file FD), only their sizes and the settings go
+through the pipe. Not multiprocessing: its spawn and
 forkserver methods re-run the parent's ``__main__`` script in every worker (which breaks
 any unguarded script embedding the node), and fork would copy the ROS process's DDS
 threads. A worker ignores SIGINT (Ctrl-C reaches the whole process group; its owner
@@ -21,6 +23,7 @@ decides) and ends when its stdin closes, so a SIGKILL of the node leaves no work
 from __future__ import annotations
 
 import itertools
+import mmap
 import os
 import pickle
 import queue
@@ -28,12 +31,15 @@ import signal
 import struct
 import subprocess
 import sys
+import tempfile
 import threading
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
 from typing import Callable
 
 from grasp_fc_ros.core import warm_up
+import numpy as np
+
 from grasp_fc_ros.evaluation import PackedGrasps, Settings, Verdicts, evaluate
 
 # Contacts per chunk: ~680 6-finger grasps. Measured with the fast exact stage (6
@@ -64,6 +70,12 @@ PRIORITY_BATCH = 1
 _ONE_THREAD = {name: "1" for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS",
                                       "MKL_NUM_THREADS")}
 _HEADER = struct.Struct("<Q")  # length prefix of each pickled message
+# Bytes of the memory each worker shares with its owner for the chunks' arrays: a chunk
+# of CHUNK_CONTACTS contacts and as many grasps takes 16 * grasps + 64 * contacts =
+# 327,680 bytes. Through the pipe, a 10,000-grasp batch (3 MB) cost the node's feeding
+# threads ~6 ms of CPU and the workers as much again to read (measured); a chunk that
+# does not fit (huge grasps, thousands of empty ones) still goes through the pipe.
+SHARED_BYTES = 1 << 20
 
 
 class Cancelled(Exception):
@@ -85,25 +97,90 @@ def _read(stream):
     return pickle.loads(stream.read(size))
 
 
+class SharedChunk:
+    """A chunk's arrays in memory shared between the node and one worker process.
+
+    The owner :meth:`put` s a chunk's arrays into it and sends the worker only their
+    sizes; the worker :meth:`get` s a :class:`PackedGrasps` of views into the same
+    memory. One chunk at a time: the owner writes the next one only once the worker
+    answered the last.
+    """
+
+    def __init__(self, fd: int):
+        self.fd = fd
+        self.memory = mmap.mmap(fd, 0)  # the whole file
+
+    @classmethod
+    def create(cls, size: int | None = None) -> SharedChunk:
+        """A new block of ``size`` bytes (default :data:`SHARED_BYTES`), backed by an
+        anonymous memory file (Linux; elsewhere a temporary file)."""
+        if hasattr(os, "memfd_create"):
+            fd = os.memfd_create("grasp_fc_chunk")
+        else:
+            with tempfile.TemporaryFile() as backing:
+                fd = os.dup(backing.fileno())
+        os.ftruncate(fd, SHARED_BYTES if size is None else size)
+        return cls(fd)
+
+    def close(self) -> None:
+        self.memory.close()
+        os.close(self.fd)
+
+    def put(self, chunk: PackedGrasps) -> tuple | None:
+        """Copy ``chunk``'s arrays in; what :meth:`get` needs to read them back, or None
+        if they do not fit (the chunk then goes through the pipe)."""
+        n_grasps, n_contacts = len(chunk), len(chunk.mu)
+        soft = chunk.torsional is not None
+        if 16 * n_grasps + (64 if soft else 56) * n_contacts > len(self.memory):
+            return None
+        at = 0
+        for values, dtype in ((chunk.ids, np.uint64), (chunk.counts, np.int64),
+                              (chunk.positions, np.float64), (chunk.normals, np.float64),
+                              (chunk.mu, np.float64)) + (((chunk.torsional, np.float64),)
+                                                         if soft else ()):
+            target = np.frombuffer(self.memory, dtype, np.size(values), at)
+            target[:] = np.reshape(values, -1)
+            at += target.nbytes
+        return n_grasps, n_contacts, soft, chunk.name_by_id, chunk.first_index
+
+    def get(self, layout: tuple) -> PackedGrasps:
+        """The chunk that :meth:`put` returned ``layout`` for, as views of the memory."""
+        n_grasps, n_contacts, soft, name_by_id, first_index = layout
+        arrays, at = [], 0
+        for dtype, count in ((np.uint64, n_grasps), (np.int64, n_grasps),
+                             (np.float64, 3 * n_contacts), (np.float64, 3 * n_contacts),
+                             (np.float64, n_contacts)) + (((np.float64, n_contacts),)
+                                                          if soft else ()):
+            arrays.append(np.frombuffer(self.memory, dtype, count, at))
+            at += arrays[-1].nbytes
+        return PackedGrasps(ids=arrays[0], counts=arrays[1],
+                            positions=arrays[2].reshape(-1, 3),
+                            normals=arrays[3].reshape(-1, 3), mu=arrays[4],
+                            name_by_id=name_by_id, first_index=first_index,
+                            torsional=arrays[5] if soft else None)
+
+
 class _Worker:
     """One worker process and the thread that feeds it chunks from the shared queue."""
 
     def __init__(self, tasks: queue.PriorityQueue, closing: threading.Event, index: int):
         self._tasks = tasks
         self._closing = closing
+        self.shared = SharedChunk.create()
         self.process = self._start()
-        # The worker says so once it has imported the core: a pool is ready when its
-        # constructor returns, and the first chunks do not wait for imports.
-        _read(self.process.stdout)
         self.thread = threading.Thread(target=self._feed, daemon=True,
                                        name=f"grasp_fc_worker_{index}")
         self.thread.start()
 
-    @staticmethod
-    def _start() -> subprocess.Popen:
-        return subprocess.Popen([sys.executable, "-m", "grasp_fc_ros.workers"],
-                                stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                env={**os.environ, **_ONE_THREAD})
+    def _start(self) -> subprocess.Popen:
+        """A new worker process, once it says it has imported the core (a pool is ready
+        when its constructor returns, and the first chunks do not wait for imports)."""
+        process = subprocess.Popen(
+            [sys.executable, "-m", "grasp_fc_ros.workers", str(self.shared.fd)],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, pass_fds=(self.shared.fd,),
+            env={**os.environ, **_ONE_THREAD})
+        _read(process.stdout)
+        return process
 
     def _feed(self):
         while True:
@@ -114,7 +191,9 @@ class _Worker:
             if not future.set_running_or_notify_cancel():
                 continue
             try:
-                _write(self.process.stdin, (chunk, settings))
+                layout = self.shared.put(chunk)
+                _write(self.process.stdin, (_SHARED, layout, settings) if layout is not None
+                       else (_PICKLED, chunk, settings))
                 ok, answer = _read(self.process.stdout)
             except Exception as exc:  # noqa: BLE001 - the worker died: fail this chunk only
                 future.set_exception(RuntimeError(f"worker process failed: {exc!r}"))
@@ -123,12 +202,16 @@ class _Worker:
                 if self.process.poll() is None:
                     self.process.kill()
                 self.process = self._start()
-                _read(self.process.stdout)
                 continue
             if ok:
                 future.set_result(answer)
             else:
                 future.set_exception(RuntimeError(answer))
+
+
+# How a chunk reaches a worker: its arrays in the shared memory, or pickled whole.
+_SHARED = "shared"
+_PICKLED = "pickled"
 
 
 def chunk_size(total_contacts: int, workers: int, chunk_contacts: int = CHUNK_CONTACTS) -> int:
@@ -279,28 +362,32 @@ class EvaluationPool:
             worker.process.wait()
         for worker in self._workers:
             worker.thread.join(timeout=1.0)
+            if not worker.thread.is_alive():
+                worker.shared.close()
         self._workers = []
 
 
-def _serve():
-    """Worker main loop: (chunk, settings) in on stdin, (verdicts, seconds) out on stdout."""
+def _serve(shared_fd: int):
+    """Worker main loop: a chunk in on stdin (its arrays in the memory of file descriptor
+    ``shared_fd``, or pickled whole), (verdicts, seconds) out on stdout."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     stdin, stdout = sys.stdin.buffer, sys.stdout.buffer
     # Anything else printing to stdout would corrupt the stream: send it to stderr.
     sys.stdout = sys.stderr
+    shared = SharedChunk(shared_fd)
     warm_up()  # the compiled exact stage, before the pool counts this worker as ready
     _write(stdout, "ready")
     while True:
         try:
-            chunk, settings = _read(stdin)
+            how, chunk, settings = _read(stdin)
         except EOFError:
             return  # the owner closed the pipe or died
         try:
-            answer = True, evaluate(chunk, settings)
+            answer = True, evaluate(shared.get(chunk) if how == _SHARED else chunk, settings)
         except Exception as exc:  # noqa: BLE001 - reported to the owner, worker goes on
             answer = False, f"{type(exc).__name__}: {exc}"
         _write(stdout, answer)
 
 
 if __name__ == "__main__":
-    _serve()
+    _serve(int(sys.argv[1]))

@@ -17,7 +17,8 @@ from grasp_fc_ros.evaluation import (
     find_invalid,
 )
 from grasp_fc_ros.objects import make_object, sample_grasps
-from grasp_fc_ros.workers import EvaluationPool, chunk_size
+from grasp_fc_ros import workers
+from grasp_fc_ros.workers import EvaluationPool, SharedChunk, chunk_size
 
 # The exact test's margin depends on which grasps share a solver call, to solver accuracy.
 MARGIN_ABS_TOL = 1e-6
@@ -338,3 +339,78 @@ def test_a_killed_worker_fails_its_chunk_and_is_replaced():
         assert pool._workers[0].process is not victim
     finally:
         pool.close()
+
+
+# --- chunks in shared memory --------------------------------------------------------------
+
+@settings(max_examples=60, deadline=None)
+@given(counts=st.lists(st.integers(0, 7), max_size=12), soft=st.booleans(),
+       name_by_id=st.booleans(), first_index=st.integers(0, 10**6), seed=st.integers(0, 99))
+def test_a_shared_chunk_reads_back_what_was_put(counts, soft, name_by_id, first_index, seed):
+    rng = np.random.default_rng(seed)
+    k = sum(counts)
+    chunk = PackedGrasps(
+        ids=rng.integers(0, 2**63, len(counts)).astype(np.uint64) + 2**63,
+        counts=np.array(counts, np.int64), positions=rng.normal(size=(k, 3)),
+        normals=rng.normal(size=(k, 3)), mu=rng.uniform(-1, 1, k), name_by_id=name_by_id,
+        first_index=first_index, torsional=rng.uniform(0, 0.01, k) if soft else None)
+    shared = SharedChunk.create()
+    try:
+        shared.put(PackedGrasps(  # a larger chunk first: nothing of it may show through
+            ids=np.arange(40, dtype=np.uint64), counts=np.full(40, 3),
+            positions=np.ones((120, 3)), normals=np.ones((120, 3)), mu=np.ones(120),
+            torsional=np.ones(120)))
+        # Another mapping of the same memory file, as the worker process has.
+        reader = SharedChunk(shared.fd)
+        got = reader.get(shared.put(chunk))
+        for name in ("ids", "counts", "positions", "normals", "mu"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(chunk, name))
+            assert getattr(got, name).dtype == getattr(chunk, name).dtype
+        assert (got.name_by_id, got.first_index) == (name_by_id, first_index)
+        if soft:
+            np.testing.assert_array_equal(got.torsional, chunk.torsional)
+        else:
+            assert got.torsional is None
+        del got  # views of the memory: it cannot be unmapped while they exist
+        reader.memory.close()
+    finally:
+        shared.close()
+
+
+def test_a_chunk_too_large_for_the_shared_memory_is_refused():
+    positions = np.zeros((1000, 3))
+    chunk = PackedGrasps(ids=np.arange(250, dtype=np.uint64), counts=np.full(250, 4),
+                         positions=positions, normals=positions, mu=np.zeros(1000))
+    shared = SharedChunk.create(16 * 250 + 56 * 1000 - 8)  # 8 bytes short
+    try:
+        assert shared.put(chunk) is None
+    finally:
+        shared.close()
+    shared = SharedChunk.create(16 * 250 + 56 * 1000)  # exactly enough
+    try:
+        assert shared.get(shared.put(chunk)).ids.tolist() == chunk.ids.tolist()
+    finally:
+        shared.close()
+
+
+def test_chunks_that_do_not_fit_go_through_the_pipe_with_the_same_verdicts(monkeypatch):
+    """With shared memory too small for any chunk, every chunk is pickled through the
+    pipe, and the verdicts are those decided inline."""
+    rng = np.random.default_rng(21)
+    positions, normals = sample_grasps(make_object("box"), 60, 6, rng)
+    packed = pack(list(zip(positions, normals)))
+    monkeypatch.setattr(workers, "SHARED_BYTES", 64)
+    sent = []
+    put = workers.SharedChunk.put
+    monkeypatch.setattr(workers.SharedChunk, "put",
+                        lambda self, chunk: sent.append(put(self, chunk)) or sent[-1])
+    pool = EvaluationPool(2, chunk_contacts=60)  # 10 grasps a chunk
+    try:
+        got, _ = pool.decide(packed, Settings())
+    finally:
+        pool.close()
+    assert len(sent) == 6 and all(layout is None for layout in sent)
+    want, _ = evaluate(packed, Settings())
+    np.testing.assert_array_equal(got.ids, want.ids)
+    np.testing.assert_array_equal(got.status, want.status)
+    np.testing.assert_array_equal(got.margin, want.margin)
