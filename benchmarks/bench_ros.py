@@ -7,7 +7,8 @@ Prints
    back exactly once, and the node must count as many answered as received;
 2. batch throughput, 6-finger grasps, two batches in flight, against the core alone
    in this process on the same grasps (one process: the node's workers use more cores),
-   in alternating rounds (median ratio);
+   in alternating rounds (median ratio); and the core alone in one process per core at
+   once, the ceiling that no node can pass on this machine;
 3. service round trip p50/p99 for one 6-finger grasp, idle;
 4. the same while a large batch (--big-batch grasps) is being decided;
 5. the service round trip without core work (an invalid one-contact grasp).
@@ -28,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import gc
+import multiprocessing
 import os
 import shutil
 import signal
@@ -35,6 +37,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -42,7 +45,7 @@ import rclpy
 from timing import ratio_or_nan
 
 from grasp_fc_ros.client import GraspClient
-from grasp_fc_ros.core import check_force_closure
+from grasp_fc_ros.core import check_force_closure, warm_up
 from grasp_fc_ros.objects import make_object, sample_grasps
 
 N_FINGERS = 6
@@ -151,6 +154,63 @@ def bench_core(batches):
     return n_grasps / (time.perf_counter() - start), (time.process_time() - cpu) / n_grasps
 
 
+# Grasps per call of the core in the ceiling rounds: as the node's worker chunks.
+CEILING_CHUNK = 682
+# What each core-only process of the ceiling rounds holds: the grasps in chunks, and
+# the shared count of chunks taken (set by _core_process).
+_CEILING: dict = {}
+
+
+def _core_process(chunks, taken) -> None:
+    """Initializer of a core-only process: keep the chunks, load the compiled stage."""
+    warm_up()
+    _CEILING.update(chunks=chunks, taken=taken)
+
+
+def _core_share(start_at: float) -> tuple[float, float, int]:
+    """Decide chunks in this process, each taken from the shared count, until none is
+    left; start at ``start_at`` (time.monotonic(): one clock for all processes on
+    Linux). (start, end, grasps decided)."""
+    chunks, taken = _CEILING["chunks"], _CEILING["taken"]
+    while time.monotonic() < start_at:
+        pass
+    start, n_grasps = time.monotonic(), 0
+    while True:
+        with taken.get_lock():
+            k = taken.value
+            taken.value += 1
+        if k >= len(chunks):
+            return start, time.monotonic(), n_grasps
+        p, n = chunks[k]
+        check_force_closure(p, n, 0.5)
+        n_grasps += len(p)
+
+
+def ceiling_pool(batches, n_processes: int) -> tuple[ProcessPoolExecutor, object]:
+    """(``n_processes`` core-only processes holding ``batches`` in chunks, their shared
+    count of chunks taken) for :func:`bench_core_everywhere`; started and warm."""
+    spawn = multiprocessing.get_context("spawn")
+    taken = spawn.Value("q", 0)
+    chunks = [(p[k:k + CEILING_CHUNK], n[k:k + CEILING_CHUNK])
+              for p, n in batches for k in range(0, len(p), CEILING_CHUNK)]
+    pool = ProcessPoolExecutor(n_processes, mp_context=spawn, initializer=_core_process,
+                               initargs=(chunks, taken))
+    bench_core_everywhere(pool, taken, n_processes)
+    return pool, taken
+
+
+def bench_core_everywhere(pool: ProcessPoolExecutor, taken, n_processes: int) -> float:
+    """Grasps/s of the core alone in ``n_processes`` processes at once, sharing the
+    chunks as they go (as the node's workers do): what the machine gives without ROS,
+    messages or a node."""
+    taken.value = 0
+    start_at = time.monotonic() + 0.2
+    results = [share.result() for share in
+               [pool.submit(_core_share, start_at) for _ in range(n_processes)]]
+    elapsed = max(end for _, end, _ in results) - min(start for start, _, _ in results)
+    return sum(n for _, _, n in results) / elapsed
+
+
 def bench_service(client: GraspClient, positions, normals, n_calls: int, until=None):
     """Round-trip times (ms) of one-grasp service calls: ``n_calls``, or while ``until()``."""
     times = []
@@ -228,6 +288,10 @@ def main(argv=None) -> int:
                 normals[k * args.batch_size:(k + 1) * args.batch_size])
                for k in range(args.batches)]
 
+    n_cpus = os.cpu_count() or 1
+    # The ceiling's processes are started (and the core loaded) before the node, and
+    # idle while the node is timed.
+    everywhere, taken = ceiling_pool(batches, n_cpus)
     rclpy.init()
     node, client = start_node("bench")
     try:
@@ -253,9 +317,11 @@ def main(argv=None) -> int:
         # round and its median reported: the load of a shared machine drifts within
         # seconds, which a core run before and after the node's cannot follow.
         ratios, ros_rates, core_rates, complete, node_cpu, core_cpu = [], [], [], True, 0.0, 0.0
+        ceilings = []
         bench_core(batches[:1])  # loads the compiled exact stage: not part of round 1
         for _ in range(args.rounds):
             core_rate, cpu_per_grasp = bench_core(batches)
+            ceilings.append(bench_core_everywhere(everywhere, taken, n_cpus) / core_rate)
             cpu = tree_cpu_s(node.pid)
             ros_rate, done = bench_batches(client, batches)
             node_cpu += (tree_cpu_s(node.pid) - cpu) / sum(len(p) for p, _ in batches)
@@ -272,6 +338,10 @@ def main(argv=None) -> int:
                           for r, c in zip(ros_rates, core_rates))
               + f"){'' if complete else ' (INCOMPLETE replies)'}  "
               f"[target >= {TARGET_BATCH_RATIO}x: {verdict(complete and ratio >= TARGET_BATCH_RATIO)}]")
+        print(f"    the core alone in {n_cpus} processes at once (no ROS, no node): median "
+              f"{np.median(ceilings):.2f}x one process (rounds: "
+              + ", ".join(f"{c:.2f}x" for c in ceilings)
+              + "): the most any node could reach on this machine")
         if node_cpu > 0:
             print(f"    CPU per grasp: node and workers {1e3 * node_cpu:.3f} ms, core alone "
                   f"{1e3 * core_cpu:.3f} ms -> on {os.cpu_count()} idle cores at most "
@@ -300,6 +370,7 @@ def main(argv=None) -> int:
     finally:
         stop_node(node, client)
         rclpy.try_shutdown()
+        everywhere.shutdown()
 
 
 if __name__ == "__main__":
