@@ -343,8 +343,8 @@ def main(argv=None) -> int:
               + ", ".join(f"{c:.2f}x" for c in ceilings)
               + "): the most any node could reach on this machine")
         if node_cpu > 0:
-            print(f"    CPU per grasp: node and workers {1e3 * node_cpu:.3f} ms, core alone "
-                  f"{1e3 * core_cpu:.3f} ms -> on {os.cpu_count()} idle cores at most "
+            print(f"    CPU per grasp: node and workers {1e6 * node_cpu:.2f} us, core alone "
+                  f"{1e6 * core_cpu:.2f} us -> on {os.cpu_count()} idle cores at most "
                   f"{os.cpu_count() * core_cpu / node_cpu:.2f}x the core alone")
         else:  # below the kernel's CPU-time resolution (a tick, ~10 ms)
             print("    CPU per grasp: too few grasps to measure")
