@@ -72,9 +72,10 @@ _ONE_THREAD = {name: "1" for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS",
 _HEADER = struct.Struct("<Q")  # length prefix of each pickled message
 # Bytes of the memory each worker shares with its owner for the chunks' arrays: a chunk
 # of CHUNK_CONTACTS contacts and as many grasps takes 16 * grasps + 64 * contacts =
-# 327,680 bytes. Through the pipe, a 10,000-grasp batch (3 MB) cost the node's feeding
-# threads ~6 ms of CPU and the workers as much again to read (measured); a chunk that
-# does not fit (huge grasps, thousands of empty ones) still goes through the pipe.
+# 327,680 bytes. Pickled through the pipes, 10,000-grasp batches (3 MB) cost the pool's
+# owner ~0.85 and the workers ~9.1 us of CPU per grasp, shared ~0.66 and ~8.3
+# (benchmarks/bench_pool.py, alternating runs). A chunk that does not fit (huge grasps,
+# thousands of empty ones) still goes through the pipe.
 SHARED_BYTES = 1 << 20
 
 
