@@ -83,10 +83,11 @@ class Goal:
         self._request = lambda request: request_on_spin_thread(node, request)
         self.feedback: list[tuple[float, object]] = []
         self.sent_at = time.monotonic()
+        self.accepted_at = None  # when the goal response came (the goal crossed DDS)
         accepted = threading.Event()
         future = self._request(lambda: action_client.send_goal_async(
             LabelGrasps.Goal(grasps=batch), feedback_callback=self._on_feedback))
-        future.add_done_callback(lambda _: accepted.set())
+        future.add_done_callback(lambda _: self._on_accepted(accepted))
         assert accepted.wait(WAIT_S), "goal not accepted in time"
         self.handle = future.result()
         assert self.handle.accepted
@@ -97,6 +98,10 @@ class Goal:
 
     def cancel(self):
         self._request(self.handle.cancel_goal_async)
+
+    def _on_accepted(self, accepted: threading.Event):
+        self.accepted_at = time.monotonic()
+        accepted.set()
 
     def _on_feedback(self, msg):
         self.feedback.append((time.monotonic(), msg.feedback))
@@ -169,9 +174,11 @@ def test_feedback_comes_at_least_once_a_second_and_verdicts_equal_the_core(
     status, verdicts = goal.result()
     assert status == GoalStatus.STATUS_SUCCEEDED
     assert_prefix(verdicts, expected, long_goal)
-    duration = goal.ended_at - goal.sent_at
+    # From the goal's acceptance: before it, the goal (~100 MB at ~300,000 grasps) is
+    # crossing DDS, 1.3-1.7 s here, which is not the node deciding it.
+    duration = goal.ended_at - goal.accepted_at
     assert duration > 2.0, f"goal took only {duration:.2f} s: too short to judge the rate"
-    times = [goal.sent_at] + [t for t, _ in goal.feedback] + [goal.ended_at]
+    times = [goal.accepted_at] + [t for t, _ in goal.feedback] + [goal.ended_at]
     assert max(np.diff(times)) < FEEDBACK_GAP_BOUND_S
     assert len(goal.feedback) >= duration - 1
     done = [f.done for _, f in goal.feedback]
