@@ -2,8 +2,8 @@
 
 Queries that path does not take (soft contacts) go through the message path in their
 place in the arrival order; without a matching layout the node takes the message path
-for everything. Batches taken serialized are answered as the same batches taken as
-messages; bytes that are no batch are logged and dropped.
+for everything. Batches taken serialized keep their header and ids and get the core's
+verdicts; bytes that are no batch are logged and dropped.
 """
 
 from __future__ import annotations
