@@ -16,24 +16,16 @@ import argparse
 import os
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
-from bench_ros import CEILING_CHUNK, ceiling_pool, bench_core_everywhere
+from bench_ros import bench_core, bench_core_everywhere, ceiling_pool, tree_cpu_s
 
-from grasp_fc_ros.core import check_force_closure
 from grasp_fc_ros.evaluation import PackedGrasps, Settings
 from grasp_fc_ros.objects import make_object, sample_grasps
 from grasp_fc_ros.workers import EvaluationPool
 
 N_FINGERS = 6
-MU = 0.5
-
-
-def process_cpu_s(pid: int) -> float:
-    """CPU seconds (user + system) used so far by process ``pid`` (Linux /proc)."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+MU = 0.5  # as bench_ros.bench_core decides the same grasps
 
 
 def packed(positions: np.ndarray, normals: np.ndarray) -> PackedGrasps:
@@ -62,24 +54,21 @@ def main(argv=None) -> int:
     pool = EvaluationPool(args.workers)
     try:
         pool.decide(requests[0], Settings())  # the workers' first chunks: not timed
-        check_force_closure(*batches[0], MU)
+        bench_core(batches[:1])
         print(f"{args.batches} batches of {args.batch_size} {N_FINGERS}-finger grasps, "
               f"{args.workers} workers, {os.cpu_count()} CPUs")
         ratios = []
         for _ in range(args.rounds):
-            start = time.perf_counter()
-            for p, n in batches:
-                check_force_closure(p, n, MU)
-            core = n_grasps / (time.perf_counter() - start)
+            core, _ = bench_core(batches)
             ceiling = bench_core_everywhere(everywhere, taken, args.workers)
-            owner, workers = time.process_time(), [process_cpu_s(w.process.pid)
+            owner, workers = time.process_time(), [tree_cpu_s(w.process.pid)
                                                    for w in pool._workers]
             start = time.perf_counter()
             for decision in [pool.start(request, Settings()) for request in requests]:
                 decision.result()
             rate = n_grasps / (time.perf_counter() - start)
             owner = (time.process_time() - owner) / n_grasps
-            workers = sum(process_cpu_s(w.process.pid) - c
+            workers = sum(tree_cpu_s(w.process.pid) - c
                           for w, c in zip(pool._workers, workers)) / n_grasps
             ratios.append(rate / core)
             print(f"core {core:8.0f} grasps/s; core in {args.workers} processes "

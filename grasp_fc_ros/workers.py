@@ -130,35 +130,40 @@ class SharedChunk:
     def put(self, chunk: PackedGrasps) -> tuple | None:
         """Copy ``chunk``'s arrays in; what :meth:`get` needs to read them back, or None
         if they do not fit (the chunk then goes through the pipe)."""
-        n_grasps, n_contacts = len(chunk), len(chunk.mu)
-        soft = chunk.torsional is not None
-        if 16 * n_grasps + (64 if soft else 56) * n_contacts > len(self.memory):
+        layout = (len(chunk), len(chunk.mu), chunk.torsional is not None, chunk.name_by_id,
+                  chunk.first_index)
+        fields = _shared_fields(*layout[:3])
+        if sum(np.dtype(dtype).itemsize * count for _, dtype, count in fields) > len(
+                self.memory):
             return None
         at = 0
-        for values, dtype in ((chunk.ids, np.uint64), (chunk.counts, np.int64),
-                              (chunk.positions, np.float64), (chunk.normals, np.float64),
-                              (chunk.mu, np.float64)) + (((chunk.torsional, np.float64),)
-                                                         if soft else ()):
-            target = np.frombuffer(self.memory, dtype, np.size(values), at)
-            target[:] = np.reshape(values, -1)
+        for name, dtype, count in fields:
+            target = np.frombuffer(self.memory, dtype, count, at)
+            target[:] = np.reshape(getattr(chunk, name), -1)
             at += target.nbytes
-        return n_grasps, n_contacts, soft, chunk.name_by_id, chunk.first_index
+        return layout
 
     def get(self, layout: tuple) -> PackedGrasps:
         """The chunk that :meth:`put` returned ``layout`` for, as views of the memory."""
         n_grasps, n_contacts, soft, name_by_id, first_index = layout
-        arrays, at = [], 0
-        for dtype, count in ((np.uint64, n_grasps), (np.int64, n_grasps),
-                             (np.float64, 3 * n_contacts), (np.float64, 3 * n_contacts),
-                             (np.float64, n_contacts)) + (((np.float64, n_contacts),)
-                                                          if soft else ()):
-            arrays.append(np.frombuffer(self.memory, dtype, count, at))
-            at += arrays[-1].nbytes
-        return PackedGrasps(ids=arrays[0], counts=arrays[1],
-                            positions=arrays[2].reshape(-1, 3),
-                            normals=arrays[3].reshape(-1, 3), mu=arrays[4],
+        arrays, at = {}, 0
+        for name, dtype, count in _shared_fields(n_grasps, n_contacts, soft):
+            arrays[name] = np.frombuffer(self.memory, dtype, count, at)
+            at += arrays[name].nbytes
+        return PackedGrasps(ids=arrays["ids"], counts=arrays["counts"],
+                            positions=arrays["positions"].reshape(-1, 3),
+                            normals=arrays["normals"].reshape(-1, 3), mu=arrays["mu"],
                             name_by_id=name_by_id, first_index=first_index,
-                            torsional=arrays[5] if soft else None)
+                            torsional=arrays.get("torsional"))
+
+
+def _shared_fields(n_grasps: int, n_contacts: int, soft: bool) -> list[tuple]:
+    """(PackedGrasps field, dtype, values) of a chunk's arrays, in their order in the
+    shared memory: 16 bytes per grasp, 56 per contact (64 with torsional friction)."""
+    fields = [("ids", np.uint64, n_grasps), ("counts", np.int64, n_grasps),
+              ("positions", np.float64, 3 * n_contacts),
+              ("normals", np.float64, 3 * n_contacts), ("mu", np.float64, n_contacts)]
+    return fields + [("torsional", np.float64, n_contacts)] if soft else fields
 
 
 class _Worker:
