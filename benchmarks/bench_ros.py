@@ -82,14 +82,17 @@ def tree_cpu_s(pid: int) -> float:
     Unlike wall-clock rates this does not depend on what else the machine runs, so it
     gives the node's cost per query on a shared machine.
     """
-    total = 0
-    for member in process_tree(pid):
-        try:
-            fields = Path(f"/proc/{member}/stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        total += int(fields[11]) + int(fields[12])
-    return total / os.sysconf("SC_CLK_TCK")
+    return sum(process_cpu_s(member) for member in process_tree(pid))
+
+
+def process_cpu_s(pid: int) -> float:
+    """CPU seconds (user + system, all threads) used so far by process ``pid`` alone;
+    0 if it is gone."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 class GcTimer:
@@ -143,6 +146,30 @@ def bench_batches(client: GraspClient, batches):
         complete &= len(future.result(REPLY_TIMEOUT_S)) > 0
     elapsed = time.perf_counter() - start
     return sum(len(p) for p, _ in batches) / elapsed, complete
+
+
+def batch_cpu_s(node_pid: int) -> dict[str, float]:
+    """CPU seconds used so far by the node's worker processes, the node's own process
+    and this process (the client)."""
+    node = process_cpu_s(node_pid)
+    return {"workers": tree_cpu_s(node_pid) - node, "node": node,
+            "client": time.process_time()}
+
+
+def print_batch_cpu(per_grasp: dict[str, float], core_cpu: float, n_cpus: int) -> None:
+    """Print where the CPU of the batch rounds went, per grasp, and the ratio that
+    allows: the workers, the node and the client share the machine's ``n_cpus`` cores,
+    so even with every core busy all the time the node reaches at most ``n_cpus`` x the
+    core's CPU per grasp over their sum."""
+    total = sum(per_grasp.values())
+    if per_grasp["workers"] <= 0 or core_cpu <= 0:  # below the kernel's tick (~10 ms)
+        print("    CPU per grasp: too few grasps to measure")
+        return
+    print(f"    CPU per grasp: workers {1e6 * per_grasp['workers']:.2f} us "
+          f"({per_grasp['workers'] / core_cpu:.2f}x the core alone's {1e6 * core_cpu:.2f} us), "
+          f"node process {1e6 * per_grasp['node']:.2f} us, client (this process) "
+          f"{1e6 * per_grasp['client']:.2f} us -> with every core busy all the time at most "
+          f"{n_cpus * core_cpu / total:.2f}x the core alone on {n_cpus} cores")
 
 
 def bench_core(batches):
@@ -316,21 +343,23 @@ def main(argv=None) -> int:
         # Core alone and through the node in alternating rounds, the ratio taken per
         # round and its median reported: the load of a shared machine drifts within
         # seconds, which a core run before and after the node's cannot follow.
-        ratios, ros_rates, core_rates, complete, node_cpu, core_cpu = [], [], [], True, 0.0, 0.0
-        ceilings = []
+        ratios, ros_rates, core_rates, complete, core_cpu = [], [], [], True, 0.0
+        ceilings, batch_cpu = [], {"workers": 0.0, "node": 0.0, "client": 0.0}
         bench_core(batches[:1])  # loads the compiled exact stage: not part of round 1
         for _ in range(args.rounds):
             core_rate, cpu_per_grasp = bench_core(batches)
             ceilings.append(bench_core_everywhere(everywhere, taken, n_cpus) / core_rate)
-            cpu = tree_cpu_s(node.pid)
+            before = batch_cpu_s(node.pid)
             ros_rate, done = bench_batches(client, batches)
-            node_cpu += (tree_cpu_s(node.pid) - cpu) / sum(len(p) for p, _ in batches)
+            for part, seconds in batch_cpu_s(node.pid).items():
+                batch_cpu[part] += (seconds - before[part]) / sum(len(p) for p, _ in batches)
             core_cpu += cpu_per_grasp
             complete &= done
             ratios.append(ros_rate / core_rate)
             ros_rates.append(ros_rate)
             core_rates.append(core_rate)
-        node_cpu, core_cpu = node_cpu / args.rounds, core_cpu / args.rounds
+        core_cpu /= args.rounds
+        batch_cpu = {part: seconds / args.rounds for part, seconds in batch_cpu.items()}
         ratio = float(np.median(ratios))
         print(f"batches of {args.batch_size}: median of {args.rounds} rounds "
               f"{ratio:.2f}x the core alone in one process (rounds: "
@@ -342,12 +371,7 @@ def main(argv=None) -> int:
               f"{np.median(ceilings):.2f}x one process (rounds: "
               + ", ".join(f"{c:.2f}x" for c in ceilings)
               + "): the most any node could reach on this machine")
-        if node_cpu > 0:
-            print(f"    CPU per grasp: node and workers {1e6 * node_cpu:.2f} us, core alone "
-                  f"{1e6 * core_cpu:.2f} us -> on {os.cpu_count()} idle cores at most "
-                  f"{os.cpu_count() * core_cpu / node_cpu:.2f}x the core alone")
-        else:  # below the kernel's CPU-time resolution (a tick, ~10 ms)
-            print("    CPU per grasp: too few grasps to measure")
+        print_batch_cpu(batch_cpu, core_cpu, n_cpus)
 
         idle = bench_service(client, positions, normals, args.service_calls)
         print(f"service round trip (one grasp): {percentiles(idle)}  [target p50 <= "
