@@ -157,6 +157,9 @@ def test_lp_pyramids_bracket_s_star():
 # Found by hypothesis: the moved grasp's s* 2.4e-6 above the first frame's, both within
 # their certified accuracy (the test demanded 1e-6).
 @example(seed=6445, n_contacts=3, scale=1.0, load=1.0)
+# Found by hypothesis: s* 9,000x the wrench (a nearly marginal grasp), the moved grasp's
+# 2.4e-5 above the first frame's; the bound below grows with s* / |wrench|.
+@example(seed=5779, n_contacts=5, scale=1.0, load=1.0)
 def test_invariant_under_rigid_motion_and_scaling(seed, n_contacts, scale, load):
     """Moving the grasp and the wrench along leaves s*; scaling lengths by k with the
     torque scaled by k leaves s*; scaling the wrench by c scales s* by c."""
@@ -177,12 +180,18 @@ def test_invariant_under_rigid_motion_and_scaling(seed, n_contacts, scale, load)
     heavier, _ = optimal_contact_forces(positions, normals, mu, load * wrench)
 
     finite = np.isfinite(base)
+    # Each answer is within OPTIMALITY_TOL of its own frame's dual bound, by forces inside
+    # the cones to FORCE_TOL * s*. That slack acts like a friction coefficient larger by
+    # ~FORCE_TOL, which lowers s* by a relative ~FORCE_TOL * s* / |wrench|: negligible for
+    # most grasps, not for a nearly marginal one that needs forces thousands of times the
+    # wrench. Two frames agree to the sum, and to no less than two stages agree to
+    # (assert_same_s_star).
+    conditioning = base[finite] / np.linalg.norm(wrench[finite], axis=1)
+    rtol = 3 * OPTIMALITY_TOL + FORCE_TOL * conditioning
     for other in (moved, scaled, heavier / load):
         assert (np.isfinite(other) == finite).all()
-        # Each answer is certified to OPTIMALITY_TOL of its own frame's dual bound, with
-        # forces inside the cones to FORCE_TOL of s*: two frames agree to the accuracy
-        # two stages agree to (assert_same_s_star), not to 1e-6.
-        np.testing.assert_allclose(other[finite], base[finite], rtol=3 * OPTIMALITY_TOL)
+        assert (np.abs(other[finite] - base[finite]) <= rtol * base[finite]).all(), (
+            other[finite], base[finite], rtol)
 
 
 @settings(max_examples=20, deadline=None)
