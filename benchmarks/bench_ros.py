@@ -47,6 +47,7 @@ from timing import ratio_or_nan
 from grasp_fc_ros.client import GraspClient
 from grasp_fc_ros.core import check_force_closure, warm_up
 from grasp_fc_ros.objects import make_object, sample_grasps
+from grasp_fc_ros.workers import CHUNK_CONTACTS
 
 N_FINGERS = 6
 CONNECT_TIMEOUT_S = 30.0
@@ -182,7 +183,7 @@ def bench_core(batches):
 
 
 # Grasps per call of the core in the ceiling rounds: as the node's worker chunks.
-CEILING_CHUNK = 682
+CEILING_CHUNK = CHUNK_CONTACTS // N_FINGERS
 # What each core-only process of the ceiling rounds holds: the grasps in chunks, and
 # the shared count of chunks taken (set by _core_process).
 _CEILING: dict = {}

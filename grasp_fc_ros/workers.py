@@ -42,16 +42,19 @@ import numpy as np
 
 from grasp_fc_ros.evaluation import PackedGrasps, Settings, Verdicts, evaluate
 
-# Contacts per chunk: ~680 6-finger grasps. Measured with the fast exact stage (6
-# fingers, one process, check_force_closure per call): 0.023 ms per grasp in calls of 42
-# grasps, 0.021 in calls of 170, 0.018 in calls of 680 (12 ms a call), no better beyond;
-# 680 keeps a chunk near 10-20 ms (the time a shutdown or a service call waits for it)
-# at the core's best efficiency, and pickling a chunk both ways is a small part of it.
-CHUNK_CONTACTS = 4096
-# Chunks of a batch with soft contacts hold CHUNK_CONTACTS / 16 contacts: their exact
-# test (Clarabel path) measured 0.13-0.65 ms per grasp of 3-6 fingers against the fast
-# stage's 0.004-0.04 (benchmarks/bench_soft.py), so a chunk stays near 10-30 ms.
-SOFT_CHUNK_DIVISOR = 16
+# Contacts per chunk: ~2,700 6-finger grasps, ~20 ms of work on the latest 2-core EPYC
+# (~35 ms on the slower one), under the ~50 ms that a request of more than INLINE_GRASPS
+# grasps or a shutdown may wait for a chunk in progress. The core's own cost per grasp
+# levels off from ~680 grasps a call (0.023 ms per grasp in calls of 42, 0.018 from 680
+# on); larger chunks save the node's cost per chunk (feeding a worker, waking threads).
+# benchmarks/bench_ros.py, batches of 10,000, alternating runs: 4,096 contacts 1.24x and
+# 1.26x the core alone (node process 1.26-1.30 us of CPU per grasp), 8,192 1.30x and
+# 1.37x, 16,384 1.38x, 1.41x, 1.38x and 1.40x (0.70-0.94 us), 32,768 1.36x and 1.41x.
+CHUNK_CONTACTS = 16384
+# Chunks of a batch with soft contacts hold CHUNK_CONTACTS / 64 = 256 contacts: their
+# exact test (Clarabel path) measured 0.13-0.65 ms per grasp of 3-6 fingers against the
+# fast stage's 0.004-0.04 (benchmarks/bench_soft.py), so a chunk stays near 10-30 ms.
+SOFT_CHUNK_DIVISOR = 64
 # A request of fewer chunks than workers is split into one chunk per worker, as equal as
 # grasps allow, down to chunks of this many contacts (~170 6-finger grasps, where the
 # core's cost per grasp is within ~15% of its best, per the figures above): a 1,000-grasp
@@ -71,12 +74,13 @@ _ONE_THREAD = {name: "1" for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS",
                                       "MKL_NUM_THREADS")}
 _HEADER = struct.Struct("<Q")  # length prefix of each pickled message
 # Bytes of the memory each worker shares with its owner for the chunks' arrays: a chunk
-# of CHUNK_CONTACTS contacts and as many grasps takes 16 * grasps + 64 * contacts =
-# 327,680 bytes. Pickled through the pipes, 10,000-grasp batches (3 MB) cost the pool's
+# of CHUNK_CONTACTS hard contacts takes 16 * grasps + 56 * contacts bytes, at most
+# 1,048,576 (two-contact grasps); 2 MiB leave room, and pages never written cost nothing.
+# Pickled through the pipes, 10,000-grasp batches (3 MB) cost the pool's
 # owner ~0.85 and the workers ~9.1 us of CPU per grasp, shared ~0.66 and ~8.3
 # (benchmarks/bench_pool.py, alternating runs). A chunk that does not fit (huge grasps,
 # thousands of empty ones) still goes through the pipe.
-SHARED_BYTES = 1 << 20
+SHARED_BYTES = 2 << 20
 
 
 class Cancelled(Exception):
