@@ -19,7 +19,7 @@ from grasp_fc_ros.conversions import (
 from grasp_fc_ros.core import Status, check_force_closure
 from grasp_fc_ros.evaluation import Settings, evaluate
 from grasp_fc_ros.node import ForceClosureNode
-from grasp_fc_ros.workers import EvaluationPool
+from grasp_fc_ros.workers import SOFT_CHUNK_DIVISOR, EvaluationPool
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -78,7 +78,7 @@ def test_worker_processes_decide_soft_batches_like_the_core():
     packed = batch_to_packed(grasps_to_batch_msg(np.arange(60), positions, normals,
                                                  torsional_friction=gamma))
     expected = check_force_closure(positions, normals, 0.5, torsional_friction=gamma)
-    pool = EvaluationPool(1, chunk_contacts=16 * 20)   # soft chunks: 20 contacts
+    pool = EvaluationPool(1, chunk_contacts=SOFT_CHUNK_DIVISOR * 20)  # soft chunks: 20 contacts
     try:
         pooled, _ = pool.decide(packed, Settings())
     finally:
