@@ -221,14 +221,22 @@ def _big_input(tmp_path, n_grasps):
     return str(tmp_path / "big.npz")
 
 
+# Grasps of the worker-kill run, in chunks of 300. With 9,000 (~1 s of run here) the test
+# timed out twice in full runs waiting to see both workers busy, which the end of the run
+# would explain; 60,000 last several seconds. The wait now also ends with the run, and
+# the test then fails on parts_at_kill: the kill must come mid-run.
+N_KILL_GRASPS = 60_000
+
+
 def test_worker_killed_mid_run_loses_nothing(processes, tmp_path):
     address, start_worker, _ = processes
     workers = [start_worker(), start_worker()]
-    path = _big_input(tmp_path, 9000)
+    path = _big_input(tmp_path, N_KILL_GRASPS)
     out = tmp_path / "out"
     with dask_client(address) as dask:
         dask.wait_for_workers(2, timeout=60)
         plan = _plan([path], chunk=300)
+        n_chunks = N_KILL_GRASPS // 300
         runner = subprocess.Popen([sys.executable, "-m", "grasp_fc_ros.labelling.cli", path,
                                    "--out", str(out), "--chunk-size", "300", "--scheduler",
                                    address, "--no-progress"], stderr=subprocess.PIPE,
@@ -236,25 +244,27 @@ def test_worker_killed_mid_run_loses_nothing(processes, tmp_path):
         _wait_for(lambda: len(list(out.glob("part-*"))) >= 3, 120, "the first parts")
         # Kill a worker while both run chunks (between two chunks one may be idle for a
         # moment, more so on a loaded machine).
-        def both_busy():
+        def both_busy_or_run_over():
             busy = dask.processing()
-            return len(busy) == 2 and all(busy.values())
+            return (len(busy) == 2 and all(busy.values())) or runner.poll() is not None
 
-        _wait_for(both_busy, 60, "both workers running chunks")
+        _wait_for(both_busy_or_run_over, 60, "both workers running chunks")
         workers[0].kill()
         workers[0].wait()
+        parts_at_kill = len(list(out.glob("part-*")))
         stderr = runner.communicate(timeout=240)[1]
     assert runner.returncode == 0, stderr
-    assert "9,000 grasps labelled in 30 chunk(s)" in stderr
+    assert parts_at_kill < n_chunks  # the kill came mid-run
+    assert f"{N_KILL_GRASPS:,} grasps labelled in {n_chunks} chunk(s)" in stderr
     table = pq.read_table(out)
     ids = table["id"].to_numpy()
-    assert np.array_equal(ids, np.arange(9000))  # none lost, none duplicated, in order
+    assert np.array_equal(ids, np.arange(N_KILL_GRASPS))  # none lost or twice, in order
     d = np.load(path)
     expected = np.concatenate([check_force_closure(d["positions"][s:s + 300],
                                                    d["normals"][s:s + 300], 0.5).status
-                               for s in range(0, 9000, 300)])
+                               for s in range(0, N_KILL_GRASPS, 300)])
     assert np.array_equal(table["status"].to_numpy(), expected)
-    assert len(plan.chunks) == len(list(out.glob("part-*"))) == 30
+    assert len(plan.chunks) == len(list(out.glob("part-*"))) == n_chunks
 
 
 def test_killed_client_resumes_on_the_same_cluster(processes, tmp_path, capsys):
