@@ -36,12 +36,12 @@ REPORT_PERIOD_S = 0.25
 # A chunk should take about this long to decide (s): chunks are made smaller when they
 # take longer (slow machine, huge grasps), so that a stop without workers (decided in
 # the calling thread, between chunks) is seen within about this time, and a stop with
-# workers abandons little work. Never larger than the pool's own chunk size, which is
-# where the core's efficiency levels off (workers.CHUNK_CONTACTS).
+# workers abandons little work. Never larger than the pool's own chunk size
+# (workers.CHUNK_CONTACTS).
 TARGET_CHUNK_S = 0.05
 # Smallest chunk the adaptation makes (contacts): ~170 6-finger grasps, where the core
-# is within ~15 % of its best per grasp (workers.CHUNK_CONTACTS: 0.021 ms per grasp in
-# calls of 170, 0.018 in calls of 680); smaller calls lose more to per-call overhead than
+# is within ~15 % of its best per grasp (measured on an earlier machine: 0.021 ms per
+# grasp in calls of 170, 0.018 in calls of 680); smaller calls lose more to per-call overhead than
 # a shorter chunk gains (with workers a stop does not wait for a chunk anyway).
 MIN_CHUNK_CONTACTS = 1024
 # Chunks of one job queued at once per worker: one being decided and one waiting, so a

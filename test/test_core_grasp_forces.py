@@ -157,7 +157,7 @@ def test_lp_pyramids_bracket_s_star():
 # Found by hypothesis: the moved grasp's s* 2.4e-6 above the first frame's, both within
 # their certified accuracy (the test demanded 1e-6).
 @example(seed=6445, n_contacts=3, scale=1.0, load=1.0)
-# Found by hypothesis: s* 9,000x the wrench (a nearly marginal grasp), the moved grasp's
+# Found by hypothesis: s* 8,700x the wrench (a nearly marginal grasp), another frame's
 # 2.4e-5 above the first frame's; the bound below grows with s* / |wrench|.
 @example(seed=5779, n_contacts=5, scale=1.0, load=1.0)
 def test_invariant_under_rigid_motion_and_scaling(seed, n_contacts, scale, load):
