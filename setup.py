@@ -25,7 +25,7 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "grasp-fc-node = grasp_fc_ros.node:main",
+            "grasp-fc-node = grasp_fc_ros.node.cli:main",
             "grasp-fc-demo = grasp_fc_ros.demo:main",
             "grasp-fc-experiment = grasp_fc_ros.experiment.cli:main",
             "grasp-fc-label = grasp_fc_ros.labelling.cli:main",

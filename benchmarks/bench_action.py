@@ -36,7 +36,7 @@ from rclpy.node import Node
 
 from bench_ros import REPLY_TIMEOUT_S, start_node, stop_node  # noqa: E402
 from grasp_fc_ros.client import request_on_spin_thread
-from grasp_fc_ros.conversions import grasps_to_batch_msg, verdict_array_to_numpy
+from grasp_fc_ros.interface.conversions import grasps_to_batch_msg, verdict_array_to_numpy
 from grasp_fc_ros.core import check_force_closure
 from grasp_fc_ros.objects import make_object, sample_grasps
 

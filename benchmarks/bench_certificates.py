@@ -29,7 +29,7 @@ from bench_ros import (
 from rclpy.serialization import serialize_message
 from timing import ratio_or_nan
 
-from grasp_fc_ros.conversions import verdicts_to_array_msg
+from grasp_fc_ros.interface.conversions import verdicts_to_array_msg
 from grasp_fc_ros.objects import make_object, sample_grasps
 
 SETTINGS = {

@@ -34,7 +34,7 @@ import numpy as np
 from timing import ratio_or_nan
 
 from grasp_fc_ros.core import check_force_closure
-from grasp_fc_ros.markers import grasp_markers
+from grasp_fc_ros.markers.build import grasp_markers
 from grasp_fc_ros.objects import make_object, sample_grasps
 
 if TYPE_CHECKING:
@@ -83,7 +83,7 @@ def listen(topic: str) -> int:
     import rclpy
     from visualization_msgs.msg import MarkerArray
 
-    from grasp_fc_ros.marker_publisher import MARKER_QOS
+    from grasp_fc_ros.markers.publisher import MARKER_QOS
 
     rclpy.init()
     node = rclpy.create_node("bench_markers_listener")
@@ -121,7 +121,7 @@ def marker_process_pid(node_pid: int) -> int | None:
 
     for pid in process_tree(node_pid):
         try:
-            if "grasp_fc_ros.marker_publisher" in Path(f"/proc/{pid}/cmdline").read_text():
+            if "grasp_fc_ros.markers.publisher" in Path(f"/proc/{pid}/cmdline").read_text():
                 return pid
         except OSError:
             continue

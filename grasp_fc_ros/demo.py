@@ -10,7 +10,7 @@ DDS (serialised, delivered, deserialised); only the process is shared, which kee
 start-up fast and needs no discovery of a second process. Both nodes live in a
 namespace of their own (``/grasp_fc_demo_<pid>``) so a node started elsewhere with
 ``grasp-fc-node`` cannot answer the demo's queries. At the end it writes a PNG of the
-RViz markers of one grasp per verdict (:mod:`grasp_fc_ros.marker_render`).
+RViz markers of one grasp per verdict (:mod:`grasp_fc_ros.markers.render`).
 
 Usage::
 
@@ -36,7 +36,8 @@ from rclpy.parameter import Parameter
 
 from grasp_fc_ros.client import GraspClient
 from grasp_fc_ros.core import Status, check_force_closure
-from grasp_fc_ros.node import NODE_NAME, ForceClosureNode, shutdown_rclpy
+from grasp_fc_ros.interface.names import NODE_NAME
+from grasp_fc_ros.node import ForceClosureNode, shutdown_rclpy
 from grasp_fc_ros.objects import OBJECT_NAMES, make_object, sample_grasps
 
 N_FINGERS = 6
@@ -182,7 +183,7 @@ def _write_markers_png(path: str, surface, positions, normals, status, margin):
     only with its ``certificates`` parameter on), drawn where the core agrees with
     the node's verdict.
     """
-    from grasp_fc_ros.marker_render import EXAMPLE_STATUSES, render_verdict_examples
+    from grasp_fc_ros.markers.render import EXAMPLE_STATUSES, render_verdict_examples
 
     chosen = [int(np.flatnonzero(status == s)[0]) for s in EXAMPLE_STATUSES
               if np.any(status == s)]

@@ -41,8 +41,8 @@ tar -C "$root" --exclude=./.venv --exclude=./build --exclude=./.git --exclude='*
 
 cd "$tmp/src"
 if [ "$#" -eq 0 ]; then
-    set -- -x -q test/test_core_input.py test/test_core_torque_sets.py test/test_markers.py \
-        test/test_params_file.py test/test_node_process.py
+    set -- -x -q test/core/test_input.py test/core/test_torque_sets.py test/markers/test_markers.py \
+        test/node/test_params_file.py test/node/test_node_process.py
 fi
 # The copied tests import the installed package, not the copy: remove the copy's package.
 rm -rf grasp_fc_ros

@@ -16,7 +16,7 @@ import sys
 import numpy as np
 
 from grasp_fc_ros.core import check_force_closure
-from grasp_fc_ros.marker_render import EXAMPLE_STATUSES, render_verdict_examples
+from grasp_fc_ros.markers.render import EXAMPLE_STATUSES, render_verdict_examples
 from grasp_fc_ros.objects import OBJECT_NAMES, make_object, sample_grasps
 
 MU = math.tan(math.radians(20.0))

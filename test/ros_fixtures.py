@@ -33,7 +33,7 @@ from rclpy.node import Node  # noqa: E402
 from grasp_fc_msgs.msg import ContactArray, ContactArrayBatch  # noqa: E402
 from grasp_fc_msgs.msg import ForceClosureVerdict, ForceClosureVerdictArray  # noqa: E402
 from grasp_fc_msgs.srv import CheckForceClosure  # noqa: E402
-from grasp_fc_ros.node import QUERY_QOS as RELIABLE  # noqa: E402 - the documented QoS
+from grasp_fc_ros.interface.names import QUERY_QOS as RELIABLE  # noqa: E402 - the documented QoS
 DISCOVERY_TIMEOUT_S = 20.0
 REPLY_TIMEOUT_S = 20.0
 NODE_EXIT_TIMEOUT_S = 10.0

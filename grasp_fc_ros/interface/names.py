@@ -1,0 +1,50 @@
+"""The node's names and QoS profiles: what a client needs to talk to it, without it.
+
+Topic, service and action names are relative: they resolve in the node's namespace
+(``/robot/contacts`` for a node ``/robot/force_closure``). :func:`resolve` does that for
+a client that knows the node's full name.
+"""
+
+from __future__ import annotations
+
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+NODE_NAME = "force_closure"
+
+# Topics the node subscribes to.
+CONTACTS_TOPIC = "contacts"
+CONTACTS_BATCH_TOPIC = "contacts_batch"
+# Topics the node publishes on.
+VERDICTS_TOPIC = "verdicts"
+VERDICTS_BATCH_TOPIC = "verdicts_batch"
+MARKERS_TOPIC = "markers"
+DIAGNOSTICS_TOPIC = "/diagnostics"
+# Services and the action.
+CHECK_SERVICE = "check_force_closure"
+CONTACT_FORCES_SERVICE = "compute_contact_forces"
+CLEAR_MARKERS_SERVICE = "clear_markers"
+LABEL_ACTION = "label_grasps"
+
+# The QoS clients use on all four grasp topics, and the node's query subscriptions.
+# Reliable + KEEP_ALL: a reader never overwrites a sample it has not handed over, so a
+# busy node makes the publisher wait instead of losing queries.
+QUERY_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
+                       history=HistoryPolicy.KEEP_ALL, depth=1)
+# The node's verdict publishers: reliable, and a deep KEEP_LAST history rather than
+# KEEP_ALL, so that a client that stops reading (or was killed and is not yet known to
+# be gone) can never make publish() block the node for everyone. A live client keeps
+# at most its window (2,000) unanswered, far below this depth.
+VERDICT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
+                         history=HistoryPolicy.KEEP_LAST, depth=10_000)
+
+
+def resolve(node_name: str, name: str) -> str:
+    """The absolute name of the node's topic, service or action ``name``.
+
+    ``node_name`` is the node's name, with its namespace if it has one
+    (``force_closure``, ``/robot/force_closure``); absolute names stay as they are.
+    """
+    if name.startswith("/"):
+        return name
+    namespace = node_name.rpartition("/")[0].strip("/")
+    return f"/{namespace}/{name}" if namespace else f"/{name}"

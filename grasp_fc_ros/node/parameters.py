@@ -1,0 +1,110 @@
+"""The node's parameters: names, defaults, descriptors with ranges, and their checks."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import fields
+
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    ParameterType,
+)
+
+from grasp_fc_ros.core import ORIGIN_CHOICES
+from grasp_fc_ros.core.tolerances import MAX_FRICTION_COEFFICIENT
+from grasp_fc_ros.engine.evaluation import MIN_CONTACTS, Settings
+from grasp_fc_ros.markers.build import DEFAULT_LIFETIME_S
+from grasp_fc_ros.markers.publisher import DEFAULT_MARKER_SAMPLE, MAX_MARKER_SAMPLE
+
+# Upper bounds of the integer parameters: beyond these a single message would not fit
+# any sensible memory budget.
+MAX_CONTACTS_LIMIT = 10_000
+MAX_BATCH_LIMIT = 10_000_000
+MAX_WORKERS = 64
+# Worker processes by default: the 2 cores of the machines this was measured on. A fixed
+# number, so that a params file and the docs say the same on every machine.
+DEFAULT_WORKERS = 2
+
+# Longest accepted marker_lifetime (s): a year; 0 already means forever.
+MAX_MARKER_LIFETIME_S = 365 * 24 * 3600.0
+# Parameters that users may set through QoSOverridingOptions, e.g.
+# qos_overrides./contacts.subscription.depth (rclpy declares them, read-only).
+QOS_OVERRIDES_PREFIX = "qos_overrides."
+
+
+def _int_descriptor(description, low, high, read_only=False):
+    return ParameterDescriptor(
+        type=ParameterType.PARAMETER_INTEGER, description=description, read_only=read_only,
+        integer_range=[IntegerRange(from_value=low, to_value=high, step=1)])
+
+
+def _bool_descriptor(description):
+    return ParameterDescriptor(type=ParameterType.PARAMETER_BOOL, description=description)
+
+
+PARAMETERS = {
+    # name: (default, descriptor)
+    "friction_coefficient": (0.5, ParameterDescriptor(
+        type=ParameterType.PARAMETER_DOUBLE,
+        description="Coulomb friction coefficient for contacts that give none (finite <= 0)",
+        additional_constraints=f"finite, > 0 and <= {MAX_FRICTION_COEFFICIENT:g}")),
+    "use_filter": (True, _bool_descriptor(
+        "Run the torque-space filter before the exact test where it pays "
+        "for the grasp's contact count (the core's use_filter='auto'); false: "
+        "never. Verdicts are the same either way")),
+    "filter_origins": ("seed", ParameterDescriptor(
+        type=ParameterType.PARAMETER_STRING,
+        description="Torque origins of the filter: 'seed' (the paper's) or 'all'",
+        additional_constraints="one of: " + ", ".join(ORIGIN_CHOICES))),
+    "max_contacts": (64, _int_descriptor(
+        "Largest number of contacts accepted in one grasp", MIN_CONTACTS, MAX_CONTACTS_LIMIT)),
+    "max_batch": (100_000, _int_descriptor(
+        "Largest number of grasps accepted in one batch message or service request, of "
+        "single-grasp topic queries waiting to be decided, and of batch grasps waiting; "
+        "beyond that a query is answered at once with SOLVER_FAILURE 'node overloaded'",
+        1, MAX_BATCH_LIMIT)),
+    "certificates": (False, _bool_descriptor(
+        "Every verdict carries its certificate: contact forces of a "
+        "force-closure grasp, the separating wrench of a rejected one "
+        "(larger verdict messages, more time per grasp)")),
+    "compute_min_friction": (False, _bool_descriptor(
+        "Every verdict carries the grasp's minimum friction coefficient "
+        "(about a hundred exact tests' worth of time per grasp)")),
+    "workers": (DEFAULT_WORKERS, _int_descriptor(
+        "Worker processes deciding large batches and service requests (0: none, decide "
+        "in the node's threads); set at start-up", 0, MAX_WORKERS, read_only=True)),
+    "publish_markers": (False, _bool_descriptor(
+        "Publish visualization_msgs/MarkerArray on 'markers' for answered "
+        "queries (built off the verdict path; dropped, never the verdicts, "
+        "when they fall behind)")),
+    "marker_lifetime": (DEFAULT_LIFETIME_S, ParameterDescriptor(
+        type=ParameterType.PARAMETER_DOUBLE,
+        description="Seconds until RViz drops a query's markers (0: never)",
+        floating_point_range=[FloatingPointRange(from_value=0.0,
+                                                 to_value=MAX_MARKER_LIFETIME_S)])),
+    "marker_batch_sample": (DEFAULT_MARKER_SAMPLE, _int_descriptor(
+        "At most this many grasps of each batch and service request get markers "
+        "(evenly spread; single topic queries always do)", 0, MAX_MARKER_SAMPLE)),
+}
+# Marker parameter name -> MarkerSettings field.
+MARKER_SETTINGS = {"publish_markers": "enabled", "marker_lifetime": "lifetime_s",
+                    "marker_batch_sample": "batch_sample"}
+
+SETTING_NAMES = frozenset(f.name for f in fields(Settings))
+
+
+def check_parameter(name: str, value) -> str:
+    """Return why ``value`` is not acceptable for parameter ``name`` ('' if it is)."""
+    if name == "friction_coefficient":
+        if not (math.isfinite(value) and 0 < value <= MAX_FRICTION_COEFFICIENT):
+            return (f"friction_coefficient must be finite, > 0 and <= "
+                    f"{MAX_FRICTION_COEFFICIENT:g}, got {value}")
+    elif name == "marker_lifetime" and not (math.isfinite(value)
+                                            and 0 <= value <= MAX_MARKER_LIFETIME_S):
+        return (f"marker_lifetime must be finite, >= 0 and <= {MAX_MARKER_LIFETIME_S:g} s, "
+                f"got {value}")
+    elif name == "filter_origins" and value not in ORIGIN_CHOICES:
+        return f"filter_origins must be one of {ORIGIN_CHOICES}, got {value!r}"
+    return ""
