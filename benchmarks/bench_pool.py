@@ -1,5 +1,5 @@
 """The node's worker pool alone, without ROS: batches through
-grasp_fc_ros.engine.workers.EvaluationPool against the core in one process and against the
+grasp_fc_ros.engine.pool.EvaluationPool against the core in one process and against the
 core in one process per core at once (the machine's ceiling), in alternating rounds.
 
 Prints per round the three rates, and the CPU per grasp of this process (the pool's
@@ -20,9 +20,9 @@ import time
 import numpy as np
 from bench_ros import bench_core, bench_core_everywhere, ceiling_pool, tree_cpu_s
 
-from grasp_fc_ros.engine.evaluation import PackedGrasps, Settings
+from grasp_fc_ros.engine.packed import PackedGrasps, Settings
 from grasp_fc_ros.objects import make_object, sample_grasps
-from grasp_fc_ros.engine.workers import EvaluationPool
+from grasp_fc_ros.engine.pool import EvaluationPool
 
 N_FINGERS = 6
 MU = 0.5  # as bench_ros.bench_core decides the same grasps

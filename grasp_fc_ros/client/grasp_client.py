@@ -52,7 +52,8 @@ from grasp_fc_ros.interface.conversions import (
     verdict_array_to_numpy,
     verdict_msgs_to_numpy,
 )
-from grasp_fc_ros.engine.evaluation import ContactForces, Verdicts
+from grasp_fc_ros.engine.contact_forces import ContactForces
+from grasp_fc_ros.engine.packed import Verdicts
 from grasp_fc_ros.interface.names import NODE_NAME, QUERY_QOS
 from grasp_fc_ros.interface.wait_sets import ServiceCaller, SubscriptionLoop
 

@@ -1,7 +1,7 @@
 """Deciding a long job chunk by chunk, with progress reports and a prompt stop (no ROS).
 
 The ``label_grasps`` action of the node decides its goal with :func:`decide_in_chunks`:
-the grasps go to the :class:`~grasp_fc_ros.engine.workers.EvaluationPool` a few chunks at a
+the grasps go to the :class:`~grasp_fc_ros.engine.pool.EvaluationPool` a few chunks at a
 time (so that other goals and batches share the workers), the decided chunks are kept
 in order, a progress report goes out at least every ``report_period_s`` even while a
 chunk is still being decided, and a stop request is seen within :data:`STOP_POLL_S`.
@@ -22,8 +22,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from grasp_fc_ros.core import Status
-from grasp_fc_ros.engine.evaluation import PackedGrasps, Settings, Verdicts
-from grasp_fc_ros.engine.workers import PRIORITY_BATCH, EvaluationPool
+from grasp_fc_ros.engine.chunking import adapted_chunk_contacts, chunk_end
+from grasp_fc_ros.engine.packed import PackedGrasps, Settings, Verdicts
+from grasp_fc_ros.engine.pool import PRIORITY_BATCH, EvaluationPool
 
 # How often a job waiting for a chunk looks at its stop condition (s). Measured on the
 # action (10 cancels, shared 2-core machine): from the cancel callback to the goal's end
@@ -33,17 +34,6 @@ STOP_POLL_S = 0.005
 # Progress reports at most this often (s): 4 Hz, well above the 1 Hz the action
 # promises, and a negligible cost next to a chunk (~10-20 ms of work).
 REPORT_PERIOD_S = 0.25
-# A chunk should take about this long to decide (s): chunks are made smaller when they
-# take longer (slow machine, huge grasps), so that a stop without workers (decided in
-# the calling thread, between chunks) is seen within about this time, and a stop with
-# workers abandons little work. Never larger than the pool's own chunk size
-# (workers.CHUNK_CONTACTS).
-TARGET_CHUNK_S = 0.05
-# Smallest chunk the adaptation makes (contacts): ~170 6-finger grasps, where the core
-# is within ~15 % of its best per grasp (measured on an earlier machine: 0.021 ms per
-# grasp in calls of 170, 0.018 in calls of 680); smaller calls lose more to per-call overhead than
-# a shorter chunk gains (with workers a stop does not wait for a chunk anyway).
-MIN_CHUNK_CONTACTS = 1024
 # Chunks of one job queued at once per worker: one being decided and one waiting, so a
 # worker never idles between two chunks of the job, while a second job's (or a batch's)
 # chunks can slip in between.
@@ -89,26 +79,6 @@ class Outcome:
     verdicts: Verdicts
     seconds: dict = field(default_factory=dict)
     complete: bool = True
-
-
-def chunk_end(ends: np.ndarray, first: int, max_contacts: int) -> int:
-    """End (exclusive) of the chunk starting at grasp ``first``: at most ``max_contacts``
-    contacts, and at least one grasp. ``ends`` is ``np.cumsum(counts)``."""
-    base = int(ends[first - 1]) if first else 0
-    last = int(np.searchsorted(ends, base + max_contacts, side="right"))
-    return max(last, first + 1)
-
-
-def adapted_chunk_contacts(chunk_contacts: int, compute_s: float, upper: int) -> int:
-    """Contacts per chunk so that a chunk takes about :data:`TARGET_CHUNK_S`.
-
-    ``compute_s`` is what the last chunk of ``chunk_contacts`` contacts took; the
-    result lies in [:data:`MIN_CHUNK_CONTACTS`, ``upper``].
-    """
-    if not (compute_s > 0 and math.isfinite(compute_s)):
-        return upper
-    wanted = int(chunk_contacts * TARGET_CHUNK_S / compute_s)
-    return int(np.clip(wanted, min(MIN_CHUNK_CONTACTS, upper), upper))
 
 
 class _Tally:

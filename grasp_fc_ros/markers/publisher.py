@@ -38,11 +38,15 @@ from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import Header
 from visualization_msgs.msg import MarkerArray
 
-from grasp_fc_ros.interface.conversions import MalformedBatch, batch_to_packed, contact_arrays_to_packed
 from grasp_fc_ros.core import Status, check_force_closure
-from grasp_fc_ros.engine.evaluation import Verdicts
+from grasp_fc_ros.engine.packed import Verdicts
+from grasp_fc_ros.engine.child_process import ONE_THREAD_ENV, read_message, write_message
+from grasp_fc_ros.interface.conversions import (
+    MalformedBatch,
+    batch_to_packed,
+    contact_arrays_to_packed,
+)
 from grasp_fc_ros.markers.build import DEFAULT_LIFETIME_S, delete_all_markers, grasp_markers
-from grasp_fc_ros.engine.workers import _ONE_THREAD, _read, _write
 
 # Messages whose markers may wait to be built; beyond, the oldest are dropped. A few
 # seconds of work at most (a message holds at most MAX_MARKER_SAMPLE grasps).
@@ -437,7 +441,7 @@ class MarkerProcess:
                 self._process = subprocess.Popen(
                     [sys.executable, "-m", "grasp_fc_ros.markers.publisher", *self._args],
                     stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                    env={**os.environ, **_ONE_THREAD})
+                    env={**os.environ, **ONE_THREAD_ENV})
                 self._ready = False
             return self._process
 
@@ -445,11 +449,12 @@ class MarkerProcess:
         """Send one request and wait for its answer (and first for the process's
         "ready", so that a request never waits in a pipe of a process still starting)."""
         process = self._running()
+        assert process.stdin is not None and process.stdout is not None
         if not self._ready:
-            _read(process.stdout)
+            read_message(process.stdout)
             self._ready = True
-        _write(process.stdin, request)
-        ok, answer = _read(process.stdout)
+        write_message(process.stdin, request)
+        ok, answer = read_message(process.stdout)
         if not ok:
             raise RuntimeError(f"marker process: {answer}")
         return answer
@@ -495,11 +500,11 @@ def _serve(namespace: str, node_name: str) -> None:
                              start_parameter_services=False)
     publisher = node.create_publisher(MarkerArray, "markers", MARKER_QOS)
     warm_up()  # the compiled exact stage, for the separating wrenches
-    _write(stdout, (True, "ready"))
+    write_message(stdout, (True, "ready"))
     try:
         while True:
             try:
-                work = _read(stdin)
+                work = read_message(stdin)
             except EOFError:
                 return  # the owner closed the pipe or died
             try:
@@ -515,7 +520,7 @@ def _serve(namespace: str, node_name: str) -> None:
                 answer = True, 0  # every grasp of it is INVALID_INPUT: none can be placed
             except Exception as exc:  # noqa: BLE001 - reported to the owner, process goes on
                 answer = False, f"{type(exc).__name__}: {exc}"
-            _write(stdout, answer)
+            write_message(stdout, answer)
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

@@ -18,7 +18,7 @@ Interfaces (package ``grasp_fc_msgs``):
 
 The node is wiring only: messages are converted by :mod:`grasp_fc_ros.interface.conversions`
 and decided by :mod:`grasp_fc_ros.engine.evaluation`, large ones in worker processes
-(:mod:`grasp_fc_ros.engine.workers`).
+(:mod:`grasp_fc_ros.engine.pool`).
 
 Flow control: the query topics are reliable and KEEP_ALL (:data:`QUERY_QOS`), so DDS
 pushes back on a publisher instead of overwriting queries the node has not taken yet;
@@ -29,7 +29,7 @@ overloaded"), batches for the ``next_batch`` thread, which queues the chunks of 
 :data:`BATCHES_IN_PROGRESS` batches for the workers while ``answer_batch`` answers them
 in order; the services have a thread of their own
 (see :meth:`ForceClosureNode._start_service`). All three decide
-through :class:`~grasp_fc_ros.engine.workers.EvaluationPool`: tiny requests at once, larger ones
+through :class:`~grasp_fc_ros.engine.pool.EvaluationPool`: tiny requests at once, larger ones
 in chunks on the worker processes, interactive ones (service, single queries) ahead of
 batch chunks. So no batch holds up the service, single queries or diagnostics.
 
@@ -69,21 +69,10 @@ from rclpy.task import Future as RclpyFuture
 from std_srvs.srv import Empty
 
 from grasp_fc_ros.core import Status, warm_up
-from grasp_fc_ros.engine.evaluation import (
-    ContactForces,
-    PackedGrasps,
-    Settings,
-    Verdicts,
-    contact_forces_for_load,
-)
+from grasp_fc_ros.engine.contact_forces import ContactForces, contact_forces_for_load
+from grasp_fc_ros.engine.packed import PackedGrasps, Settings, Verdicts
 from grasp_fc_ros.engine.long_jobs import Progress, decide_in_chunks
-from grasp_fc_ros.engine.workers import (
-    PRIORITY_BATCH,
-    PRIORITY_INTERACTIVE,
-    Cancelled,
-    Decision,
-    EvaluationPool,
-)
+from grasp_fc_ros.engine.pool import PRIORITY_BATCH, PRIORITY_INTERACTIVE, Cancelled, Decision, EvaluationPool
 from grasp_fc_ros.interface import wire
 from grasp_fc_ros.interface.conversions import (
     MalformedBatch,

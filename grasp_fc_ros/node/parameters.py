@@ -14,7 +14,7 @@ from rcl_interfaces.msg import (
 
 from grasp_fc_ros.core import ORIGIN_CHOICES
 from grasp_fc_ros.core.tolerances import MAX_FRICTION_COEFFICIENT
-from grasp_fc_ros.engine.evaluation import MIN_CONTACTS, Settings
+from grasp_fc_ros.engine.packed import MIN_CONTACTS, Settings
 from grasp_fc_ros.markers.build import DEFAULT_LIFETIME_S
 from grasp_fc_ros.markers.publisher import DEFAULT_MARKER_SAMPLE, MAX_MARKER_SAMPLE
 

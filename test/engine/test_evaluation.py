@@ -1,4 +1,4 @@
-"""grasp_fc_ros.engine.evaluation and grasp_fc_ros.engine.workers without ROS: packed grasps in,
+"""grasp_fc_ros.engine.evaluation and the worker pool without ROS: packed grasps in,
 verdicts out, structured validation errors, chunks on worker processes."""
 
 from __future__ import annotations
@@ -8,17 +8,13 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from grasp_fc_ros.core import Status, check_force_closure
-from grasp_fc_ros.engine.evaluation import (
-    InvalidGrasp,
-    PackedGrasps,
-    Settings,
-    Verdicts,
-    evaluate,
-    find_invalid,
-)
+from grasp_fc_ros.engine.evaluation import InvalidGrasp, evaluate, find_invalid
+from grasp_fc_ros.engine.packed import PackedGrasps, Settings, Verdicts
 from grasp_fc_ros.objects import make_object, sample_grasps
-from grasp_fc_ros.engine import workers
-from grasp_fc_ros.engine.workers import EvaluationPool, SharedChunk, chunk_size
+from grasp_fc_ros.engine import shared_chunk
+from grasp_fc_ros.engine.chunking import chunk_size
+from grasp_fc_ros.engine.pool import EvaluationPool
+from grasp_fc_ros.engine.shared_chunk import SharedChunk
 
 # The exact test's margin depends on which grasps share a solver call, to solver accuracy.
 MARGIN_ABS_TOL = 1e-6
@@ -399,10 +395,10 @@ def test_chunks_that_do_not_fit_go_through_the_pipe_with_the_same_verdicts(monke
     rng = np.random.default_rng(21)
     positions, normals = sample_grasps(make_object("box"), 60, 6, rng)
     packed = pack(list(zip(positions, normals)))
-    monkeypatch.setattr(workers, "SHARED_BYTES", 64)
+    monkeypatch.setattr(shared_chunk, "SHARED_BYTES", 64)
     sent = []
-    put = workers.SharedChunk.put
-    monkeypatch.setattr(workers.SharedChunk, "put",
+    put = SharedChunk.put
+    monkeypatch.setattr(SharedChunk, "put",
                         lambda self, chunk: sent.append(put(self, chunk)) or sent[-1])
     pool = EvaluationPool(2, chunk_contacts=60)  # 10 grasps a chunk
     try:

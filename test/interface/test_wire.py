@@ -168,7 +168,7 @@ def verdict_arrays(draw):
     or not, so that both the numpy and the rclpy paths run) and optional certificates."""
     from std_msgs.msg import Header
 
-    from grasp_fc_ros.engine.evaluation import Verdicts
+    from grasp_fc_ros.engine.packed import Verdicts
 
     n = draw(st.integers(0, 40))
     header = Header(frame_id=draw(TEXT))
@@ -238,7 +238,7 @@ def test_decoded_verdict_array_equals_rclpy_deserialization(case):
 def test_a_truncated_verdict_array_is_refused():
     from std_msgs.msg import Header
 
-    from grasp_fc_ros.engine.evaluation import Verdicts
+    from grasp_fc_ros.engine.packed import Verdicts
 
     raw = wire.encode_verdict_array(Header(), 1, 2, Verdicts.failed(np.arange(5), 1, ""))
     with pytest.raises(ValueError):

@@ -17,9 +17,11 @@ from grasp_fc_ros.interface.conversions import (
     verdict_array_to_numpy,
 )
 from grasp_fc_ros.core import Status, check_force_closure
-from grasp_fc_ros.engine.evaluation import Settings, evaluate
+from grasp_fc_ros.engine.evaluation import evaluate
+from grasp_fc_ros.engine.packed import Settings
 from grasp_fc_ros.node import ForceClosureNode
-from grasp_fc_ros.engine.workers import SOFT_CHUNK_DIVISOR, EvaluationPool
+from grasp_fc_ros.engine.chunking import SOFT_CHUNK_DIVISOR
+from grasp_fc_ros.engine.pool import EvaluationPool
 
 pytestmark = pytest.mark.timeout(120)
 

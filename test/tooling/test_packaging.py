@@ -112,7 +112,7 @@ def test_wheel_ships_types_params_and_license(tmp_path):
     names = zipfile.ZipFile(wheel).namelist()
     data = next(n.split("/")[0] for n in names if ".data/" in n)
     for expected in ("grasp_fc_ros/py.typed", "grasp_fc_ros/markers/build.py",
-                     "grasp_fc_ros/node/__main__.py", "grasp_fc_ros/engine/workers.py",
+                     "grasp_fc_ros/node/__main__.py", "grasp_fc_ros/engine/worker.py",
                      f"{data}/data/share/grasp_fc_ros/config/force_closure.yaml",
                      f"{data}/data/share/grasp_fc_ros/package.xml",
                      f"{data}/data/share/grasp_fc_ros/LICENSE"):

@@ -1,0 +1,107 @@
+"""Contact forces that hold a load, for one packed grasp (the compute_contact_forces
+service), without ROS."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from grasp_fc_ros.core import optimal_contact_forces
+from grasp_fc_ros.engine.evaluation import effective_friction, find_invalid
+from grasp_fc_ros.engine.packed import PackedGrasps, Settings
+
+#: Names of the wrench's six components, for messages.
+WRENCH_COMPONENTS = ("force.x", "force.y", "force.z", "torque.x", "torque.y", "torque.z")
+
+
+@dataclass(frozen=True)
+class ContactForces:
+    """The answer to one grasp-force optimisation request.
+
+    Attributes
+    ----------
+    feasible : bool
+        Forces inside the cones (and under the limits) balance the load.
+    max_normal_force : float
+        The least largest normal force s* (N); inf when infeasible, NaN when the request
+        is invalid or the solver could not decide.
+    contact_forces : (n, 3) float64
+        The optimal force per contact (N); shape (0, 3) unless feasible.
+    contact_torques : (n,) float64
+        The torsional moment about each contact's normal (N m; 0 at hard contacts);
+        shape (0,) unless feasible.
+    message : str
+        Empty, or why there is no answer (naming the query and contact).
+    """
+
+    feasible: bool
+    max_normal_force: float
+    contact_forces: np.ndarray
+    contact_torques: np.ndarray
+    message: str = ""
+
+    @classmethod
+    def refused(cls, message: str) -> ContactForces:
+        """No answer: ``message`` says why."""
+        return cls(False, float("nan"), np.empty((0, 3)), np.empty(0), message)
+
+    @classmethod
+    def infeasible(cls, max_normal_force: float) -> ContactForces:
+        """No forces hold the load (s* = inf), or none within the limits."""
+        return cls(False, max_normal_force, np.empty((0, 3)), np.empty(0))
+
+
+def contact_forces_for_load(packed: PackedGrasps, wrench, max_normal_forces,
+                            settings: Settings) -> ContactForces:
+    """Least-largest-normal-force contact forces of one grasp holding a load.
+
+    Parameters
+    ----------
+    packed : PackedGrasps
+        Exactly one grasp of n contacts (friction <= 0: the default of ``settings``).
+    wrench : (6,) float
+        External load: force (N) then torque (N m) about the frame's origin.
+    max_normal_forces : (0,) or (n,) float
+        Per-contact normal-force limits (N, >= 0, inf: none); empty for no limits.
+    settings : Settings
+
+    Returns
+    -------
+    ContactForces
+        From :func:`grasp_fc_ros.core.optimal_contact_forces`; an invalid request is
+        refused with a message naming the query, and the contact where one is at fault.
+    """
+    if len(packed) != 1:
+        raise ValueError(f"one grasp expected, got {len(packed)}")
+    mu = effective_friction(packed.mu, settings.friction_coefficient)
+    problems = find_invalid(packed, mu, settings)
+    if problems:
+        return ContactForces.refused(problems[0].describe(packed))
+    label = packed.label(0)
+    wrench = np.asarray(wrench, dtype=np.float64).reshape(6)
+    bad = np.flatnonzero(~np.isfinite(wrench))
+    if bad.size:
+        return ContactForces.refused(
+            f"{label}: wrench {WRENCH_COMPONENTS[bad[0]]} is not finite ({wrench[bad[0]]})")
+    limits = np.asarray(max_normal_forces, dtype=np.float64).reshape(-1)
+    n_contacts = int(packed.counts[0])
+    if len(limits) not in (0, n_contacts):
+        return ContactForces.refused(f"{label}: {len(limits)} max_normal_forces for "
+                                     f"{n_contacts} contacts (need one per contact or none)")
+    bad = np.flatnonzero(np.isnan(limits) | (limits < 0))
+    if bad.size:
+        return ContactForces.refused(
+            f"{label}, contact {bad[0]}: max_normal_force must be >= 0 (inf: no limit), "
+            f"got {limits[bad[0]]}")
+    torsional = np.zeros(n_contacts) if packed.torsional is None else packed.torsional
+    s_star, forces, torques = optimal_contact_forces(
+        packed.positions, packed.normals, mu, wrench, limits if len(limits) else None,
+        torsional_friction=torsional)
+    s_star = float(s_star)
+    if math.isnan(s_star):
+        return ContactForces.refused(f"{label}: the solver could not decide")
+    if math.isinf(s_star):
+        return ContactForces.infeasible(s_star)
+    return ContactForces(True, s_star, forces, torques)

@@ -1,0 +1,228 @@
+"""The node's data layout, without ROS: packed grasps in, verdicts out, and the settings
+that decide them.
+
+:class:`PackedGrasps` holds many grasps stacked contact after contact plus one contact
+count per grasp, the layout of ``ContactArrayBatch``; :class:`Verdicts` the answers, one
+row per grasp. Only numpy and the core's :class:`~grasp_fc_ros.core.Status`: a client
+imports this module without the pool.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from grasp_fc_ros.core import Status
+
+# A grasp needs at least two contacts (the core's own minimum, restated for messages).
+MIN_CONTACTS = 2
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The parameters that decide queries; one snapshot decides a whole message.
+
+    Attributes
+    ----------
+    friction_coefficient : float
+        Used for contacts whose own coefficient is finite and <= 0.
+    use_filter : bool
+        Run the torque-space filter before the exact test where it pays for the grasp's
+        contact count (the core's ``use_filter="auto"``); False: never.
+    filter_origins : str
+        Torque origins of the filter (``grasp_fc_ros.core.ORIGIN_CHOICES``).
+    max_contacts : int
+        Largest accepted number of contacts in one grasp.
+    max_batch : int
+        Largest accepted number of grasps in one message.
+    certificates : bool
+        Also return each verdict's certificate: contact forces of FORCE_CLOSURE grasps,
+        separating wrenches of rejected ones (the core's ``certificates=True``).
+    compute_min_friction : bool
+        Also return each grasp's minimum friction coefficient (see :func:`evaluate`).
+    """
+
+    friction_coefficient: float = 0.5
+    use_filter: bool = True
+    filter_origins: str = "seed"
+    max_contacts: int = 64
+    max_batch: int = 100_000
+    certificates: bool = False
+    compute_min_friction: bool = False
+
+
+@dataclass
+class PackedGrasps:
+    """Many grasp queries, stacked contact after contact.
+
+    Attributes
+    ----------
+    ids : (N,) uint64
+        Query id of each grasp.
+    counts : (N,) int64
+        Number of contacts of each grasp.
+    positions : (K, 3) float64
+        Contact positions (m), grasp after grasp; K = counts.sum().
+    normals : (K, 3) float64
+        Inward contact normals, any length (validated by :func:`evaluate`).
+    mu : (K,) float64
+        Friction coefficient per contact; finite values <= 0 mean "node default"
+        (NaN and +-inf are invalid).
+    name_by_id : bool
+        True when the grasps are separate single-grasp topic queries: messages then
+        name a grasp by its query id only ("query id 12"), since its place among the
+        queued queries means nothing to the client; otherwise "grasp 3 (id 1003)".
+    first_index : int
+        Index of grasp 0 of this object in the message it came from (a chunk of a
+        batch names its grasps by their index in the whole batch).
+    torsional : (K,) float64 or None
+        Torsional friction coefficient gamma per contact (m; 0: a hard contact; soft
+        fingers, see ``grasp_fc_ros.core.contact_model``); None: every contact hard.
+        Negative, NaN and inf are invalid.
+    """
+
+    ids: np.ndarray
+    counts: np.ndarray
+    positions: np.ndarray
+    normals: np.ndarray
+    mu: np.ndarray
+    name_by_id: bool = False
+    first_index: int = 0
+    torsional: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    @property
+    def starts(self) -> np.ndarray:
+        """(N,) int64 index of each grasp's first contact in the stacked arrays."""
+        return np.concatenate(([0], np.cumsum(self.counts)[:-1])).astype(np.int64)
+
+    def label(self, index: int) -> str:
+        """How messages name grasp ``index`` of this object."""
+        if self.name_by_id:
+            return f"query id {self.ids[index]}"
+        return f"grasp {self.first_index + index} (id {self.ids[index]})"
+
+    def chunks(self, max_contacts: int) -> list[PackedGrasps]:
+        """Split into consecutive pieces of at most ``max_contacts`` contacts each.
+
+        A grasp is never split; a single grasp larger than the bound is a chunk alone.
+        """
+        ends = np.cumsum(self.counts)
+        pieces, first = [], 0
+        while first < len(self):
+            base = ends[first - 1] if first else 0
+            last = int(np.searchsorted(ends, base + max_contacts, side="right"))
+            last = max(last, first + 1)
+            pieces.append(self.slice(first, last))
+            first = last
+        return pieces
+
+    def slice(self, first: int, last: int) -> PackedGrasps:
+        """Grasps ``first:last`` as a PackedGrasps of their own (arrays are views)."""
+        starts = self.starts
+        lo = int(starts[first]) if first < len(self) else 0
+        hi = lo + int(self.counts[first:last].sum())
+        return PackedGrasps(ids=self.ids[first:last], counts=self.counts[first:last],
+                            positions=self.positions[lo:hi], normals=self.normals[lo:hi],
+                            mu=self.mu[lo:hi], name_by_id=self.name_by_id,
+                            first_index=self.first_index + first,
+                            torsional=None if self.torsional is None else self.torsional[lo:hi])
+
+
+@dataclass
+class Verdicts:
+    """One verdict per grasp, as parallel arrays (the ForceClosureVerdictArray layout).
+
+    Attributes
+    ----------
+    ids : (N,) uint64
+    force_closure : (N,) bool
+    status : (N,) uint8
+        ``grasp_fc_ros.core.Status`` codes.
+    margin : (N,) float64
+        NaN where the exact test was not run.
+    messages : list[str]
+        Length N; empty where there is nothing to say.
+    contact_forces : (K, 3) float64 or None
+        Certificates of FORCE_CLOSURE grasps: one internal force per contact (N per N of
+        total grip), grasp after grasp in the query's contact order (K contacts in all);
+        NaN rows for the contacts of other grasps. None: not computed.
+    contact_torques : (K,) float64 or None
+        With ``contact_forces`` where the query has soft-finger contacts: the moment
+        about each contact's normal (N m per N of total grip; 0 at hard contacts).
+        None: not computed, or every contact hard.
+    separating_wrench : (N, 6) float64 or None
+        Unit wrench (force N, torque N m about the origin) that FILTERED_OUT and
+        NOT_FORCE_CLOSURE grasps cannot resist; NaN rows where there is none. None: not
+        computed.
+    min_friction : (N,) float64 or None
+        Minimum friction coefficient mu* of each grasp; NaN where not computed (invalid
+        input, or not certified). None: not computed for any grasp.
+    """
+
+    ids: np.ndarray
+    force_closure: np.ndarray
+    status: np.ndarray
+    margin: np.ndarray
+    messages: list[str]
+    contact_forces: np.ndarray | None = None
+    contact_torques: np.ndarray | None = None
+    separating_wrench: np.ndarray | None = None
+    min_friction: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    @classmethod
+    def failed(cls, ids, status: Status, message: str) -> Verdicts:
+        """Every grasp ``ids`` answered with ``status`` and the same ``message``."""
+        ids = np.asarray(ids, dtype=np.uint64)
+        n = len(ids)
+        return cls(ids=ids, force_closure=np.zeros(n, bool),
+                   status=np.full(n, status, dtype=np.uint8), margin=np.full(n, np.nan),
+                   messages=[message] * n)
+
+    @classmethod
+    def failed_grasps(cls, packed: PackedGrasps, settings: Settings, status: Status,
+                      message: str) -> Verdicts:
+        """:meth:`failed` for every grasp of ``packed``, with the optional fields that
+        ``settings`` ask for present and NaN (so that the verdicts of a failed part
+        join those of the other parts of a message without emptying their fields)."""
+        n_grasps, n_contacts = len(packed), len(packed.positions)
+        verdicts = cls.failed(packed.ids, status, message)
+        if settings.certificates:
+            verdicts.contact_forces = np.full((n_contacts, 3), np.nan)
+            if packed.torsional is not None:
+                verdicts.contact_torques = np.full(n_contacts, np.nan)
+            verdicts.separating_wrench = np.full((n_grasps, 6), np.nan)
+        if settings.compute_min_friction:
+            verdicts.min_friction = np.full(n_grasps, np.nan)
+        return verdicts
+
+    @classmethod
+    def concatenate(cls, parts: list[Verdicts]) -> Verdicts:
+        """The verdicts of ``parts``, one after the other."""
+        if not parts:
+            return cls.failed([], Status.INVALID_INPUT, "")
+        return cls(ids=np.concatenate([p.ids for p in parts]),
+                   force_closure=np.concatenate([p.force_closure for p in parts]),
+                   status=np.concatenate([p.status for p in parts]),
+                   margin=np.concatenate([p.margin for p in parts]),
+                   messages=[m for p in parts for m in p.messages],
+                   **{name: _concatenate_optional([getattr(p, name) for p in parts])
+                      for name in OPTIONAL_FIELDS})
+
+
+# The optional per-grasp results of Verdicts, computed only when the settings ask.
+OPTIONAL_FIELDS = ("contact_forces", "contact_torques", "separating_wrench", "min_friction")
+
+
+def _concatenate_optional(arrays: list) -> np.ndarray | None:
+    """Concatenate an optional field of every part; None if any part lacks it (all
+    parts of one message are decided with the same settings)."""
+    if any(a is None for a in arrays):
+        return None
+    return np.concatenate(arrays)

@@ -1,0 +1,43 @@
+"""A worker process of the pool: ``python -m grasp_fc_ros.engine.worker FD`` (no ROS).
+
+It answers on its stdout the chunks announced on its stdin (:mod:`.child_process`
+framing): a chunk's arrays are in the memory file FD (:class:`.shared_chunk.SharedChunk`),
+or pickled whole. It ignores SIGINT (Ctrl-C reaches the whole process group; its owner
+decides) and ends when its stdin closes, so a SIGKILL of the owner leaves no workers.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+
+from grasp_fc_ros.core import warm_up
+from grasp_fc_ros.engine.child_process import read_message, write_message
+from grasp_fc_ros.engine.evaluation import evaluate
+from grasp_fc_ros.engine.shared_chunk import SHARED, SharedChunk
+
+
+def serve(shared_fd: int):
+    """Worker main loop: a chunk in on stdin (its arrays in the memory of file descriptor
+    ``shared_fd``, or pickled whole), (verdicts, seconds) out on stdout."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    stdin, stdout = sys.stdin.buffer, sys.stdout.buffer
+    # Anything else printing to stdout would corrupt the stream: send it to stderr.
+    sys.stdout = sys.stderr
+    shared = SharedChunk(shared_fd)
+    warm_up()  # the compiled exact stage, before the pool counts this worker as ready
+    write_message(stdout, "ready")
+    while True:
+        try:
+            how, chunk, settings = read_message(stdin)
+        except EOFError:
+            return  # the owner closed the pipe or died
+        try:
+            answer = True, evaluate(shared.get(chunk) if how == SHARED else chunk, settings)
+        except Exception as exc:  # noqa: BLE001 - reported to the owner, worker goes on
+            answer = False, f"{type(exc).__name__}: {exc}"
+        write_message(stdout, answer)
+
+
+if __name__ == "__main__":
+    serve(int(sys.argv[1]))
