@@ -1,8 +1,8 @@
 """ROS-specific test helpers for the node tests (the fixtures are in conftest.py).
 
-Importing this module picks a ROS_DOMAIN_ID of its own for this test run (derived
-from the process id) *before* rclpy is initialised, so that parallel runs on one
-machine cannot hear each other. Child processes inherit it through the environment.
+Importing this module claims a ROS_DOMAIN_ID of its own for this test run
+(:func:`ros_domains.claim_domain_id`) *before* rclpy is initialised, so that parallel
+runs on one machine cannot hear each other. Child processes inherit it through the environment.
 
 :class:`Client` speaks the raw protocol (it can send what grasp_fc_ros.client never
 would: malformed batches, queries without a client id); tests of normal use take
@@ -20,8 +20,9 @@ import threading
 import time
 from pathlib import Path
 
-# Domain ids 1..100: well inside the range FastDDS maps to valid UDP ports.
-os.environ["ROS_DOMAIN_ID"] = str(1 + os.getpid() % 100)
+from ros_domains import claim_domain_id
+
+os.environ["ROS_DOMAIN_ID"] = str(claim_domain_id())
 # Keep discovery on this machine (no multicast on the network).
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 

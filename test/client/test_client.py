@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
+from ros_domains import claim_domain_id
 from ros_fixtures import NodeProcess, node_command
 
 from grasp_fc_ros.client import GraspClient
@@ -28,9 +28,9 @@ def readme_example() -> str:
 
 
 def test_readme_example_runs_against_a_node_process():
-    # A domain of its own (101..200): the example talks to the default node name, which
-    # other tests of this run also start.
-    env = dict(os.environ, ROS_DOMAIN_ID=str(101 + os.getpid() % 100))
+    # A domain of its own: the example talks to the default node name, which other tests
+    # of this run also start.
+    env = dict(os.environ, ROS_DOMAIN_ID=str(claim_domain_id()))
     node = NodeProcess(node_command(), env)
     try:
         done = subprocess.run([sys.executable, "-c", readme_example()], capture_output=True,

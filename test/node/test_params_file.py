@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from ros_domains import claim_domain_id
 
 from grasp_fc_ros.interface.names import NODE_NAME
 from grasp_fc_ros.node import PARAMETERS
@@ -50,7 +51,7 @@ def test_setup_installs_the_file_to_share_config():
 def _node_env():
     env = dict(os.environ)
     # A domain of this test's own (not the one test/ros_fixtures.py picks), kept local.
-    env["ROS_DOMAIN_ID"] = str(101 + os.getpid() % 100)
+    env["ROS_DOMAIN_ID"] = str(claim_domain_id())
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     env["PYTHONUNBUFFERED"] = "1"
     return env

@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 import pytest
+from ros_domains import claim_domain_id
 
 REPO = Path(__file__).resolve().parents[2]
 VENV = Path(sys.prefix)
@@ -134,8 +135,7 @@ def test_node_from_the_workspace_starts_and_stops_cleanly(workspace):
     node = _installed_script(workspace, "grasp-fc-node")
     assert node, "grasp-fc-node not installed"
     env = dict(workspace["env"], ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               # A domain of its own (FastDDS takes ids up to 232).
-               ROS_DOMAIN_ID=str(150 + os.getpid() % 80))
+               ROS_DOMAIN_ID=str(claim_domain_id()))  # a domain of its own
     env.pop("PYTHONPATH", None)
     process = subprocess.Popen(["sh", "-c", f'. install/setup.sh && exec "{node}"'],
                                cwd=workspace["root"], env=env, stdout=subprocess.PIPE,
