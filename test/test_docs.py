@@ -15,7 +15,9 @@ import shutil
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 
@@ -23,6 +25,9 @@ ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 sys.path.insert(0, str(DOCS / "_ext"))
 import grasp_fc_docs  # noqa: E402 - the Sphinx extension under test
+
+if TYPE_CHECKING:
+    from rclpy.node import Node
 
 SPHINX_TIMEOUT_S = 300
 # Discovery of the helper nodes and of the marker process (a process of its own that
@@ -61,7 +66,7 @@ def markdown_anchors(path: Path) -> set[str]:
 
 
 @pytest.mark.timeout(SPHINX_TIMEOUT_S)
-def test_docs_build_with_warnings_as_errors_and_render_the_api(tmp_path):
+def test_docs_build_with_warnings_as_errors_and_render_the_api(tmp_path: Path) -> None:
     if importlib.util.find_spec("sphinx") is None:
         pytest.skip("sphinx is not installed (requirements-test.txt pins it: make setup-test)")
     out = tmp_path / "html"
@@ -93,13 +98,13 @@ def test_docs_build_with_warnings_as_errors_and_render_the_api(tmp_path):
         assert (out / f"{page}.html").is_file(), page
 
 
-def test_performance_page_has_the_agreed_anchors():
+def test_performance_page_has_the_agreed_anchors() -> None:
     anchors = markdown_anchors(DOCS / "performance.md")
     missing = [a for a in PERFORMANCE_ANCHORS if a not in anchors]
     assert not missing, f"docs/performance.md lacks sections for #{', #'.join(missing)}"
 
 
-def test_every_pointer_into_performance_md_has_its_section():
+def test_every_pointer_into_performance_md_has_its_section() -> None:
     anchors = markdown_anchors(DOCS / "performance.md")
     pointer = re.compile(r"performance\.md#([\w-]+)")
     dangling = []
@@ -114,11 +119,11 @@ def test_every_pointer_into_performance_md_has_its_section():
     assert not dangling, "pointers to missing sections: " + ", ".join(dangling)
 
 
-def _graph(probe, namespace: str, node_name: str) -> set[tuple[str, str, str]]:
+def _graph(probe: Node, namespace: str, node_name: str) -> set[tuple[str, str, str]]:
     """(fully qualified name, kind, type) of what node ``namespace/node_name`` offers."""
     from rclpy.action import get_action_server_names_and_types_by_node
 
-    found = set()
+    found: set[tuple[str, str, str]] = set()
     queries = (("publisher", probe.get_publisher_names_and_types_by_node),
                ("subscription", probe.get_subscriber_names_and_types_by_node),
                ("service", probe.get_service_names_and_types_by_node))
@@ -151,7 +156,7 @@ def _declared(namespace: str) -> dict[str, set[tuple[str, str, str]]]:
 
 
 @pytest.mark.timeout(180)
-def test_node_reference_lists_exactly_what_a_running_node_offers(own_node):
+def test_node_reference_lists_exactly_what_a_running_node_offers(own_node: Callable) -> None:
     namespace = "/docs_reference"
     node, _spinner, client = own_node(namespace, workers=0, publish_markers=True)
     assert node.get_name() == grasp_fc_docs.DEFAULT_NODE_NAME
@@ -171,7 +176,7 @@ def test_node_reference_lists_exactly_what_a_running_node_offers(own_node):
 
 
 @pytest.mark.timeout(120)
-def test_diagnostics_keys_are_the_documented_ones(own_node):
+def test_diagnostics_keys_are_the_documented_ones(own_node: Callable) -> None:
     node, _spinner, client = own_node("/docs_diagnostics", workers=0, publish_markers=True)
     documented = {key for key, _ in grasp_fc_docs.DIAGNOSTIC_KEYS}
     deadline = time.monotonic() + GRAPH_TIMEOUT_S
@@ -184,7 +189,7 @@ def test_diagnostics_keys_are_the_documented_ones(own_node):
     assert set(grasp_fc_docs.MARKER_DIAGNOSTIC_KEYS) <= documented
 
 
-def test_documented_qos_is_the_code_profiles():
+def test_documented_qos_is_the_code_profiles() -> None:
     """Every topic's QoS resolves to the profile object the code uses."""
     for endpoint in grasp_fc_docs.INTERFACES:
         profile = grasp_fc_docs.resolve_qos(endpoint)
@@ -193,7 +198,8 @@ def test_documented_qos_is_the_code_profiles():
             assert grasp_fc_docs.describe_qos(profile).startswith("reliable")
 
 
-def test_a_symlink_to_msg_defs_lets_a_plain_colcon_crawl_find_both_packages(tmp_path):
+def test_a_symlink_to_msg_defs_lets_a_plain_colcon_crawl_find_both_packages(
+        tmp_path: Path) -> None:
     """docs/install.md's alternative to --base-paths: ln -s grasp_fc_ros/msg_defs src/."""
     colcon = Path(sys.executable).parent / "colcon"
     if not colcon.exists():

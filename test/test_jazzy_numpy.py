@@ -14,7 +14,6 @@ import hashlib
 import os
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -105,7 +104,7 @@ def _venv(python: str, requirements: list[str]) -> Path:
     return venv
 
 
-def test_core_passes_with_jazzy_numpy_and_the_pinned_clarabel_and_numba():
+def test_core_passes_with_jazzy_numpy_and_the_pinned_clarabel_and_numba() -> None:
     python = _python312()
     if python is None:
         pytest.skip("no Python 3.12 here (Ubuntu 24.04's, which an apt Jazzy uses); "

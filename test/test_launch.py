@@ -15,6 +15,7 @@ import subprocess
 import sys
 import zipfile
 from pathlib import Path
+from typing import Any
 
 import pytest
 import yaml
@@ -37,14 +38,15 @@ def _console_scripts() -> set[str]:
     tree = ast.parse((ROOT / "setup.py").read_text())
     for node in ast.walk(tree):
         if isinstance(node, ast.Dict):
-            for key, value in zip(node.keys, node.values):
-                if isinstance(key, ast.Constant) and key.value == "console_scripts":
+            for key, value in zip(node.keys, node.values, strict=True):
+                if isinstance(key, ast.Constant) and key.value == "console_scripts" and \
+                        isinstance(value, ast.List):
                     return {ast.literal_eval(item).split("=")[0].strip()
                             for item in value.elts}
     raise AssertionError("setup.py declares no console_scripts")
 
 
-def _launch_tree():
+def _launch_tree() -> tuple[ast.Module, dict[str, Any]]:
     """The launch file's AST and its module-level string constants."""
     tree = ast.parse(LAUNCH_FILE.read_text(), str(LAUNCH_FILE))
     constants = {}
@@ -56,7 +58,7 @@ def _launch_tree():
     return tree, constants
 
 
-def _value(node, constants):
+def _value(node: ast.expr | None, constants: dict[str, Any]) -> Any:
     """A keyword's value when it is a constant or a module-level constant, else None."""
     if isinstance(node, ast.Constant):
         return node.value
@@ -65,12 +67,12 @@ def _value(node, constants):
     return None
 
 
-def _calls(tree, name: str) -> list[ast.Call]:
+def _calls(tree: ast.AST, name: str) -> list[ast.Call]:
     return [n for n in ast.walk(tree) if isinstance(n, ast.Call)
             and isinstance(n.func, ast.Name) and n.func.id == name]
 
 
-def _declared_arguments(tree, constants) -> dict[str, str]:
+def _declared_arguments(tree: ast.AST, constants: dict[str, Any]) -> dict[str, Any]:
     """DeclareLaunchArgument name -> default value."""
     declared = {}
     for call in _calls(tree, "DeclareLaunchArgument"):
@@ -81,7 +83,7 @@ def _declared_arguments(tree, constants) -> dict[str, str]:
     return declared
 
 
-def test_launch_file_declares_the_documented_arguments():
+def test_launch_file_declares_the_documented_arguments() -> None:
     tree, constants = _launch_tree()
     declared = _declared_arguments(tree, constants)
     assert REQUIRED_ARGUMENTS <= set(declared), REQUIRED_ARGUMENTS - set(declared)
@@ -90,7 +92,7 @@ def test_launch_file_declares_the_documented_arguments():
     assert set(declared) <= used, f"declared but unused: {set(declared) - used}"
 
 
-def test_launch_file_starts_only_existing_executables():
+def test_launch_file_starts_only_existing_executables() -> None:
     tree, constants = _launch_tree()
     scripts = _console_scripts()
     started = []
@@ -106,7 +108,7 @@ def test_launch_file_starts_only_existing_executables():
     assert (PACKAGE, "grasp-fc-node") in started
 
 
-def test_launch_file_sets_only_parameters_the_node_has():
+def test_launch_file_sets_only_parameters_the_node_has() -> None:
     from grasp_fc_ros.node import PARAMETERS
 
     tree, constants = _launch_tree()
@@ -120,7 +122,7 @@ def test_launch_file_sets_only_parameters_the_node_has():
     assert names <= set(PARAMETERS) | ROS_PARAMETERS, names - set(PARAMETERS) - ROS_PARAMETERS
 
 
-def test_launch_defaults_name_installed_files():
+def test_launch_defaults_name_installed_files() -> None:
     """The default params file and the RViz config are files setup.py installs."""
     setup = (ROOT / "setup.py").read_text()
     source = LAUNCH_FILE.read_text()
@@ -130,7 +132,7 @@ def test_launch_defaults_name_installed_files():
         assert f'"{installed}"' in setup, f"setup.py does not install {installed}"
 
 
-def test_rviz_config_shows_the_node_markers():
+def test_rviz_config_shows_the_node_markers() -> None:
     sys.path.insert(0, str(ROOT / "docs" / "_ext"))
     try:
         from grasp_fc_docs import INTERFACES, describe_qos, resolve_qos
@@ -153,7 +155,7 @@ def test_rviz_config_shows_the_node_markers():
     assert manager["Global Options"]["Fixed Frame"] == constants["FIXED_FRAME"]
 
 
-def test_package_xml_declares_what_the_launch_file_needs():
+def test_package_xml_declares_what_the_launch_file_needs() -> None:
     from catkin_pkg.package import parse_package
 
     package = parse_package(str(ROOT / "package.xml"))
@@ -162,7 +164,7 @@ def test_package_xml_declares_what_the_launch_file_needs():
 
 
 @pytest.mark.timeout(300)
-def test_setup_py_installs_the_launch_file_and_rviz_config(tmp_path):
+def test_setup_py_installs_the_launch_file_and_rviz_config(tmp_path: Path) -> None:
     # Built from a copy, as test_packaging does: setuptools leaves build/ behind.
     source = tmp_path / "src"
     shutil.copytree(ROOT, source, ignore=shutil.ignore_patterns(
@@ -180,13 +182,15 @@ def test_setup_py_installs_the_launch_file_and_rviz_config(tmp_path):
         assert f"{data}/data/share/{PACKAGE}/{installed}" in names, f"{installed} not installed"
 
 
-def test_launch_description_generates_where_launch_ros_is_installed(monkeypatch, tmp_path):
-    if importlib.util.find_spec("launch_ros") is None or importlib.util.find_spec("launch") is None:
-        pytest.skip("launch and launch_ros are not importable here: they are not on PyPI "
-                    "(no ros-jazzy-launch* wheels), only in a ROS 2 install; the other tests "
-                    "of this file check the launch file as data")
-    from launch.actions import DeclareLaunchArgument
-    from launch_ros.actions import Node
+def test_launch_description_generates_where_launch_ros_is_installed(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    try:
+        from launch.actions import DeclareLaunchArgument
+        from launch_ros.actions import Node
+    except ImportError as exc:  # a bare launch/ here is this repository's folder
+        pytest.skip(f"launch and launch_ros are not importable here ({exc}): they are not on "
+                    "PyPI (no ros-jazzy-launch* wheels), only in a ROS 2 install; the other "
+                    "tests of this file check the launch file as data")
 
     # The launch file finds its share folder through the ament index: give it this
     # checkout's files as an installed package.
@@ -198,6 +202,7 @@ def test_launch_description_generates_where_launch_ros_is_installed(monkeypatch,
         shutil.copytree(ROOT / folder, share / folder)
     monkeypatch.setenv("AMENT_PREFIX_PATH", str(prefix))
     spec = importlib.util.spec_from_file_location("force_closure_launch", LAUNCH_FILE)
+    assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     description = module.generate_launch_description()

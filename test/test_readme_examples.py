@@ -20,7 +20,9 @@ import shlex
 import subprocess
 import sys
 import threading
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 import yaml
@@ -70,7 +72,7 @@ def _normalised(text: str) -> str:
     return " ".join(text.split())
 
 
-def assert_prints_in_order(stdout: str, expected: list[str], where: str):
+def assert_prints_in_order(stdout: str, expected: list[str], where: str) -> None:
     lines = [_normalised(line) for line in stdout.splitlines()]
     position = 0
     for text in expected:
@@ -128,7 +130,7 @@ def _parameters() -> set[str]:
     return set(PARAMETERS)
 
 
-def _interface(name: str, kinds: tuple[str, ...]):
+def _interface(name: str, kinds: tuple[str, ...]) -> grasp_fc_docs.Endpoint:
     bare = name.lstrip("/")
     found = [e for e in grasp_fc_docs.INTERFACES
              if e.kind in kinds and e.name.lstrip("/") == bare]
@@ -145,7 +147,7 @@ def _pins() -> dict[str, str]:
     return pins
 
 
-def _check_ros_arguments(arguments: list[str], where: str):
+def _check_ros_arguments(arguments: list[str], where: str) -> None:
     for i, token in enumerate(arguments):
         if token == "-p":
             name = arguments[i + 1].split(":=")[0]
@@ -153,7 +155,7 @@ def _check_ros_arguments(arguments: list[str], where: str):
                 f"{where}: no parameter {name}"
 
 
-def check_command(command: list[str], where: str, payloads: list):
+def check_command(command: list[str], where: str, payloads: list) -> None:
     """Fail if ``command`` names something that does not exist; collect payloads."""
     program, args = command[0], command[1:]
     if program == "make":
@@ -197,7 +199,7 @@ def _positional(args: list[str]) -> list[str]:
     return found
 
 
-def check_ros2(args: list[str], where: str, payloads: list):
+def check_ros2(args: list[str], where: str, payloads: list) -> None:
     verb = args[:2]
     positional = _positional(args[2:])
     if verb == ["run", "grasp_fc_ros"]:
@@ -225,13 +227,13 @@ def check_ros2(args: list[str], where: str, payloads: list):
         assert endpoint.type == type_name, f"{where}: {name} is a {endpoint.type}"
         payloads.append(("action", endpoint, yaml.safe_load(payload), where))
     elif verb[0] == "param":
-        node, name = positional[0], positional[1] if len(positional) > 1 else None
+        node = positional[0]
         assert node.rsplit("/", 1)[-1] == grasp_fc_docs.DEFAULT_NODE_NAME, f"{where}: {node}"
-        if name is not None:
-            assert name in _parameters(), f"{where}: no parameter {name}"
+        for parameter in positional[1:2]:
+            assert parameter in _parameters(), f"{where}: no parameter {parameter}"
 
 
-def shell_blocks():
+def shell_blocks() -> Iterator[tuple[Path, str, int]]:
     for document in SHELL_DOCUMENTS:
         for language, code, line in code_blocks(document):
             if language in ("sh", "bash"):
@@ -240,7 +242,7 @@ def shell_blocks():
 
 # --- filling messages as the ros2 CLI does ----------------------------------------------
 
-def message_class(type_name: str):
+def message_class(type_name: str) -> Any:
     """grasp_fc_msgs/msg/ContactArray -> the class; .../srv/X -> its Request;
     .../action/X -> its Goal."""
     package, kind, name = type_name.split("/")
@@ -249,14 +251,14 @@ def message_class(type_name: str):
             "action": getattr(cls, "Goal", None)}[kind]
 
 
-def _element_class(msg, field: str):
+def _element_class(msg: Any, field: str) -> Any:
     slot = msg.__slots__.index(f"_{field}")
     value_type = msg.SLOT_TYPES[slot].value_type
     module = importlib.import_module(".".join(value_type.namespaces))
     return getattr(module, value_type.name)
 
 
-def fill(msg, values: dict):
+def fill(msg: Any, values: dict) -> Any:
     """Set ``msg``'s fields from a YAML mapping, as ``ros2 topic pub`` does (numbers
     given as integers for floating-point fields become floats)."""
     fields = msg.get_fields_and_field_types()
@@ -279,10 +281,10 @@ def fill(msg, values: dict):
 # --- the node the examples talk to -------------------------------------------------------
 
 @pytest.fixture(scope="module")
-def readme_node(ros):
+def readme_node(ros: None) -> Iterator[Any]:
     """A force_closure node in the root namespace, as the README's examples expect."""
-    from ros_fixtures import SpinThread
     from rclpy.parameter import Parameter
+    from ros_fixtures import SpinThread
 
     from grasp_fc_ros.node import ForceClosureNode
 
@@ -293,7 +295,7 @@ def readme_node(ros):
 
 
 @pytest.fixture(scope="module")
-def example_dir(tmp_path_factory):
+def example_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return tmp_path_factory.mktemp("readme_examples")
 
 
@@ -307,7 +309,7 @@ def _run(args: list[str], cwd: Path, where: str) -> str:
     return done.stdout
 
 
-def _runnable_readme_blocks():
+def _runnable_readme_blocks() -> Iterator[Any]:
     """The README's python blocks and its grasp-fc-label block, in order."""
     for language, code, line in code_blocks(README):
         commands = _commands(code) if language == "sh" else []
@@ -318,7 +320,7 @@ def _runnable_readme_blocks():
 
 # --- the tests ---------------------------------------------------------------------------
 
-def test_readme_is_short_and_shows_the_four_uses_first():
+def test_readme_is_short_and_shows_the_four_uses_first() -> None:
     lines = README.read_text().splitlines()
     assert len(lines) <= MAX_README_LINES, f"README.md has {len(lines)} lines"
     first = "\n".join(lines[:FIRST_SCREENS_LINES])
@@ -330,7 +332,8 @@ def test_readme_is_short_and_shows_the_four_uses_first():
 
 @pytest.mark.timeout(EXAMPLE_TIMEOUT_S * 2)
 @pytest.mark.parametrize("language,code", list(_runnable_readme_blocks()))
-def test_readme_example_runs(language, code, readme_node, example_dir, request):
+def test_readme_example_runs(language: str, code: str, readme_node: Any, example_dir: Path,
+                             request: pytest.FixtureRequest) -> None:
     where = request.node.callspec.id
     if language == "python":
         stdout = _run([sys.executable, "-c", code], example_dir, where)
@@ -344,7 +347,7 @@ def test_readme_example_runs(language, code, readme_node, example_dir, request):
     pytest.param(path, code, id=f"{path.name}:{line}")
     for path in GUIDES_WITH_RUNNABLE_PYTHON
     for language, code, line in code_blocks(path) if language == "python"])
-def test_guide_python_example_runs(path, code, tmp_path):
+def test_guide_python_example_runs(path: Path, code: str, tmp_path: Path) -> None:
     # A guide's later block may continue its first one (same names).
     blocks = [c for language, c, _ in code_blocks(path) if language == "python"]
     prefix = "".join(blocks[:blocks.index(code)])
@@ -356,12 +359,12 @@ def test_guide_python_example_runs(path, code, tmp_path):
 @pytest.mark.parametrize("document,code,line", [
     pytest.param(document, code, line, id=f"{document.name}:{line}")
     for document, code, line in shell_blocks()])
-def test_shell_example_names_exist(document, code, line):
+def test_shell_example_names_exist(document: Path, code: str, line: int) -> None:
     for command in _commands(code):
         check_command(command, f"{document.name}:{line}", [])
 
 
-def test_readme_links_resolve():
+def test_readme_links_resolve() -> None:
     from test_docs import markdown_anchors
 
     text = README.read_text()
@@ -375,13 +378,10 @@ def test_readme_links_resolve():
 
 
 @pytest.mark.timeout(120)
-def test_ros2_cli_payloads_are_answered_as_the_readme_says(readme_node):
+def test_ros2_cli_payloads_are_answered_as_the_readme_says(readme_node: Any) -> None:
     """The payloads of the README's ros2 commands, sent to the node as those would."""
-    from grasp_fc_msgs.msg import ForceClosureVerdict
     from rclpy.node import Node
     from ros_fixtures import SpinThread
-
-    from grasp_fc_ros.node import QUERY_QOS
 
     payloads: list = []
     for language, code, line in code_blocks(README):
@@ -396,43 +396,57 @@ def test_ros2_cli_payloads_are_answered_as_the_readme_says(readme_node):
         for kind, endpoint, values, where in payloads:
             request = fill(message_class(endpoint.type)(), values)
             if kind == "topic":
-                answered = threading.Event()
-                verdicts = []
-
-                def on_verdict(msg, wanted=request.id):
-                    if msg.id == wanted:
-                        verdicts.append(msg)
-                        answered.set()
-
-                probe.create_subscription(ForceClosureVerdict, "/verdicts", on_verdict,
-                                          QUERY_QOS)
-                publisher = probe.create_publisher(type(request), "/" + endpoint.name,
-                                                   QUERY_QOS)
-                _wait(lambda: publisher.get_subscription_count() > 0 and
-                      probe.count_publishers("/verdicts") > 0, where)
-                publisher.publish(request)
-                assert answered.wait(REPLY_TIMEOUT_S), f"{where}: no verdict"
-                assert verdicts[0].force_closure, f"{where}: {verdicts[0]}"
+                verdict = _publish_and_wait(probe, endpoint, request, where)
+                assert verdict.id == request.id and verdict.force_closure, f"{where}: {verdict}"
             else:
-                service = probe.create_client(message_service(endpoint.type),
-                                              "/" + endpoint.name)
-                assert service.wait_for_service(timeout_sec=REPLY_TIMEOUT_S), where
-                done = threading.Event()
-                future = service.call_async(request)
-                future.add_done_callback(lambda _: done.set())
-                assert done.wait(REPLY_TIMEOUT_S), f"{where}: no response"
-                [verdict] = future.result().verdicts
+                [verdict] = _call(probe, endpoint, request, where).verdicts
                 assert verdict.id == request.grasps[0].id and verdict.force_closure, verdict
     finally:
         spinner.stop()
 
 
-def message_service(type_name: str):
+def _publish_and_wait(probe: Any, endpoint: grasp_fc_docs.Endpoint, request: Any,
+                      where: str) -> Any:
+    """Publish ``request`` on the endpoint's topic; the verdict with its id."""
+    from grasp_fc_msgs.msg import ForceClosureVerdict
+
+    from grasp_fc_ros.node import QUERY_QOS
+
+    answered = threading.Event()
+    verdicts = []
+
+    def on_verdict(msg: Any) -> None:
+        if msg.id == request.id:
+            verdicts.append(msg)
+            answered.set()
+
+    probe.create_subscription(ForceClosureVerdict, "/verdicts", on_verdict, QUERY_QOS)
+    publisher = probe.create_publisher(type(request), "/" + endpoint.name, QUERY_QOS)
+    _wait(lambda: publisher.get_subscription_count() > 0
+          and probe.count_publishers("/verdicts") > 0, where)
+    publisher.publish(request)
+    assert answered.wait(REPLY_TIMEOUT_S), f"{where}: no verdict"
+    return verdicts[0]
+
+
+def _call(probe: Any, endpoint: grasp_fc_docs.Endpoint, request: Any, where: str) -> Any:
+    """Call the endpoint's service with ``request``; its response."""
+    service = probe.create_client(message_service(endpoint.type), "/" + endpoint.name)
+    assert service.wait_for_service(timeout_sec=REPLY_TIMEOUT_S), where
+    done = threading.Event()
+    future = service.call_async(request)
+    future.add_done_callback(lambda _: done.set())
+    assert done.wait(REPLY_TIMEOUT_S), f"{where}: no response"
+    return future.result()
+
+
+def message_service(type_name: str) -> Any:
     package, kind, name = type_name.split("/")
     return getattr(importlib.import_module(f"{package}.{kind}"), name)
 
 
-def _wait(condition, where: str, timeout: float = REPLY_TIMEOUT_S):
+def _wait(condition: Callable[[], bool], where: str,
+          timeout: float = REPLY_TIMEOUT_S) -> None:
     import time
 
     deadline = time.monotonic() + timeout

@@ -22,10 +22,12 @@ import pkgutil
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
 from docutils import nodes
 from docutils.parsers.rst import directives
 from docutils.statemachine import StringList
+from sphinx.application import Sphinx
 from sphinx.util import logging
 from sphinx.util.docutils import SphinxDirective
 from sphinx.util.nodes import nested_parse_with_titles
@@ -147,7 +149,7 @@ KIND_GROUPS = {"subscriptions": ("subscription",), "publications": ("publisher",
                "services": ("service",), "actions": ("action",)}
 
 
-def import_object(path: str):
+def import_object(path: str) -> Any:
     """Return the object at the dotted ``path`` (module, then attributes)."""
     parts = path.split(".")
     for split in range(len(parts) - 1, 0, -1):
@@ -164,7 +166,7 @@ def import_object(path: str):
     raise ImportError(f"cannot import {path}")
 
 
-def resolve_qos(endpoint: Endpoint):
+def resolve_qos(endpoint: Endpoint) -> Any:
     """Return the QoS profile the code uses for ``endpoint`` (None for services/actions)."""
     if endpoint.depth is not None:
         from rclpy.qos import QoSProfile
@@ -182,7 +184,7 @@ def resolve_qos(endpoint: Endpoint):
     return None
 
 
-def describe_qos(profile) -> str:
+def describe_qos(profile: Any) -> str:
     """``reliable, keep all`` / ``reliable, keep last 10,000, transient local``."""
     if profile is None:
         return ""
@@ -202,7 +204,7 @@ def _definition_link(type_name: str) -> str:
     return f"``{type_name}``"
 
 
-def _from_srcdir(srcdir, path: Path) -> str:
+def _from_srcdir(srcdir: str | Path, path: Path) -> str:
     """``path`` relative to the Sphinx source folder (a leading ``/`` in an include
     means that folder)."""
     return os.path.relpath(path, srcdir)
@@ -288,7 +290,7 @@ class ParametersDirective(_GeneratedRst):
                            widths="14 7 9 16 9 45")
 
 
-def _value(value) -> str:
+def _value(value: object) -> str:
     """A parameter value as it is written on the command line or in YAML."""
     if isinstance(value, bool):
         return str(value).lower()
@@ -299,7 +301,7 @@ def _value(value) -> str:
     return str(value)
 
 
-def _accepted(descriptor) -> str:
+def _accepted(descriptor: Any) -> str:
     """The accepted values as the descriptor states them."""
     for r in descriptor.integer_range:
         return f"{r.from_value:,} to {r.to_value:,}"
@@ -399,7 +401,8 @@ def _autodoc(module: ModuleType, name: str) -> list[str]:
     return [f".. autodata:: {target}", "   :no-value:", ""]
 
 
-def plain_text_maths(app, what, name, obj, options, lines: list[str]) -> None:
+def plain_text_maths(app: Sphinx, what: str, name: str, obj: object, options: object,
+                     lines: list[str]) -> None:
     """Make the docstrings' plain-text maths render as written.
 
     The package's docstrings write formulas as plain text: ``|f_t|`` for a norm, and
@@ -480,7 +483,7 @@ def _escape_bars(lines: list[str]) -> list[str]:
 OPTIONAL_PAGES = ("epsilon",)
 
 
-def drop_missing_optional_pages(app, docname: str, source: list[str]) -> None:
+def drop_missing_optional_pages(app: Sphinx, docname: str, source: list[str]) -> None:
     """Remove toctree lines of :data:`OPTIONAL_PAGES` that have no file from the index."""
     if docname != app.config.root_doc:
         return
@@ -493,7 +496,7 @@ def drop_missing_optional_pages(app, docname: str, source: list[str]) -> None:
                                if line.strip() not in missing)
 
 
-def setup(app):
+def setup(app: Sphinx) -> dict[str, Any]:
     app.connect("source-read", drop_missing_optional_pages)
     # Before napoleon (priority 500), which rewrites the numpy sections.
     app.connect("autodoc-process-docstring", plain_text_maths, priority=400)
