@@ -453,3 +453,42 @@ def _wait(condition: Callable[[], bool], where: str,
     while not condition():
         assert time.monotonic() < deadline, f"{where}: the node's topics did not match"
         time.sleep(0.05)
+
+
+def _readme_table(first_header: str) -> list[list[str]]:
+    """Rows of the README table whose first header cell is ``first_header``."""
+    lines = README.read_text().splitlines()
+    start = next(i for i, line in enumerate(lines)
+                 if line.startswith(f"| {first_header} |"))
+    rows = []
+    for line in lines[start + 2:]:
+        if not line.startswith("|"):
+            break
+        rows.append([cell.replace("`", "").strip() for cell in line.strip("|").split("|")])
+    return rows
+
+
+def test_readme_interface_tables_match_the_node_reference() -> None:
+    kinds = {"subscribed": "subscription", "published": "publisher"}
+    for name, direction, type_name, _ in _readme_table("topic"):
+        endpoint = _interface(name, (kinds[direction],))
+        assert endpoint.type == type_name, f"README: {name} is a {endpoint.type}"
+    for name, type_name, _ in _readme_table("service or action"):
+        endpoint = _interface(name.split()[0], ("service", "action"))
+        assert endpoint.type == type_name, f"README: {name} is a {endpoint.type}"
+    documented = {e.name for e in grasp_fc_docs.INTERFACES}
+    listed = {row[0] for row in _readme_table("topic")} | {
+        row[0].split()[0] for row in _readme_table("service or action")}
+    assert listed == documented, f"README lacks {documented - listed}"
+
+
+def test_readme_parameter_table_matches_the_node() -> None:
+    from grasp_fc_ros.node import PARAMETERS
+
+    types = {bool: "bool", int: "integer", float: "double", str: "string"}
+    for name, type_name, default, _ in _readme_table("parameter"):
+        assert name in PARAMETERS, f"README: no parameter {name}"
+        value = PARAMETERS[name][0]
+        assert types[type(value)] == type_name, f"README: {name} is a {types[type(value)]}"
+        shown = str(value).lower() if isinstance(value, bool) else str(value)
+        assert default.replace(",", "") == shown, f"README: {name} defaults to {shown}"
