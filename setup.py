@@ -12,6 +12,9 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml", "CHANGELOG.rst", "LICENSE"]),
         ("share/" + package_name + "/config", ["config/force_closure.yaml"]),
+        # `ros2 launch grasp_fc_ros force_closure.launch.py` and its RViz config.
+        ("share/" + package_name + "/launch", ["launch/force_closure.launch.py"]),
+        ("share/" + package_name + "/rviz", ["rviz/force_closure.rviz"]),
     ],
     # rclpy and the grasp_fc_msgs interfaces come from the ROS prefix, not PyPI.
     # scipy: the core hands Clarabel scipy.sparse matrices.
