@@ -1,50 +1,15 @@
-"""grasp_fc_ros.client: the README example against a node process, and the client's
-own rules (time-outs, the in-flight window, duplicate ids) without any node."""
+"""grasp_fc_ros.client: the client's own rules (time-outs, the in-flight window,
+duplicate ids) without any node. The README's client examples run against a node in
+test/tooling/test_readme_examples.py."""
 
 from __future__ import annotations
 
-import os
-import re
-import signal
-import subprocess
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
-from ros_domains import claim_domain_id
-from ros_fixtures import NodeProcess, node_command
 
 from grasp_fc_ros.client import GraspClient
 
 pytestmark = pytest.mark.timeout(120)
-
-README = Path(__file__).resolve().parents[2] / "README.md"
-
-
-def readme_example() -> str:
-    section = README.read_text().split("### From Python: `grasp_fc_ros.client`", 1)[1]
-    return re.search(r"```python\n(.*?)```", section, re.S).group(1)
-
-
-def test_readme_example_runs_against_a_node_process():
-    # A domain of its own: the example talks to the default node name, which other tests
-    # of this run also start.
-    env = dict(os.environ, ROS_DOMAIN_ID=str(claim_domain_id()))
-    node = NodeProcess(node_command(), env)
-    try:
-        done = subprocess.run([sys.executable, "-c", readme_example()], capture_output=True,
-                              text=True, timeout=90, env=env)
-    finally:
-        node.stop(signal.SIGTERM)
-    assert done.returncode == 0, done.stderr
-    # "[0 2 0 ...] 0 [0 0]": the batch's statuses, one single verdict, two from the service.
-    first, single, served = re.match(r"^\[([\d\s]+)\] (\d) \[([\d\s]+)\]$",
-                                     done.stdout.strip(), re.S).groups()
-    batch = np.array(first.split(), dtype=int)
-    assert len(batch) == 100 and set(batch) <= {0, 1, 2}
-    assert int(single) == batch[0] and served.split() == [str(b) for b in batch[:2]]
-
 
 @pytest.fixture
 def lonely(ros):

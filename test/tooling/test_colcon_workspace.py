@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 import pytest
+
 from ros_domains import claim_domain_id
 
 REPO = Path(__file__).resolve().parents[2]

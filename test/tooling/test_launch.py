@@ -20,7 +20,7 @@ from typing import Any
 import pytest
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 LAUNCH_FILE = ROOT / "launch" / "force_closure.launch.py"
 RVIZ_FILE = ROOT / "rviz" / "force_closure.rviz"
 PACKAGE = "grasp_fc_ros"

@@ -27,7 +27,7 @@ from typing import Any
 import pytest
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
 # Guides whose Python blocks are ROS-free and self-contained.
 GUIDES_WITH_RUNNABLE_PYTHON = (ROOT / "docs" / "core.md", ROOT / "docs" / "soft_fingers.md")
@@ -284,9 +284,10 @@ def fill(msg: Any, values: dict) -> Any:
 def readme_node(ros: None) -> Iterator[Any]:
     """A force_closure node in the root namespace, as the README's examples expect."""
     from rclpy.parameter import Parameter
-    from ros_fixtures import SpinThread
 
     from grasp_fc_ros.node import ForceClosureNode
+
+    from ros_fixtures import SpinThread
 
     node = ForceClosureNode(parameter_overrides=[Parameter("workers", value=0)])
     spinner = SpinThread(node)
@@ -381,6 +382,7 @@ def test_readme_links_resolve() -> None:
 def test_ros2_cli_payloads_are_answered_as_the_readme_says(readme_node: Any) -> None:
     """The payloads of the README's ros2 commands, sent to the node as those would."""
     from rclpy.node import Node
+
     from ros_fixtures import SpinThread
 
     payloads: list = []
@@ -410,7 +412,7 @@ def _publish_and_wait(probe: Any, endpoint: grasp_fc_docs.Endpoint, request: Any
     """Publish ``request`` on the endpoint's topic; the verdict with its id."""
     from grasp_fc_msgs.msg import ForceClosureVerdict
 
-    from grasp_fc_ros.node import QUERY_QOS
+    from grasp_fc_ros.interface.names import QUERY_QOS
 
     answered = threading.Event()
     verdicts = []

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 # Ubuntu 24.04's python3-numpy and python3-scipy, which an apt Jazzy's rclpy uses.
 JAZZY_PACKAGES = {"numpy": "1.26.4", "scipy": "1.11.4"}
 # Installed from PyPI at this project's pins (requirements.txt, constraints.txt).
