@@ -1,9 +1,12 @@
 """Talk to a running ``force_closure`` node from Python: :class:`GraspClient`.
 
 Imports only :mod:`grasp_fc_ros.interface` (names, QoS, conversions) and the data types
-of :mod:`grasp_fc_ros.engine.evaluation`: never the node, its worker pool or its markers.
+of :mod:`grasp_fc_ros.engine.packed` and :mod:`grasp_fc_ros.engine.contact_forces`:
+never the node, its worker pool, its long jobs or its markers
+(test/client/test_client_imports.py checks).
 """
 
-from .grasp_client import GraspClient, request_on_spin_thread
+from .grasp_client import GraspClient
+from .label_action import request_on_spin_thread
 
 __all__ = ["GraspClient", "request_on_spin_thread"]
