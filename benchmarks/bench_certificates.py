@@ -76,7 +76,8 @@ def main(argv=None) -> int:
     print(f"{N_FINGERS}-finger grasps on {args.object}, batches of {n}, machine shared:")
     base_rate, base_cpu, base_single, base_size = (results["off"][i] for i in (0, 2, 3, 5))
     for tag, (rate, complete, cpu, single, lossless, size) in results.items():
-        print(f"  {tag:<26} batch {rate:9.0f} grasps/s ({ratio_or_nan(rate, base_rate):5.2f}x off), "
+        print(f"  {tag:<26} batch {rate:9.0f} grasps/s "
+              f"({ratio_or_nan(rate, base_rate):5.2f}x off), "
               f"{cpu * 1e3:.4f} CPU ms/grasp ({ratio_or_nan(cpu, base_cpu):5.2f}x)"
               f"{'' if complete else ' INCOMPLETE'}; single {single:6.0f} queries/s "
               f"({ratio_or_nan(single, base_single):4.2f}x){'' if lossless else ' LOST'}; "

@@ -9,8 +9,8 @@
    at a time, on the ``contacts`` topic (GraspClient.submit) and the service; rounds of
    ``--queries`` round trips alternate off, on, off, on ... (the parameter is set at
    run time), so both see the same machine load. A subscriber in a process of its own
-   receives the markers (serialized, as RViz's C++ would cheaply) and counts them. Prints p50/p99 per setting and the
-   ratio of the p50s (the issue's target: on <= 1.1 x off).
+   receives the markers (serialized, as RViz's C++ would cheaply) and counts them. Prints
+   p50/p99 per setting and the ratio of the p50s (the issue's target: on <= 1.1 x off).
 
     .venv/bin/python benchmarks/bench_markers.py [--queries 200] [--rounds 6]
     .venv/bin/python benchmarks/bench_markers.py --no-node     # only 1.
@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import os
-from pathlib import Path
 import signal
 import statistics
 import subprocess
@@ -28,6 +27,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -140,10 +140,9 @@ def round_trips_ms(send: Callable[[int], object], n: int, first_id: int) -> list
 def bench_node(queries: int, rounds: int) -> None:
     """2.: one-query round trips through the node with publish_markers off and on."""
     import rclpy
+    from bench_ros import start_node, stop_node
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter_client import AsyncParameterClient
-
-    from bench_ros import start_node, stop_node
 
     p, n = sample_grasps(make_object("box"), 1000, FINGERS, np.random.default_rng(1))
     rclpy.init()

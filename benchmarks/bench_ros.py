@@ -46,8 +46,8 @@ from timing import ratio_or_nan
 
 from grasp_fc_ros.client import GraspClient
 from grasp_fc_ros.core import check_force_closure, warm_up
-from grasp_fc_ros.objects import make_object, sample_grasps
 from grasp_fc_ros.engine.chunking import CHUNK_CONTACTS
+from grasp_fc_ros.objects import make_object, sample_grasps
 
 N_FINGERS = 6
 CONNECT_TIMEOUT_S = 30.0
@@ -334,7 +334,8 @@ def main(argv=None) -> int:
               f"[target >= {TARGET_SINGLE_PER_S}/s: "
               f"{verdict(lossless and rate >= TARGET_SINGLE_PER_S)}]")
         print(f"    node CPU per query {1e3 * single_cpu:.3f} ms (node and workers) -> at most "
-              f"{ratio_or_nan(os.cpu_count(), single_cpu):.0f} queries/s on {os.cpu_count()} idle cores; "
+              f"{ratio_or_nan(os.cpu_count(), single_cpu):.0f} queries/s on "
+              f"{os.cpu_count()} idle cores; "
               f"client (this process) {1e3 * client_cpu:.3f} ms -> both on these cores at most "
               f"{ratio_or_nan(os.cpu_count(), single_cpu + client_cpu):.0f} queries/s")
         print(f"    of the client's CPU per query, {1e3 * gc_timer.seconds / args.queries:.3f} ms "
@@ -365,9 +366,10 @@ def main(argv=None) -> int:
         print(f"batches of {args.batch_size}: median of {args.rounds} rounds "
               f"{ratio:.2f}x the core alone in one process (rounds: "
               + ", ".join(f"{r:.0f}/{c:.0f} grasps/s = {r / c:.2f}x"
-                          for r, c in zip(ros_rates, core_rates))
+                          for r, c in zip(ros_rates, core_rates, strict=True))
               + f"){'' if complete else ' (INCOMPLETE replies)'}  "
-              f"[target >= {TARGET_BATCH_RATIO}x: {verdict(complete and ratio >= TARGET_BATCH_RATIO)}]")
+              f"[target >= {TARGET_BATCH_RATIO}x: "
+              f"{verdict(complete and ratio >= TARGET_BATCH_RATIO)}]")
         print(f"    the core alone in {n_cpus} processes at once (no ROS, no node): median "
               f"{np.median(ceilings):.2f}x one process (rounds: "
               + ", ".join(f"{c:.2f}x" for c in ceilings)
@@ -376,7 +378,8 @@ def main(argv=None) -> int:
 
         idle = bench_service(client, positions, normals, args.service_calls)
         print(f"service round trip (one grasp): {percentiles(idle)}  [target p50 <= "
-              f"{TARGET_SERVICE_P50_MS} ms: {verdict(np.percentile(idle, 50) <= TARGET_SERVICE_P50_MS)}]")
+              f"{TARGET_SERVICE_P50_MS} ms: "
+              f"{verdict(np.percentile(idle, 50) <= TARGET_SERVICE_P50_MS)}]")
 
         big_p, big_n = sample_grasps(surface, args.big_batch, N_FINGERS, rng)
         big = client.submit_batch(big_p, big_n)

@@ -5,11 +5,11 @@ thread, with its ``publish_markers`` parameter on, and a client node that sends 
 6-finger grasps on a built-in object to it: a few single-grasp ``ContactArray``
 queries on ``contacts``, then the rest through the ``label_grasps`` action (goals of
 :data:`GOAL_GRASPS` at most), with a progress bar fed by the action's feedback (Ctrl-C
-cancels the goal and keeps the verdicts decided so far), and one service call. Every message still goes through
-DDS (serialised, delivered, deserialised); only the process is shared, which keeps
-start-up fast and needs no discovery of a second process. Both nodes live in a
-namespace of their own (``/grasp_fc_demo_<pid>``) so a node started elsewhere with
-``grasp-fc-node`` cannot answer the demo's queries. At the end it writes a PNG of the
+cancels the goal and keeps the verdicts decided so far), and one service call. Every
+message still goes through DDS (serialised, delivered, deserialised); only the process
+is shared, which keeps start-up fast and needs no discovery of a second process. Both
+nodes live in a namespace of their own (``/grasp_fc_demo_<pid>``) so a node started
+elsewhere with ``grasp-fc-node`` cannot answer the demo's queries. At the end it writes a PNG of the
 RViz markers of one grasp per verdict (:mod:`grasp_fc_ros.markers.render`).
 
 Usage::

@@ -13,8 +13,8 @@ import pytest
 @pytest.fixture(scope="session")
 def ros():
     """rclpy initialised once for the whole run, on this run's own ROS_DOMAIN_ID."""
-    import ros_fixtures  # noqa: F401 - sets ROS_DOMAIN_ID before rclpy starts
     import rclpy
+    import ros_fixtures  # noqa: F401 - sets ROS_DOMAIN_ID before rclpy starts
 
     if not rclpy.ok():
         rclpy.init()
@@ -23,28 +23,31 @@ def ros():
 
 @pytest.fixture
 def own_node(ros):
-    """Factory: make_node(namespace, **parameters) -> (node, spinner, client).
+    """Factory: make_node(namespace, pool=None, **parameters) -> (node, spinner, client).
 
     A ForceClosureNode of its own in ``namespace`` (so no other node answers), spun on
-    its own thread, with a connected raw-protocol client; both torn down after the test.
+    its own thread, with a connected raw-protocol client; both torn down after the test
+    (and ``pool``, the node's pool if given, closed).
     """
-    from ros_fixtures import Client, SpinThread
     from rclpy.parameter import Parameter
+    from ros_fixtures import Client, SpinThread
 
     from grasp_fc_ros.node import ForceClosureNode
 
     made = []
 
-    def make_node(namespace, **parameters):
-        node = ForceClosureNode(namespace=namespace, parameter_overrides=[
+    def make_node(namespace, pool=None, **parameters):
+        node = ForceClosureNode(namespace=namespace, pool=pool, parameter_overrides=[
             Parameter(name, value=value) for name, value in parameters.items()])
         spinner = SpinThread(node)
         client = Client(f"{namespace.strip('/')}_client", namespace=namespace)
-        made.append((spinner, client))
+        made.append((spinner, client, pool))
         client.wait_connected()
         return node, spinner, client
 
     yield make_node
-    for spinner, client in made:
+    for spinner, client, pool in made:
         client.close()
         spinner.stop()
+        if pool is not None:
+            pool.close()

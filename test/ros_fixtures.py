@@ -27,14 +27,18 @@ os.environ["ROS_DOMAIN_ID"] = str(claim_domain_id())
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 import pytest  # noqa: E402
-import rclpy  # noqa: E402
+from grasp_fc_msgs.msg import (  # noqa: E402  # noqa: E402
+    ContactArray,
+    ContactArrayBatch,
+    ForceClosureVerdict,
+    ForceClosureVerdictArray,
+)
+from grasp_fc_msgs.srv import CheckForceClosure  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 
-from grasp_fc_msgs.msg import ContactArray, ContactArrayBatch  # noqa: E402
-from grasp_fc_msgs.msg import ForceClosureVerdict, ForceClosureVerdictArray  # noqa: E402
-from grasp_fc_msgs.srv import CheckForceClosure  # noqa: E402
 from grasp_fc_ros.interface.names import QUERY_QOS as RELIABLE  # noqa: E402 - the documented QoS
+
 DISCOVERY_TIMEOUT_S = 20.0
 REPLY_TIMEOUT_S = 20.0
 NODE_EXIT_TIMEOUT_S = 10.0
@@ -217,5 +221,5 @@ class NodeProcess:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             out, err = self.proc.communicate()
-            raise AssertionError(f"node did not exit after {sig!r}; stderr:\n{err}")
+            raise AssertionError(f"node did not exit after {sig!r}; stderr:\n{err}") from None
         return self.proc.returncode, out, err

@@ -3,8 +3,8 @@
 A rosidl-generated constructor builds a default for every field (a
 ``ForceClosureVerdict``: a header with its stamp, a wrench with two vectors, ...) and
 sets each through a property that checks its type, before the caller replaces them.
-Six ``Contact`` messages took 57 us that way and 7 us here (measured): on the one-grasp
-service path and for every single verdict that is a measurable share of a query. The
+That costs several times what is done here (docs/performance.md#wire-format): on the
+one-grasp service path and for every single verdict, a measurable share of a query. The
 builders below set the values straight into the message's slots: rosidl keeps field
 ``f`` in slot ``_f``, next to ``_check_fields``.
 
@@ -126,7 +126,7 @@ def contact_array_batch(header: Header, client_id: int, request_id: int,
                         sequences: list[array.array]) -> ContactArrayBatch:
     """``sequences``: ids ("Q"), contact_counts ("I"), positions, normals,
     friction_coefficients, torsional_friction ("d"), in that order. The generated
-    setters copy each array.array again (3 MB for a 10,000-grasp batch)."""
+    setters would copy each array.array again."""
     if not FAST:
         msg = ContactArrayBatch(header=header, client_id=client_id, request_id=request_id)
         (msg.ids, msg.contact_counts, msg.positions, msg.normals, msg.friction_coefficients,

@@ -3,10 +3,8 @@ instead of an executor.
 
 rclpy's executors rebuild their wait set from every entity of their nodes at each
 wake-up and run each request and each response as a Task; for a one-grasp
-``check_force_closure`` call that costs more than deciding the grasp. A round trip to a
-bare server of this service type that does no work took 1.05-1.56 ms p50 on an executor
-and 0.70-0.77 ms on :class:`ServiceLoop` (same client, same machine, alternating
-servers).
+``check_force_closure`` call that costs more than deciding the grasp
+(docs/performance.md#service-latency).
 
 :class:`ServiceLoop` takes one request at a time, calls its service's callback and sends
 the response, as ``SingleThreadedExecutor`` would; :class:`ServiceCaller` sends a
@@ -24,7 +22,8 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from rclpy.callback_groups import CallbackGroup
 from rclpy.client import Client

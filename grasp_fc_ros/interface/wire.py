@@ -7,7 +7,7 @@ node's cost. This module reads many serialized queries at once with numpy into a
 :class:`~grasp_fc_ros.engine.evaluation.PackedGrasps` and writes each verdict's bytes
 directly, copying the query's header, ``client_id`` and ``id`` bytes verbatim.
 
-The layout is the plain little-endian CDR (XCDR1) that rmw_fastrtps writes (measured
+The layout is the plain little-endian CDR (XCDR1) that rmw_fastrtps writes (checked
 here; other rmws that write the same pass the check below too): a 4-byte encapsulation
 header, then each field aligned to its own size, counted from after that header.
 Padding bytes are not initialised by rclpy, so nothing here reads or compares them.
@@ -28,14 +28,19 @@ import struct
 from dataclasses import dataclass
 
 import numpy as np
+from grasp_fc_msgs.msg import (
+    Contact,
+    ContactArray,
+    ContactArrayBatch,
+    ForceClosureVerdict,
+    ForceClosureVerdictArray,
+)
 from numpy.typing import ArrayLike
-from grasp_fc_msgs.msg import (Contact, ContactArray, ContactArrayBatch, ForceClosureVerdict,
-                                ForceClosureVerdictArray)
 from std_msgs.msg import Header
 
+from grasp_fc_ros.engine.packed import PackedGrasps, Verdicts
 from grasp_fc_ros.interface import message_slots as slots
 from grasp_fc_ros.interface.conversions import BatchArrays, batch_msg, grasps_to_batch_msg
-from grasp_fc_ros.engine.packed import PackedGrasps, Verdicts
 
 __all__ = ["ContactQueries", "decode_contact_array_batch", "decode_contact_arrays",
            "decode_verdict", "decode_verdict_array", "encode_contact_array",
@@ -140,7 +145,7 @@ def decode_contact_arrays(raws: list[bytes]) -> ContactQueries:
     base, ids_at, counts = base[index], ids_at[index], counts[index]
     values = _contact_values(buffer, base + contacts_at[index], counts)
     prefixes = [raws[i][:_ENCAPSULATION + a + 16]
-                for i, a in zip(index.tolist(), ids_at.tolist())]
+                for i, a in zip(index.tolist(), ids_at.tolist(), strict=True)]
     packed = PackedGrasps(ids=_gather(buffer, base + ids_at + 8, "<u8").astype(np.uint64),
                           counts=counts, positions=values[:, 0:3], normals=values[:, 3:6],
                           mu=values[:, 6], name_by_id=True)
@@ -186,7 +191,8 @@ def encode_verdicts(prefixes: list[bytes], force_closure: ArrayLike, status: Arr
     empty_tail = _message_tail("")
     for prefix, fc, st, m, text in zip(prefixes, np.asarray(force_closure).tolist(),
                                        np.asarray(status).tolist(),
-                                       np.asarray(margin, dtype=np.float64).tolist(), messages):
+                                       np.asarray(margin, dtype=np.float64).tolist(), messages,
+                                       strict=True):
         tail = empty_tail if not text else _message_tail(text)
         out.append(prefix + _VERDICT_HEAD.pack(fc, st, m) + tail)
     return out
@@ -320,13 +326,14 @@ def _batch_layout_matches() -> bool:
 # --- batch verdicts: ForceClosureVerdictArray ------------------------------------------
 #
 # rclpy converts each of a verdict array's string[] messages and bool[] force_closure
-# elements one Python object at a time: measured ~100-130 ms of GIL time to publish the
-# answer of a 100,000-grasp batch (during which the node's service thread waits), and as
-# much again for a client to take it. Written and read here with numpy instead.
+# elements one Python object at a time, holding the GIL (the node's service thread
+# waits meanwhile), and as long again for a client to take it. Written and read here
+# with numpy instead (docs/performance.md#wire-format).
 
 _UINT32 = struct.Struct("<I")
-# Above this share of non-empty messages (e.g. a batch of invalid grasps) rclpy's own
-# serialization is the faster one, measured: numpy pays per string here.
+# Above this share of distinct non-empty messages (e.g. a batch of invalid grasps, each
+# naming its grasp) rclpy's own serialization is the faster one: numpy pays per string
+# here (docs/performance.md#wire-format).
 MAX_MESSAGE_SHARE = 1 / 16
 # An empty string in a string[]: length 1 (its NUL), the NUL, padding to 4.
 _EMPTY_STRING = b"\x01\0\0\0\0\0\0\0"
@@ -547,11 +554,10 @@ def _decode_verdict_array(raw: bytes) -> tuple[int, int, Verdicts]:
 
 # --- batches of grasps: ContactArrayBatch ----------------------------------------------
 #
-# The node takes batches serialized: a subscriber process spent 8.0 ms of CPU per
-# 10,000-grasp batch (3 MB) taking rclpy's message, 3.1-3.6 ms taking the bytes and
-# reading them here (measured), CPU the node's workers need. The client still publishes
-# messages: rclpy's raw publish cost more than its message publish (4.4-6.5 against
-# 3.0-3.5 ms, measured).
+# The node takes batches serialized and reads them here: less than half the CPU of
+# taking rclpy's message, CPU the node's workers need. The client still publishes
+# messages: rclpy's raw publish cost more than its message publish
+# (docs/performance.md#wire-format).
 
 
 # Wire types of BatchArrays' fields, in message order.
@@ -622,9 +628,9 @@ _VERDICT_BODY = struct.Struct("<?B6xdI")
 def decode_verdict(raw: bytes) -> ForceClosureVerdict:
     """A serialized little-endian CDR ``ForceClosureVerdict`` as a message object.
 
-    Builds the message from its fields (:mod:`grasp_fc_ros.interface.message_slots`): measured
-    6 against 25-42 us for rclpy's ``deserialize_message`` of a verdict without
-    certificates.
+    Builds the message from its fields (:mod:`grasp_fc_ros.interface.message_slots`):
+    a fraction of rclpy's ``deserialize_message`` for a verdict without certificates
+    (docs/performance.md#wire-format).
 
     Raises
     ------

@@ -13,8 +13,7 @@ which computes the separating wrench of the rejected grasps with
 
 Why a process: building one grasp's markers costs several times a one-grasp core call
 (benchmarks/bench_markers.py), and on a thread of the node that work held the GIL
-while the next query waited for it: measured, markers on made the single-query round
-trip 1.7-2.3x longer. When the marker process falls behind, the oldest queued marker
+while the next query waited for it (docs/performance.md#markers). When the marker process falls behind, the oldest queued marker
 work is dropped (and counted), never a verdict.
 """
 
@@ -39,8 +38,8 @@ from std_msgs.msg import Header
 from visualization_msgs.msg import MarkerArray
 
 from grasp_fc_ros.core import Status, check_force_closure
-from grasp_fc_ros.engine.packed import Verdicts
 from grasp_fc_ros.engine.child_process import ONE_THREAD_ENV, read_message, write_message
+from grasp_fc_ros.engine.packed import Verdicts
 from grasp_fc_ros.interface.conversions import (
     MalformedBatch,
     batch_to_packed,
@@ -191,7 +190,8 @@ class _Job:
         starts = packed.starts[drawn]
         counts = packed.counts[drawn]
         rows = np.concatenate([np.arange(lo, lo + c) for lo, c in
-                               zip(starts.tolist(), counts.tolist())] or [np.empty(0, int)])
+                               zip(starts.tolist(), counts.tolist(), strict=True)]
+                              or [np.empty(0, int)])
         return MarkerPayload(
             frame_id=header.frame_id,
             stamp=(header.stamp.sec, header.stamp.nanosec),
@@ -228,10 +228,14 @@ class MarkerPublisher:
         Builds and publishes; called from the thread only, one payload at a time.
     on_error : callable(what, exception)
         Told about marker work that failed (it never reaches the verdict path).
+
+    Attributes
+    ----------
+    sink : MarkerSink
     """
 
     def __init__(self, sink: MarkerSink, on_error: Callable[[str, Exception], None]) -> None:
-        self._sink = sink
+        self.sink = sink
         self._on_error = on_error
         self._lock = threading.Condition()
         self._jobs: deque[_Job | None] = deque()  # None: publish a DELETEALL
@@ -251,7 +255,7 @@ class MarkerPublisher:
         ``friction_coefficient``. The node calls the ``offer_*`` methods only when
         ``settings.enabled``.
         """
-        for query, reply in zip(queries, replies):
+        for query, reply in zip(queries, replies, strict=True):
             self._queue(_Job(queries=[query], status=[reply.status],
                              margin=[reply.margin], default_mu=default_mu,
                              settings=settings, limit=1))
@@ -261,7 +265,7 @@ class MarkerPublisher:
         """:meth:`offer_singles` for queries the node took serialized (``raws``, one per
         verdict of ``verdicts``); they are deserialized on the marker thread."""
         for raw, status, margin in zip(raws, verdicts.status.tolist(),
-                                       verdicts.margin.tolist()):
+                                       verdicts.margin.tolist(), strict=True):
             self._queue(_Job(queries=[raw], status=[status], margin=[margin],
                              default_mu=default_mu, settings=settings, limit=1))
 
@@ -291,7 +295,7 @@ class MarkerPublisher:
     def start(self) -> None:
         """Start the sink now (the node does when publish_markers turns on), so that
         viewers have discovered the marker topic before the first markers go out."""
-        self._sink.start()
+        self.sink.start()
 
     def clear(self) -> None:
         """Discard queued marker work and publish a DELETEALL (in that order)."""
@@ -310,7 +314,7 @@ class MarkerPublisher:
         with self._lock:
             self._closing = True
             self._lock.notify_all()
-        self._sink.close()
+        self.sink.close()
         self._thread.join()
 
     def _queue(self, job: _Job) -> None:
@@ -334,9 +338,9 @@ class MarkerPublisher:
                 job = self._jobs.popleft()
             try:
                 if job is None:
-                    self._sink.clear()
+                    self.sink.clear()
                     continue
-                drawn = self._sink.draw(job.portable())
+                drawn = self.sink.draw(job.portable())
                 with self._lock:
                     self.published += drawn
             except MalformedBatch:
@@ -354,15 +358,15 @@ def draw(work: _Job | MarkerPayload) -> MarkerArray:
     """All markers of one payload's grasps in one MarkerArray, with separating wrenches.
 
     A job is converted to its payload here, in the marker process: deserializing and
-    packing cost the node's process 0.2-0.3 ms per single query (measured), on a thread
-    that shares the GIL with the verdict path.
+    packing would cost the node's process time on a thread that shares the GIL with the
+    verdict path (docs/performance.md#markers).
     """
     payload = work.payload() if isinstance(work, _Job) else work
     starts = np.concatenate(([0], np.cumsum(payload.counts)[:-1])).astype(np.int64)
     wrenches = separating_wrenches(payload, starts)
     stamp = Time(sec=payload.stamp[0], nanosec=payload.stamp[1])
     out = MarkerArray()
-    for i, (lo, count) in enumerate(zip(starts.tolist(), payload.counts.tolist())):
+    for i, (lo, count) in enumerate(zip(starts.tolist(), payload.counts.tolist(), strict=True)):
         rows = slice(lo, lo + count)
         out.markers.extend(grasp_markers(
             payload.positions[rows], payload.normals[rows], payload.mu[rows],
@@ -390,7 +394,8 @@ def separating_wrenches(payload: MarkerPayload, starts: np.ndarray) -> dict[int,
             payload.positions[rows].reshape(*shape, 3), payload.normals[rows].reshape(*shape, 3),
             payload.mu[rows].reshape(shape), margin="bound", certificates=True)
         assert result.separating_wrench is not None  # certificates=True
-        for i, wrench, fc in zip(indices, result.separating_wrench, result.force_closure):
+        for i, wrench, fc in zip(indices, result.separating_wrench, result.force_closure,
+                                 strict=True):
             if not fc and np.isfinite(wrench).all():
                 wrenches[i] = wrench
     return wrenches
@@ -421,6 +426,11 @@ class MarkerProcess:
         self._ready = False  # the running process said it is ready
         self._closed = False
         self._lock = threading.Lock()
+
+    @property
+    def process(self) -> subprocess.Popen | None:
+        """The marker process, once started (None before, and after :meth:`close`)."""
+        return self._process
 
     def start(self) -> None:
         self._running()
@@ -475,9 +485,9 @@ class MarkerProcess:
 
 def _run_when_idle() -> None:
     """Put this process under Linux's SCHED_IDLE policy: it runs only on CPU time no
-    other process wants, and yields at once when the node or its clients wake up (with
-    niceness +10 alone, markers on still made single-query round trips ~13% longer on
-    the 2-core machine: measured). Elsewhere, niceness +10."""
+    other process wants, and yields at once when the node or its clients wake up
+    (niceness +10 alone still slowed the single queries: docs/performance.md#markers).
+    Elsewhere, niceness +10."""
     try:
         os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
     except (AttributeError, OSError):

@@ -70,7 +70,7 @@ def check_arguments(argv: list[str]) -> bool:
     return False
 
 
-def _check_params_file(path: str):
+def _check_params_file(path: str) -> None:
     import yaml
 
     try:
@@ -88,7 +88,7 @@ def _check_params_file(path: str):
                          "{...}}' at the top level")
 
 
-def _warn_params_file_keys(argv: list[str], node: Node):
+def _warn_params_file_keys(argv: list[str], node: Node) -> None:
     """Warn when a params file has no section for this node (rclpy ignores it then)."""
     import yaml
 
@@ -104,7 +104,7 @@ def _warn_params_file_keys(argv: list[str], node: Node):
                     f"this node ({node.get_fully_qualified_name()}): it is ignored")
 
 
-def main(args=None) -> int:
+def main(args: list[str] | None = None) -> int:
     """Run the node until Ctrl-C or SIGTERM; return the process exit code."""
     argv = list(sys.argv if args is None else args)
     try:
@@ -120,7 +120,7 @@ def main(args=None) -> int:
     # ends the spin loop; the node then stops its threads before the context goes.
     stop = threading.Event()
 
-    def on_signal(*_):
+    def on_signal(*_: object) -> None:
         stop.set()
         # A second Ctrl-C while shutting down ends the process at once, quietly (the
         # workers notice their parent is gone and exit too).
@@ -149,7 +149,7 @@ def main(args=None) -> int:
     return 0
 
 
-def shutdown_rclpy():
+def shutdown_rclpy() -> None:
     """Shut rclpy down unless a signal already did.
 
     ``try_shutdown`` checks the context and then shuts it down; rclpy's signal handler

@@ -1,22 +1,33 @@
-"""The node's parameters: names, defaults, descriptors with ranges, and their checks."""
+"""The node's parameters: names, defaults, descriptors with ranges, their checks, and
+:class:`LiveParameters`, which declares them on a node and keeps their current values.
+"""
 
 from __future__ import annotations
 
 import math
-from dataclasses import fields
+from collections.abc import Callable
+from dataclasses import fields, replace
+from typing import Any
 
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
     ParameterDescriptor,
     ParameterType,
+    SetParametersResult,
 )
+from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 from grasp_fc_ros.core import ORIGIN_CHOICES
 from grasp_fc_ros.core.tolerances import MAX_FRICTION_COEFFICIENT
 from grasp_fc_ros.engine.packed import MIN_CONTACTS, Settings
 from grasp_fc_ros.markers.build import DEFAULT_LIFETIME_S
-from grasp_fc_ros.markers.publisher import DEFAULT_MARKER_SAMPLE, MAX_MARKER_SAMPLE
+from grasp_fc_ros.markers.publisher import (
+    DEFAULT_MARKER_SAMPLE,
+    MAX_MARKER_SAMPLE,
+    MarkerSettings,
+)
 
 # Upper bounds of the integer parameters: beyond these a single message would not fit
 # any sensible memory budget.
@@ -34,17 +45,18 @@ MAX_MARKER_LIFETIME_S = 365 * 24 * 3600.0
 QOS_OVERRIDES_PREFIX = "qos_overrides."
 
 
-def _int_descriptor(description, low, high, read_only=False):
+def _int_descriptor(description: str, low: int, high: int,
+                    read_only: bool = False) -> ParameterDescriptor:
     return ParameterDescriptor(
         type=ParameterType.PARAMETER_INTEGER, description=description, read_only=read_only,
         integer_range=[IntegerRange(from_value=low, to_value=high, step=1)])
 
 
-def _bool_descriptor(description):
+def _bool_descriptor(description: str) -> ParameterDescriptor:
     return ParameterDescriptor(type=ParameterType.PARAMETER_BOOL, description=description)
 
 
-PARAMETERS = {
+PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
     # name: (default, descriptor)
     "friction_coefficient": (0.5, ParameterDescriptor(
         type=ParameterType.PARAMETER_DOUBLE,
@@ -95,7 +107,7 @@ MARKER_SETTINGS = {"publish_markers": "enabled", "marker_lifetime": "lifetime_s"
 SETTING_NAMES = frozenset(f.name for f in fields(Settings))
 
 
-def check_parameter(name: str, value) -> str:
+def check_parameter(name: str, value: Any) -> str:
     """Return why ``value`` is not acceptable for parameter ``name`` ('' if it is)."""
     if name == "friction_coefficient":
         if not (math.isfinite(value) and 0 < value <= MAX_FRICTION_COEFFICIENT):
@@ -108,3 +120,59 @@ def check_parameter(name: str, value) -> str:
     elif name == "filter_origins" and value not in ORIGIN_CHOICES:
         return f"filter_origins must be one of {ORIGIN_CHOICES}, got {value!r}"
     return ""
+
+
+class LiveParameters:
+    """Declares the node's parameters, checks every change, and keeps the values the
+    lanes read as snapshots.
+
+    :attr:`settings` (the :class:`~grasp_fc_ros.engine.packed.Settings` that decide
+    queries) and :attr:`markers` (:class:`~grasp_fc_ros.markers.publisher.MarkerSettings`)
+    are replaced whole on a change, so that a reader sees either the old or the new
+    values, and read without looking parameters up on the hot path. Unknown parameter
+    overrides given to the node are logged (rclpy drops them silently).
+    """
+
+    def __init__(self, node: Node):
+        self.settings = Settings(**{name: PARAMETERS[name][0] for name in SETTING_NAMES})
+        self.markers = MarkerSettings()
+        self._marker_listeners: list[Callable[[MarkerSettings], None]] = []
+        node.add_on_set_parameters_callback(self._check)
+        node.add_post_set_parameters_callback(self._changed)
+        for name, (default, descriptor) in PARAMETERS.items():
+            node.declare_parameter(name, default, descriptor)
+        self.workers: int = node.get_parameter("workers").value
+        self._warn_unknown_overrides(node)
+
+    def on_marker_settings(self, listener: Callable[[MarkerSettings], None]) -> None:
+        """Call ``listener(markers)`` after every change of a marker parameter."""
+        self._marker_listeners.append(listener)
+
+    def _check(self, parameters: list[Parameter]) -> SetParametersResult:
+        reasons = [check_parameter(p.name, p.value) for p in parameters]
+        reasons = [r for r in reasons if r]
+        return SetParametersResult(successful=not reasons, reason="; ".join(reasons))
+
+    def _changed(self, parameters: list[Parameter]) -> None:
+        changes = {p.name: p.value for p in parameters if p.name in SETTING_NAMES}
+        if changes:
+            self.settings = replace(self.settings, **changes)
+        marker_changes = {MARKER_SETTINGS[p.name]: p.value for p in parameters
+                          if p.name in MARKER_SETTINGS}
+        if marker_changes:
+            self.markers = replace(self.markers, **marker_changes)
+            for listener in self._marker_listeners:
+                listener(self.markers)
+
+    @staticmethod
+    def _warn_unknown_overrides(node: Node) -> None:
+        """Warn about parameter values given for this node that match no parameter
+        (a typo such as ``frction_coefficient`` would go unnoticed). rclpy keeps the
+        overrides in a private attribute: read it defensively."""
+        overrides = getattr(node, "_parameter_overrides", {}) or {}
+        unknown = sorted(name for name in set(overrides) - set(PARAMETERS) - {"use_sim_time"}
+                         if not name.startswith(QOS_OVERRIDES_PREFIX))
+        if unknown:
+            node.get_logger().warning(
+                f"ignoring unknown parameter(s) {', '.join(unknown)}; this node has "
+                f"{', '.join(PARAMETERS)}")

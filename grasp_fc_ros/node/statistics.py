@@ -20,7 +20,7 @@ TIMING_WINDOW = 2000
 class Statistics:
     """Counters and processing times reported on /diagnostics (thread-safe)."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self._lock = threading.Lock()
         self.counts = {s: 0 for s in Status}
         self.received = 0
@@ -29,26 +29,27 @@ class Statistics:
         self.overloaded = 0
         self.seconds = {"conversion_s": 0.0, "validation_s": 0.0, "filter_s": 0.0,
                         "exact_s": 0.0}
-        self.processing_s = deque(maxlen=TIMING_WINDOW)
+        self.processing_s: deque[float] = deque(maxlen=TIMING_WINDOW)
         # label_grasps goals: received, and how they ended; grasps of canceled or
         # aborted goals that were never decided.
         self.goals = {"received": 0, "succeeded": 0, "canceled": 0, "aborted": 0}
         self.goal_grasps_undecided = 0
 
-    def count_goal(self, event: str):
+    def count_goal(self, event: str) -> None:
         """Count a label_grasps goal ``event``: a key of :attr:`goals`."""
         with self._lock:
             self.goals[event] += 1
 
-    def count_undecided(self, n_grasps: int):
+    def count_undecided(self, n_grasps: int) -> None:
         with self._lock:
             self.goal_grasps_undecided += n_grasps
 
-    def count_received(self, n_queries: int):
+    def count_received(self, n_queries: int) -> None:
         with self._lock:
             self.received += n_queries
 
-    def record(self, status: np.ndarray, seconds: dict, processing_s: float | None):
+    def record(self, status: np.ndarray, seconds: dict[str, float],
+               processing_s: float | None) -> None:
         """Count answered queries: their verdict codes and where their time went.
 
         ``processing_s`` is None for answers that did no real work (failures), which
@@ -58,22 +59,30 @@ class Statistics:
         per_code = np.bincount(status, minlength=len(Status)).tolist()
         with self._lock:
             self.answered += len(status)
-            for status_code, count in zip(Status, per_code):
+            # One count per code (bincount's minlength); never fewer.
+            for status_code, count in zip(Status, per_code, strict=False):
                 self.counts[status_code] += count
             for key in self.seconds:
                 self.seconds[key] += seconds.get(key, 0.0)
             if processing_s is not None:
                 self.processing_s.append(processing_s)
 
-    def record_failures(self, n_queries: int):
+    def record_failures(self, n_queries: int) -> None:
         """Count ``n_queries`` answered with SOLVER_FAILURE without being decided."""
-        self.record(np.full(n_queries, Status.SOLVER_FAILURE, dtype=np.uint8), {}, None)
+        self.record_refused(Status.SOLVER_FAILURE, n_queries)
 
-    def count_error(self):
+    def record_refused(self, status: Status, n_queries: int) -> None:
+        """Count ``n_queries`` answered with ``status`` without being decided (no
+        processing time, no array of their statuses)."""
+        with self._lock:
+            self.answered += n_queries
+            self.counts[status] += n_queries
+
+    def count_error(self) -> None:
         with self._lock:
             self.callback_errors += 1
 
-    def count_overloaded(self, n_queries: int):
+    def count_overloaded(self, n_queries: int) -> None:
         with self._lock:
             self.overloaded += n_queries
 
@@ -81,7 +90,7 @@ class Statistics:
         with self._lock:
             return self.counts[Status.SOLVER_FAILURE] + self.callback_errors
 
-    def key_values(self, pending: dict) -> list[KeyValue]:
+    def key_values(self, pending: dict[str, int]) -> list[KeyValue]:
         with self._lock:
             times_ms = np.array(self.processing_s) * 1e3
             counts = dict(self.counts)
@@ -100,7 +109,7 @@ class Statistics:
                 **pending,
                 **{f"action_goals_{key}": value for key, value in self.goals.items()},
                 "action_grasps_undecided": self.goal_grasps_undecided,
-                # Microseconds: a one-grasp exact test takes ~0.01-0.1 ms, so a few
+                # Microseconds: a one-grasp exact test takes a fraction of a ms, so a few
                 # queries' worth would not show in milliseconds.
                 **{f"{key[:-2]}_time_total_s": f"{value:.6f}"
                    for key, value in self.seconds.items()},
@@ -119,7 +128,7 @@ class Throttle:
     even a suppressed one, which costs more than a whole verdict on the hot path.
     """
 
-    def __init__(self, period_s: float):
+    def __init__(self, period_s: float) -> None:
         self._period_s = period_s
         self._last: dict[str, float] = {}
         self._lock = threading.Lock()

@@ -49,10 +49,12 @@ def test_queries_are_stamped_with_the_clients_ros_clock(lonely):
 
     from rclpy.parameter import Parameter
 
+    from grasp_fc_ros.client.single_queries import stamp
+
     before = time.time()
-    sec, nanosec = lonely._stamp()
+    sec, nanosec = stamp(lonely.node.get_clock())
     assert before - 1.0 <= sec + nanosec * 1e-9 <= time.time() + 1.0
     assert 0 <= nanosec < 1_000_000_000
     lonely.node.set_parameters([Parameter("use_sim_time", Parameter.Type.BOOL, True)])
     assert lonely.node.get_clock().ros_time_is_active
-    assert lonely._stamp() == (0, 0)
+    assert stamp(lonely.node.get_clock()) == (0, 0)

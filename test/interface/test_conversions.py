@@ -6,9 +6,12 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
-
 from grasp_fc_msgs.msg import ContactArrayBatch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from grasp_fc_ros.core import Status
+from grasp_fc_ros.engine.packed import Verdicts
 from grasp_fc_ros.interface.conversions import (
     MalformedBatch,
     batch_size,
@@ -20,8 +23,6 @@ from grasp_fc_ros.interface.conversions import (
     verdicts_to_array_msg,
     verdicts_to_msgs,
 )
-from grasp_fc_ros.core import Status
-from grasp_fc_ros.engine.packed import Verdicts
 
 
 @settings(max_examples=40, deadline=None)
@@ -148,7 +149,7 @@ def test_batch_certificates_are_packed_per_contact_and_verify():
     assert got.min_friction is None
     assert got.status[5] == Status.INVALID_INPUT
     ends = np.cumsum(counts)
-    for g, (lo, hi) in enumerate(zip(ends - counts, ends)):
+    for g, (lo, hi) in enumerate(zip(ends - counts, ends, strict=True)):
         if g == 5:  # invalid: nothing to verify
             assert np.isnan(got.contact_forces[lo:hi]).all()
             assert np.isnan(got.separating_wrench[g]).all()
@@ -185,9 +186,9 @@ def test_single_verdicts_carry_forces_only_for_force_closure_and_round_trip():
     verdicts = decide(msg, certificates=True)
     ends = np.cumsum(counts)
     queries = [grasp_to_contact_array(500 + g, positions[lo:hi], normals[lo:hi], mu[lo:hi])
-               for g, (lo, hi) in enumerate(zip(ends - counts, ends))]
+               for g, (lo, hi) in enumerate(zip(ends - counts, ends, strict=True))]
     replies = verdicts_to_msgs(verdicts, queries)
-    for reply, count in zip(replies, counts):
+    for reply, count in zip(replies, counts, strict=True):
         fc = reply.status == Status.FORCE_CLOSURE
         assert len(reply.contact_forces) == (count if fc else 0)
         assert math.isnan(reply.min_friction)
@@ -222,7 +223,7 @@ def test_min_friction_follows_the_query_proportions_and_is_nan_for_invalid():
     assert math.isnan(got.min_friction[5])
     ends = np.cumsum(counts)
     finite = 0
-    for g, (lo, hi) in enumerate(zip(ends - counts, ends)):
+    for g, (lo, hi) in enumerate(zip(ends - counts, ends, strict=True)):
         mu_star = got.min_friction[g]
         if g == 5 or not np.isfinite(mu_star) or mu_star == 0:
             continue
@@ -252,9 +253,9 @@ def soft_pairs(seed=8, n_grasps=30):
 
 def test_soft_certificates_carry_torques_in_both_verdict_kinds():
     from grasp_fc_ros.core import verify_certificates
-    from grasp_fc_ros.interface.conversions import verdict_msgs_to_numpy
     from grasp_fc_ros.engine.evaluation import evaluate
     from grasp_fc_ros.engine.packed import Settings
+    from grasp_fc_ros.interface.conversions import verdict_msgs_to_numpy
 
     positions, normals, gamma = soft_pairs()
     msg = grasps_to_batch_msg(np.arange(30), positions, normals, 0.5,
@@ -275,7 +276,7 @@ def test_soft_certificates_carry_torques_in_both_verdict_kinds():
     assert wrench_ok[~fc & (gamma[:, 0] > 0)].all()
     # The same grasps as single queries: torques only in the FORCE_CLOSURE verdicts.
     queries = [grasp_to_contact_array(i, p, n, 0.5, torsional_friction=g)
-               for i, (p, n, g) in enumerate(zip(positions, normals, gamma))]
+               for i, (p, n, g) in enumerate(zip(positions, normals, gamma, strict=True))]
     verdicts, _ = evaluate(contact_arrays_to_packed(queries), Settings(certificates=True))
     singles = verdicts_to_msgs(verdicts, queries)
     assert [len(v.contact_torques) for v in singles] == [2 * int(f) for f in fc]

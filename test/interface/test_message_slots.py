@@ -8,11 +8,11 @@ import math
 import os
 
 import pytest
-from hypothesis import given, settings, strategies as st
-
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point, Vector3, Wrench
 from grasp_fc_msgs.msg import Contact, ContactArrayBatch, ForceClosureVerdict
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import Header
 
@@ -42,7 +42,7 @@ def built_and_constructed(sec, nanosec, frame, numbers, flags, text, forces, tor
         lambda s, n: Time(sec=s, nanosec=n), lambda s, f: Header(stamp=s, frame_id=f),
         lambda a, b, c: Vector3(x=a, y=b, z=c), lambda f, t: Wrench(force=f, torque=t),
         lambda *v: ForceClosureVerdict(**dict(zip(
-            ForceClosureVerdict.get_fields_and_field_types(), v))))
+            ForceClosureVerdict.get_fields_and_field_types(), v, strict=True))))
     return built, constructed
 
 
@@ -121,7 +121,7 @@ def test_a_built_batch_equals_the_constructed_one(fast, sec, nanosec, frame, cli
 
     def sequences():  # fresh arrays per message: the built one may keep them
         return [array.array(code, values) for code, values in
-                zip(BATCH_TYPECODES, [ids, counts, *floats])]
+                zip(BATCH_TYPECODES, [ids, counts, *floats], strict=True)]
 
     original, fast_flag = slots.FAST, (slots.FAST if fast else False)
     try:
@@ -133,8 +133,9 @@ def test_a_built_batch_equals_the_constructed_one(fast, sec, nanosec, frame, cli
         slots.FAST = original
     constructed = ContactArrayBatch(
         header=Header(stamp=Time(sec=sec, nanosec=nanosec), frame_id=frame),
-        client_id=client_id, request_id=request_id, **dict(zip(BATCH_FIELDS, sequences())))
-    for name, code in zip(BATCH_FIELDS, BATCH_TYPECODES):
+        client_id=client_id, request_id=request_id,
+        **dict(zip(BATCH_FIELDS, sequences(), strict=True)))
+    for name, code in zip(BATCH_FIELDS, BATCH_TYPECODES, strict=True):
         field = getattr(built, name)
         assert type(field) is array.array and field.typecode == code, name
     # NaN != NaN: compare what they print, also after a trip through rclpy's CDR.
@@ -160,4 +161,4 @@ def test_without_the_slot_layout_a_batch_is_built_by_its_constructor(monkeypatch
     built = slots.contact_array_batch(Header(frame_id="f"), 3, 4, sequences)
     assert calls == [{"header": Header(frame_id="f"), "client_id": 3, "request_id": 4}]
     assert built == ContactArrayBatch(header=Header(frame_id="f"), client_id=3, request_id=4,
-                                      **dict(zip(BATCH_FIELDS, sequences)))
+                                      **dict(zip(BATCH_FIELDS, sequences, strict=True)))

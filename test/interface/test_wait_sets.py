@@ -21,8 +21,8 @@ def served(ros):
     served by a ServiceLoop; its callback answers "call <k>" and raises for False."""
     import os
 
-    from ros_fixtures import SpinThread
     from rclpy.node import Node
+    from ros_fixtures import SpinThread
     from std_srvs.srv import SetBool
 
     from grasp_fc_ros.interface.wait_sets import ServiceLoop

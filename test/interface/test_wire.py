@@ -8,10 +8,9 @@ import struct
 
 import numpy as np
 import pytest
+from grasp_fc_msgs.msg import Contact, ContactArray, ForceClosureVerdict
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from grasp_fc_msgs.msg import Contact, ContactArray, ForceClosureVerdict
 from rclpy.serialization import deserialize_message, serialize_message
 
 from grasp_fc_ros.interface import wire
@@ -75,7 +74,7 @@ def test_encoded_verdicts_equal_rclpy_serialization(cases):
     decoded = wire.decode_contact_arrays([serialize_message(m) for m in msgs])
     ours = wire.encode_verdicts(decoded.prefixes, [c[1] for c in cases], [c[2] for c in cases],
                                 [c[3] for c in cases], [c[4] for c in cases])
-    for raw, (query, fc, status, margin, text) in zip(ours, cases):
+    for raw, (query, fc, status, margin, text) in zip(ours, cases, strict=True):
         verdict = deserialize_message(raw, ForceClosureVerdict)
         assert (verdict.header.frame_id, verdict.header.stamp.sec, verdict.header.stamp.nanosec,
                 verdict.client_id, verdict.id) == (
@@ -309,7 +308,7 @@ def assert_same_batch(got, want):
     assert (got.client_id, got.request_id) == (want.client_id, want.request_id)
     for name, typecode in zip(("ids", "contact_counts", "positions", "normals",
                                "friction_coefficients", "torsional_friction"),
-                              BATCH_TYPECODES):
+                              BATCH_TYPECODES, strict=True):
         a, b = getattr(got, name), getattr(want, name)
         assert type(a) is array.array and a.typecode == typecode, name
         assert (len(a), a.tobytes()) == (len(b), b.tobytes()), name
@@ -365,7 +364,7 @@ def big_endian_batch(fields, client_id, request_id, frame_id, stamp) -> bytes:
     out += struct.pack(">iII", *stamp, len(frame)) + frame
     pad(8)
     out += struct.pack(">QQ", client_id, request_id)
-    for values, dtype in zip(fields, (">u8", ">u4", ">f8", ">f8", ">f8", ">f8")):
+    for values, dtype in zip(fields, (">u8", ">u4", ">f8", ">f8", ">f8", ">f8"), strict=True):
         pad(4)
         out += struct.pack(">I", len(values))
         if len(values):
@@ -419,8 +418,12 @@ def test_an_inconsistent_batch_decodes_as_rclpy_reads_it_and_is_malformed(sequen
                                                                          request_id):
     from grasp_fc_msgs.msg import ContactArrayBatch
 
-    from grasp_fc_ros.interface.conversions import (BatchArrays, MalformedBatch, batch_msg,
-                                          batch_to_packed)
+    from grasp_fc_ros.interface.conversions import (
+        BatchArrays,
+        MalformedBatch,
+        batch_msg,
+        batch_to_packed,
+    )
 
     reference = batch_msg(BatchArrays(*sequences), client_id=client_id, request_id=request_id)
     reference.header.frame_id = "palm"

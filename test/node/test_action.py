@@ -299,13 +299,17 @@ def test_client_makes_its_action_requests_on_its_spin_thread(grasps, served, mon
     # that the spin thread takes in between is dropped and the goal never resolves (a CI
     # run lost a goal so). Sent from the spin thread, nothing is taken in between.
     _, client = served
-    action = client._label_action
+    action = client.label_action.action_client
     callers = []
-    for name in ("send_goal_async", "_get_result_async", "_cancel_goal_async"):
-        def record(*args, real=getattr(action, name), **kwargs):
+
+    def recording(real):
+        def record(*args, **kwargs):
             callers.append(threading.current_thread())
             return real(*args, **kwargs)
-        monkeypatch.setattr(action, name, record)
+        return record
+
+    for name in ("send_goal_async", "_get_result_async", "_cancel_goal_async"):
+        monkeypatch.setattr(action, name, recording(getattr(action, name)))
     positions, normals, expected = grasps
     verdicts = client.label_grasps(positions, normals, progress=False, timeout=WAIT_S)
     np.testing.assert_array_equal(verdicts.status, expected)
@@ -328,7 +332,7 @@ def test_client_progress_bar_ends_on_the_verdicts_counts(grasps, served, capsys)
 
 def test_client_ctrl_c_cancels_and_returns_the_decided_prefix(grasps, served, long_goal,
                                                               monkeypatch):
-    import grasp_fc_ros.client.grasp_client as client_module
+    import grasp_fc_ros.client.label_action as client_module
 
     _, client = served
     positions, normals, expected = tiled(grasps, long_goal)
@@ -339,7 +343,7 @@ def test_client_ctrl_c_cancels_and_returns_the_decided_prefix(grasps, served, lo
             assert not done.wait(0.01), "goal ended before it could be interrupted"
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(client_module, "_follow_goal", interrupted)
+    monkeypatch.setattr(client_module, "follow_goal", interrupted)
     verdicts = client.label_grasps(positions, normals, progress=True, timeout=WAIT_S)
     assert client.last_goal_status == GoalStatus.STATUS_CANCELED
     assert 0 < len(verdicts) < long_goal
@@ -355,7 +359,7 @@ def test_destroying_the_node_aborts_its_goals_with_their_prefixes(grasps, ros):
 
     from grasp_fc_ros.client import GraspClient
     from grasp_fc_ros.node import ForceClosureNode
-    from grasp_fc_ros.node.force_closure_node import ACTION_THREADS
+    from grasp_fc_ros.node.label_action import ACTION_THREADS
 
     namespace = "/action_shutdown_test"
     node = ForceClosureNode(namespace=namespace, parameter_overrides=[

@@ -3,7 +3,9 @@
 A separate client node talks to it through real DDS topics and the service; the
 verdicts are compared with grasp_fc_ros.core on the same grasps. The node here has no
 worker processes (workers=0), so that tests can break the core by monkeypatching; the
-worker processes are tested in test_node_load.py and test_node_process.py.
+worker processes are tested in test_node_load.py and test_node_process.py. A node can
+be given a pool of its own (``ForceClosureNode(pool=...)``): :class:`StalledPool` holds
+its lanes at their first decision.
 """
 
 from __future__ import annotations
@@ -15,20 +17,20 @@ import time
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
-
 from ros_fixtures import REPLY_TIMEOUT_S, Client, SpinThread
 
+from grasp_fc_ros.core import Status, check_force_closure
 from grasp_fc_ros.engine import evaluation as evaluation_module
-from grasp_fc_ros.node import force_closure_node as node_module
+from grasp_fc_ros.engine.pool import EvaluationPool
 from grasp_fc_ros.interface.conversions import (
     Verdicts,
     grasp_to_contact_array,
     grasps_to_batch_msg,
     verdict_array_to_numpy,
 )
-from grasp_fc_ros.core import Status, check_force_closure
 from grasp_fc_ros.node import ForceClosureNode
-from grasp_fc_ros.node.force_closure_node import SHUTDOWN_MESSAGE
+from grasp_fc_ros.node import services as services_module
+from grasp_fc_ros.node.lane import SHUTDOWN_MESSAGE
 from grasp_fc_ros.objects import make_object, sample_grasps
 
 pytestmark = pytest.mark.timeout(120)
@@ -64,20 +66,19 @@ def fc_node(system):
     return system[0]
 
 
-class StalledWorker:
-    """Holds a node's single-query worker at the start of its passes until release()."""
+class StalledPool(EvaluationPool):
+    """A pool without workers whose decisions wait for release() (the first one sets
+    ``entered``), then decide as usual: a cancel meanwhile still cancels."""
 
-    def __init__(self, node, monkeypatch):
+    def __init__(self):
+        super().__init__(workers=0)
         self.entered = threading.Event()
         self._released = threading.Event()
-        answer = node._answer_single_queries
 
-        def stalled(msgs):
-            self.entered.set()
-            self._released.wait(REPLY_TIMEOUT_S)
-            answer(msgs)
-
-        monkeypatch.setattr(node, "_answer_single_queries", stalled)
+    def decide(self, *args, **kwargs):
+        self.entered.set()
+        self._released.wait(REPLY_TIMEOUT_S)
+        return super().decide(*args, **kwargs)
 
     def release(self):
         self._released.set()
@@ -241,7 +242,7 @@ def test_oversized_service_request_is_refused_before_conversion(client, fc_node,
     def no_conversion(*args, **kwargs):
         raise AssertionError("an oversized request was converted")
 
-    monkeypatch.setattr(node_module, "contact_arrays_to_packed", no_conversion)
+    monkeypatch.setattr(services_module, "contact_arrays_to_packed", no_conversion)
     fc_node.set_parameters([Parameter("max_batch", value=3)])
     try:
         verdicts = client.call([grasp_to_contact_array(20 + i, positions[i], normals[i])
@@ -382,8 +383,9 @@ def test_diagnostics_report_exact_counter_changes(client, grasps):
     client.wait_for("verdicts", 1)
     after = client.diagnostics_after(time.time())
 
-    keys = {"received", "answered", "queries", "force_closure", "rejected_by_filter", "decided_by_exact_test",
-            "invalid_input", "solver_failures", "callback_errors", "overloaded",
+    keys = {"received", "answered", "queries", "force_closure", "rejected_by_filter",
+            "decided_by_exact_test", "invalid_input", "solver_failures", "callback_errors",
+            "overloaded",
             "pending_single_queries", "pending_batch_grasps", "conversion_time_total_s",
             "validation_time_total_s", "filter_time_total_s", "exact_time_total_s",
             "processing_time_mean_ms", "processing_time_p99_ms",
@@ -441,9 +443,9 @@ def test_non_finite_contact_friction_is_invalid_not_default(client, grasps, bad_
     assert verdicts[1].status == check_force_closure(positions[1], normals[1], DEFAULT_MU).status
 
 
-def test_single_queries_beyond_max_batch_are_refused_at_once(own_node, grasps, monkeypatch):
-    node, _, client = own_node("overload_test", max_batch=5)
-    stall = StalledWorker(node, monkeypatch)
+def test_single_queries_beyond_max_batch_are_refused_at_once(own_node, grasps):
+    stall = StalledPool()
+    node, _, client = own_node("overload_test", pool=stall, max_batch=5)
     positions, normals = (a[:12] for a in grasps)
     client.contacts_pub.publish(grasp_to_contact_array(0, positions[0], normals[0]))
     assert stall.entered.wait(REPLY_TIMEOUT_S), "worker never took query 0"
@@ -485,7 +487,7 @@ def test_core_failure_in_one_drain_fails_those_queries_only(client, grasps, monk
 
 def test_worker_survives_failed_publishing(client, fc_node, grasps, monkeypatch):
     positions, normals = (a[:3] for a in grasps)
-    publish = fc_node._verdict_pub.publish
+    publish = fc_node.replies.publish_verdict
     failures_left = [0]
 
     def flaky(msg):
@@ -494,7 +496,7 @@ def test_worker_survives_failed_publishing(client, fc_node, grasps, monkeypatch)
             raise RuntimeError("publisher hiccup")
         publish(msg)
 
-    monkeypatch.setattr(fc_node._verdict_pub, "publish", flaky)
+    monkeypatch.setattr(fc_node.replies, "publish_verdict", flaky)
     before = client.diagnostics_after(time.time())
     # One failure: the query is answered with SOLVER_FAILURE instead of its verdict.
     failures_left[0] = 1
@@ -519,7 +521,7 @@ def test_worker_survives_failed_publishing(client, fc_node, grasps, monkeypatch)
 
 def test_service_failure_while_building_the_response_is_answered(client, grasps, monkeypatch):
     positions, normals = (a[:2] for a in grasps)
-    raise_once(monkeypatch, node_module, "verdicts_to_msgs", "cannot build verdicts")
+    raise_once(monkeypatch, services_module, "verdicts_to_msgs", "cannot build verdicts")
     verdicts = client.call([grasp_to_contact_array(51 + i, positions[i], normals[i])
                             for i in range(2)])
     assert [v.id for v in verdicts] == [51, 52]
@@ -529,10 +531,11 @@ def test_service_failure_while_building_the_response_is_answered(client, grasps,
     assert again.status == check_force_closure(positions[0], normals[0], DEFAULT_MU).status
 
 
-def test_failed_batch_reply_is_counted_once_and_not_timed(client, grasps, monkeypatch):
+def test_failed_batch_reply_is_counted_once_and_not_timed(client, fc_node, grasps,
+                                                          monkeypatch):
     positions, normals = (a[:3] for a in grasps)
     before = client.diagnostics_after(time.time())
-    raise_once(monkeypatch, node_module, "_batch_answer", "cannot pack verdicts")
+    raise_once(monkeypatch, fc_node.replies, "batch_answer", "cannot pack verdicts")
     got = send_batch(client, grasps_to_batch_msg([61, 62, 63], positions, normals))
     np.testing.assert_array_equal(got.ids, [61, 62, 63])
     assert (got.status == Status.SOLVER_FAILURE).all()
@@ -570,20 +573,20 @@ def test_parameters_are_read_once_per_message(client, fc_node, grasps, monkeypat
     assert calls == ["auto", "auto"]  # one core call per contact count, same settings
 
 
-def test_queued_single_queries_are_answered_at_shutdown(own_node, grasps, monkeypatch):
-    node, spinner, client = own_node("shutdown_test")
-    stall = StalledWorker(node, monkeypatch)
+def test_queued_single_queries_are_answered_at_shutdown(own_node, grasps):
+    stall = StalledPool()
+    node, spinner, client = own_node("shutdown_test", pool=stall)
     positions, normals = (a[:4] for a in grasps)
     client.contacts_pub.publish(grasp_to_contact_array(0, positions[0], normals[0]))
     assert stall.entered.wait(REPLY_TIMEOUT_S), "worker never took query 0"
     for i in range(1, 4):
         client.contacts_pub.publish(grasp_to_contact_array(i, positions[i], normals[i]))
     deadline = time.monotonic() + REPLY_TIMEOUT_S
-    while len(node._pending) < 3 and time.monotonic() < deadline:
+    while node.single_queries.pending < 3 and time.monotonic() < deadline:
         time.sleep(0.01)
     stopper = threading.Thread(target=spinner.stop)
     stopper.start()
-    while not node._stopping and time.monotonic() < deadline:
+    while not node.single_queries.stopping() and time.monotonic() < deadline:
         time.sleep(0.01)
     stall.release()
     stopper.join(REPLY_TIMEOUT_S)

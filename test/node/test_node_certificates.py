@@ -15,13 +15,17 @@ import pytest
 from rclpy.parameter import Parameter
 
 from grasp_fc_ros.client import GraspClient
-from grasp_fc_ros.interface.conversions import batch_to_packed, grasps_to_batch_msg
-from grasp_fc_ros.core import Status, check_force_closure, optimal_contact_forces
-from grasp_fc_ros.core import verify_certificates
+from grasp_fc_ros.core import (
+    Status,
+    check_force_closure,
+    optimal_contact_forces,
+    verify_certificates,
+)
 from grasp_fc_ros.engine.evaluation import evaluate
 from grasp_fc_ros.engine.packed import Settings
-from grasp_fc_ros.objects import make_object, sample_grasps
 from grasp_fc_ros.engine.pool import EvaluationPool
+from grasp_fc_ros.interface.conversions import batch_to_packed, grasps_to_batch_msg
+from grasp_fc_ros.objects import make_object, sample_grasps
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -96,7 +100,7 @@ def test_batch_topic_carries_verified_certificates_and_min_friction(certifying, 
 def test_single_topic_verdicts_carry_verified_certificates(certifying, grasps):
     positions, normals = (a[:12] for a in grasps)
     _, client = certifying
-    futures = [client.submit(p, q) for p, q in zip(positions, normals)]
+    futures = [client.submit(p, q) for p, q in zip(positions, normals, strict=True)]
     replies = [f.result(timeout=20.0) for f in futures]
     status = np.array([r.status for r in replies])
     forces = np.full(positions.shape, np.nan)

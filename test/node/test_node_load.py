@@ -9,17 +9,15 @@ import time
 
 import numpy as np
 import pytest
-
+from grasp_fc_msgs.msg import ForceClosureVerdict
 from ros_fixtures import REPLY_TIMEOUT_S
 
-from grasp_fc_msgs.msg import ForceClosureVerdict
-
-from grasp_fc_ros.interface import wire
 from grasp_fc_ros.client import GraspClient
-from grasp_fc_ros.interface.conversions import grasp_to_contact_array, grasps_to_batch_msg
 from grasp_fc_ros.core import Status, check_force_closure
+from grasp_fc_ros.interface import wire
+from grasp_fc_ros.interface.conversions import grasp_to_contact_array, grasps_to_batch_msg
 from grasp_fc_ros.interface.names import QUERY_QOS
-from grasp_fc_ros.node.force_closure_node import SHUTDOWN_MESSAGE
+from grasp_fc_ros.node.lane import SHUTDOWN_MESSAGE
 from grasp_fc_ros.objects import make_object, sample_grasps
 
 pytestmark = pytest.mark.timeout(180)
@@ -124,14 +122,14 @@ def test_batches_are_answered_in_arrival_order_while_the_next_ones_are_decided(
     positions, normals = grasps
     sizes = [3000, 2, 1, 700, 3, 3000, 2]
     request_ids = list(range(500, 500 + len(sizes)))
-    for request_id, size in zip(request_ids, sizes):
+    for request_id, size in zip(request_ids, sizes, strict=True):
         msg = grasps_to_batch_msg(np.arange(size), positions[:size], normals[:size])
         msg.request_id = request_id
         client.batch_pub.publish(msg)
     answers = client.wait_for("batches", len(sizes), timeout=LOAD_TIMEOUT_S)
     assert [a.request_id for a in answers] == request_ids
     expected = check_force_closure(positions, normals, 0.5).status
-    for answer, size in zip(answers, sizes):
+    for answer, size in zip(answers, sizes, strict=True):
         np.testing.assert_array_equal(answer.ids, np.arange(size))
         np.testing.assert_array_equal(answer.status, expected[:size])
 
@@ -148,7 +146,7 @@ def test_batches_in_progress_and_queued_are_answered_in_order_at_shutdown(own_no
         msg.request_id = request_id
         client.batch_pub.publish(msg)
     deadline = time.monotonic() + LOAD_TIMEOUT_S
-    while not (len(node._in_progress) == 2 and len(node._batches) == 1):
+    while not (node.batches.in_progress == 2 and node.batches.queued == 1):
         assert time.monotonic() < deadline, "the batches never got in place"
         time.sleep(0.01)
     spinner.stop()
@@ -223,7 +221,7 @@ def test_a_service_request_in_progress_at_shutdown_gets_its_answer(own_node, gra
             client.call(positions, normals, timeout=LOAD_TIMEOUT_S)))
         caller.start()
         deadline = time.monotonic() + LOAD_TIMEOUT_S
-        while node._stats.received < len(positions):  # being decided now
+        while node.statistics.received < len(positions):  # being decided now
             assert time.monotonic() < deadline, "the node never received the request"
             time.sleep(0.01)
         spinner.stop()

@@ -13,22 +13,14 @@ import time
 
 import numpy as np
 import pytest
+from ros_fixtures import REPLY_TIMEOUT_S
 from std_srvs.srv import Empty
 from visualization_msgs.msg import Marker, MarkerArray
 
-from ros_fixtures import REPLY_TIMEOUT_S
-
-from grasp_fc_ros.markers import publisher as marker_publisher_module
-from grasp_fc_ros.interface.conversions import grasp_to_contact_array, grasps_to_batch_msg
 from grasp_fc_ros.core import Status, check_force_closure
-from grasp_fc_ros.markers.publisher import (
-    MARKER_QOS,
-    MARKER_QUEUE_LENGTH,
-    MarkerPublisher,
-    MarkerSettings,
-    draw,
-    sample_indices,
-)
+from grasp_fc_ros.interface.conversions import grasp_to_contact_array, grasps_to_batch_msg
+from grasp_fc_ros.interface.names import QUERY_QOS, VERDICT_QOS
+from grasp_fc_ros.markers import publisher as marker_publisher_module
 from grasp_fc_ros.markers.build import (
     CONTACTS_ID,
     FORCE_ARROW_ID,
@@ -37,7 +29,14 @@ from grasp_fc_ros.markers.build import (
     delete_all_markers,
     marker_namespace,
 )
-from grasp_fc_ros.interface.names import QUERY_QOS, VERDICT_QOS
+from grasp_fc_ros.markers.publisher import (
+    MARKER_QOS,
+    MARKER_QUEUE_LENGTH,
+    MarkerPublisher,
+    MarkerSettings,
+    draw,
+    sample_indices,
+)
 from grasp_fc_ros.objects import make_object, sample_grasps
 
 pytestmark = pytest.mark.timeout(120)
@@ -214,7 +213,7 @@ def test_off_means_no_marker_traffic_and_on_at_run_time_starts_it(marker_node):
     client.request_batch(grasps_to_batch_msg(np.arange(5), positions, normals))
     client.wait_for("verdicts", 1)
     assert listener.quiet() == []
-    assert node._markers.counts() == {"markers_published": 0, "markers_dropped": 0}
+    assert node.markers.counts() == {"markers_published": 0, "markers_dropped": 0}
     from rclpy.parameter import Parameter
     assert listener._sub.get_publisher_count() == 0  # no marker process while off
     assert node.set_parameters([Parameter("publish_markers", value=True)])[0].successful
@@ -230,9 +229,8 @@ def test_a_failing_offer_costs_no_verdict(marker_node, monkeypatch):
     def broken(*args):
         raise RuntimeError("marker queue broken")
 
-    monkeypatch.setattr(node._markers, "offer_singles", broken)
-    monkeypatch.setattr(node._markers, "offer_serialized_singles", broken)
-    monkeypatch.setattr(node._markers, "offer_serialized_singles", broken)
+    monkeypatch.setattr(node.markers.publisher, "offer_singles", broken)
+    monkeypatch.setattr(node.markers.publisher, "offer_serialized_singles", broken)
     client.contacts_pub.publish(query(71, AROUND, "object"))
     verdict, = client.wait_for("verdicts", 1)
     assert verdict.id == 71 and verdict.status == Status.FORCE_CLOSURE
@@ -449,11 +447,11 @@ def test_the_marker_process_starts_with_publish_markers_and_ends_with_the_node(r
     node = ForceClosureNode(namespace="/markers_process", parameter_overrides=[
         Parameter("workers", value=0), Parameter("publish_markers", value=True)])
     try:
-        process = node._markers._sink._process
+        process = node.markers.publisher.sink.process
         assert process is not None and process.poll() is None
         # Once it has answered (it is up), it ends cleanly when its stdin closes; one
         # still starting would be killed after PROCESS_EXIT_TIMEOUT_S.
-        node._markers._sink.clear()
+        node.markers.publisher.sink.clear()
     finally:
         node.destroy_node()
     assert process.wait(timeout=REPLY_TIMEOUT_S) == 0

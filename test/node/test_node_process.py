@@ -16,18 +16,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from ros_fixtures import Client, NodeProcess, node_command
 
 from grasp_fc_ros.client import GraspClient
-
+from grasp_fc_ros.core import Status, check_force_closure
 from grasp_fc_ros.interface.conversions import (
     grasp_to_contact_array,
     grasps_to_batch_msg,
     verdict_array_to_numpy,
 )
-from grasp_fc_ros.core import Status, check_force_closure
-from grasp_fc_ros.node.force_closure_node import SHUTDOWN_MESSAGE
+from grasp_fc_ros.node.lane import SHUTDOWN_MESSAGE
 from grasp_fc_ros.objects import make_object, sample_grasps
 
 pytestmark = pytest.mark.timeout(120)

@@ -5,9 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
-
 from ros_fixtures import Client, SpinThread
 
+from grasp_fc_ros.core import Status, check_force_closure
+from grasp_fc_ros.engine.chunking import SOFT_CHUNK_DIVISOR
+from grasp_fc_ros.engine.evaluation import evaluate
+from grasp_fc_ros.engine.packed import Settings
+from grasp_fc_ros.engine.pool import EvaluationPool
 from grasp_fc_ros.interface.conversions import (
     MalformedBatch,
     batch_to_packed,
@@ -16,12 +20,7 @@ from grasp_fc_ros.interface.conversions import (
     grasps_to_batch_msg,
     verdict_array_to_numpy,
 )
-from grasp_fc_ros.core import Status, check_force_closure
-from grasp_fc_ros.engine.evaluation import evaluate
-from grasp_fc_ros.engine.packed import Settings
 from grasp_fc_ros.node import ForceClosureNode
-from grasp_fc_ros.engine.chunking import SOFT_CHUNK_DIVISOR
-from grasp_fc_ros.engine.pool import EvaluationPool
 
 pytestmark = pytest.mark.timeout(120)
 

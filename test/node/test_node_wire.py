@@ -1,4 +1,5 @@
-"""The node's serialized single-query path (grasp_fc_ros.interface.wire) answers as the message path.
+"""The node's serialized single-query path (grasp_fc_ros.interface.wire) answers as the
+message path.
 
 Queries that path does not take (soft contacts) go through the message path in their
 place in the arrival order; without a matching layout the node takes the message path
@@ -13,13 +14,15 @@ import time
 import numpy as np
 import pytest
 from rclpy.serialization import serialize_message
-
 from ros_fixtures import REPLY_TIMEOUT_S
 
-from grasp_fc_ros.node import force_closure_node as node_module
-from grasp_fc_ros.interface.conversions import (grasp_to_contact_array, grasps_to_batch_msg,
-                                      verdict_array_to_numpy)
 from grasp_fc_ros.core import Status, check_force_closure
+from grasp_fc_ros.interface import wire
+from grasp_fc_ros.interface.conversions import (
+    grasp_to_contact_array,
+    grasps_to_batch_msg,
+    verdict_array_to_numpy,
+)
 from grasp_fc_ros.objects import make_object, sample_grasps
 
 DEFAULT_MU = 0.5
@@ -53,7 +56,7 @@ def assert_answers(verdicts, msgs, grasps):
     positions, normals = grasps
     assert [v.id for v in verdicts] == [m.id for m in msgs]  # each once, in order
     expected = check_force_closure(positions, normals, DEFAULT_MU)
-    for v, m, status in zip(verdicts, msgs, expected.status.tolist()):
+    for v, m, status in zip(verdicts, msgs, expected.status.tolist(), strict=True):
         assert (v.client_id, v.header.frame_id, v.header.stamp.sec, v.header.stamp.nanosec) == (
             m.client_id, m.header.frame_id, m.header.stamp.sec, m.header.stamp.nanosec)
         assert v.status == status and v.force_closure == (status == Status.FORCE_CLOSURE)
@@ -62,19 +65,19 @@ def assert_answers(verdicts, msgs, grasps):
 @pytest.mark.parametrize("soft", [(), (0,), (3, 4, 9), (11,)])
 def test_serialized_path_answers_every_query_once_in_order(own_node, grasps, soft):
     node, _, client = own_node(f"/wire_test_{len(soft)}_{sum(soft)}", workers=0)
-    assert node._use_wire
+    assert node.uses_wire
     msgs = queries(grasps, soft)
     # Soft contacts are decided as hard ones until the node supports them: the point here
     # is only that they take the other path without losing their place. One drain of the
     # whole list, as the singles thread would pass it, so that the runs really split.
-    node._answer_single_queries([serialize_message(m) for m in msgs])
+    node.single_queries.answer([serialize_message(m) for m in msgs])
     assert_answers(client.wait_for("verdicts", len(msgs)), msgs, grasps)
 
 
 def test_without_the_layout_the_message_path_answers(own_node, grasps, monkeypatch):
-    monkeypatch.setattr(node_module.wire, "layout_matches", lambda: False)
+    monkeypatch.setattr(wire, "layout_matches", lambda: False)
     node, _, client = own_node("/wire_test_off", workers=0)
-    assert not node._use_wire
+    assert not node.uses_wire
     msgs = queries(grasps)
     assert_answers(send_and_collect(client, msgs), msgs, grasps)
     # Batch answers too go out as rclpy messages then.
@@ -131,7 +134,7 @@ def test_a_batch_taken_serialized_keeps_its_header_ids_and_verdicts(own_node, gr
     from grasp_fc_ros.interface.conversions import grasps_to_batch_msg
 
     node, _, client = own_node("/wire_test_batch", workers=0)
-    assert node._use_wire  # the node reads batches with wire.decode_contact_array_batch
+    assert node.uses_wire  # the node reads batches with wire.decode_contact_array_batch
     args = mixed_batch(grasps)
     msg = grasps_to_batch_msg(args["ids"], args["positions"], args["normals"], args["mu"],
                               client_id=2**64 - 1, request_id=2**64 - 2)
@@ -153,7 +156,7 @@ def test_a_batch_taken_serialized_keeps_its_header_ids_and_verdicts(own_node, gr
 
 
 def test_a_big_endian_batch_is_read_by_rclpy_and_answered(own_node, grasps):
-    from test_wire import big_endian_batch
+    from interface.test_wire import big_endian_batch
 
     from grasp_fc_ros.interface.conversions import batch_arrays
 
@@ -183,4 +186,4 @@ def test_unreadable_bytes_on_contacts_batch_do_not_stop_the_node(own_node, grasp
                                   np.arange(len(positions)) + 11)
     assert len(client.wait_for("batches", 1)) == 1  # no reply to the garbage
     # Each counted as an internal error (taken in order, before the valid batch).
-    assert node._stats.callback_errors == len(garbage)
+    assert node.statistics.callback_errors == len(garbage)

@@ -1,0 +1,119 @@
+"""The client's watch on its node: is it there, did it restart, what does it report.
+
+:class:`NodeWatch` looks for the node on the query topics every :data:`WATCH_PERIOD_S`
+and, when a node newly subscribes to them (a restarted node has not seen what was sent
+to its predecessor), has every unanswered query published again; a duplicate answer
+(both nodes saw it) is ignored by id. :class:`DiagnosticsReader` keeps the node's
+latest /diagnostics key values.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.client import Client
+from rclpy.node import Node
+from rclpy.publisher import Publisher
+
+from grasp_fc_ros.interface.names import DIAGNOSTICS_TOPIC, resolve
+
+# How often the client looks for a (re)started node on the query topics (s).
+WATCH_PERIOD_S = 0.25
+# Grace period after matching: DDS matches the two directions at different moments.
+MATCH_GRACE_S = 0.3
+
+
+class NodeWatch:
+    """Wait for the node; publish the unanswered queries again when it (re)appears.
+
+    Parameters
+    ----------
+    node : Node
+        The client's node (its timer runs on the client's executor).
+    publishers : list of Publisher
+        The query publishers: the node is there when each has a subscription.
+    verdict_topics : list of str
+        The node's answer topics: the node is there when each has a publisher.
+    service : rclpy.client.Client
+        The check_force_closure client, looked for first.
+    resend : callable ()
+        Publishes every unanswered query again; returns how many grasps it sent.
+    """
+
+    def __init__(self, node: Node, publishers: list[Publisher], verdict_topics: list[str],
+                 service: Client, resend: Callable[[], int]):
+        self._node = node
+        self._publishers = publishers
+        self._verdict_topics = verdict_topics
+        self._service = service
+        self._resend = resend
+        self._lock = threading.Lock()
+        self._matched = 0
+        self.resubmitted = 0
+        self._timer = node.create_timer(WATCH_PERIOD_S, self._watch)
+
+    def wait(self, timeout: float) -> bool:
+        """Wait until the node's service and both directions of its topics are matched."""
+        deadline = time.monotonic() + timeout
+        if not self._service.wait_for_service(timeout_sec=timeout):
+            return False
+        while time.monotonic() < deadline:
+            if (all(p.get_subscription_count() for p in self._publishers)
+                    and all(self._node.count_publishers(t) for t in self._verdict_topics)):
+                # This node is known now: only a later one is a (re)appearance.
+                self._seen(self._publishers[0].get_subscription_count())
+                time.sleep(MATCH_GRACE_S)
+                return True
+            time.sleep(0.02)
+        return False
+
+    def _seen(self, matched: int) -> bool:
+        """Record that ``matched`` nodes subscribe to the queries; True if more than
+        before."""
+        with self._lock:
+            grew, self._matched = matched > self._matched, matched
+            return grew
+
+    def _watch(self) -> None:
+        if self._seen(self._publishers[0].get_subscription_count()):
+            self.resubmitted += self._resend()
+
+
+class DiagnosticsReader:
+    """The key values of the node's latest /diagnostics status.
+
+    Parameters
+    ----------
+    node : Node
+    node_name : str
+        The force_closure node's full name: its status's name starts with it.
+    """
+
+    def __init__(self, node: Node, node_name: str):
+        self._prefix = resolve(node_name, node_name.rpartition("/")[2]) + ":"
+        self._latest: dict[str, str] = {}
+        self._ready = threading.Condition()
+        node.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_diagnostics, 10)
+
+    @property
+    def latest(self) -> dict[str, str]:
+        with self._ready:
+            return dict(self._latest)
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name.startswith(self._prefix):
+                with self._ready:
+                    self._latest = {kv.key: kv.value for kv in status.values}
+                    self._ready.notify_all()
+
+    def next(self, timeout: float) -> dict[str, str]:
+        """The node's next /diagnostics key values (it publishes about once a second)."""
+        with self._ready:
+            self._latest = {}
+            if not self._ready.wait_for(lambda: self._latest, timeout):
+                raise TimeoutError(f"no diagnostics of {self._prefix[:-1]} within {timeout} s")
+            return dict(self._latest)

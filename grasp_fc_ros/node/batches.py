@@ -1,0 +1,279 @@
+"""The batch lane: ContactArrayBatch messages on ``contacts_batch``, one verdict array
+each on ``verdicts_batch``.
+
+The subscription only queues (a batch of more than ``max_batch`` grasps is refused at
+once, and so is one that would make more than ``max_batch`` grasps wait). The
+``next_batch`` thread converts the oldest queued batch and queues its chunks for the
+workers, once fewer than :data:`BATCHES_IN_PROGRESS` are in progress; the
+``answer_batch`` thread waits for the oldest batch in progress and publishes its
+answer: answers go out in arrival order. Batches are taken serialized and read with
+numpy where :mod:`grasp_fc_ros.interface.wire` reads this rmw's layout.
+"""
+
+from __future__ import annotations
+
+import copy
+import threading
+from collections import deque
+from dataclasses import dataclass
+
+from grasp_fc_msgs.msg import ContactArrayBatch, ForceClosureVerdictArray
+from rclpy.node import Node
+from rclpy.qos_overriding_options import QoSOverridingOptions
+from rclpy.serialization import deserialize_message
+
+from grasp_fc_ros.core import Status
+from grasp_fc_ros.engine.packed import Verdicts
+from grasp_fc_ros.engine.pool import PRIORITY_BATCH, Cancelled, Decision
+from grasp_fc_ros.interface import wire
+from grasp_fc_ros.interface.conversions import MalformedBatch, batch_size, batch_to_packed
+from grasp_fc_ros.interface.names import CONTACTS_BATCH_TOPIC, QUERY_QOS
+from grasp_fc_ros.node.lane import Drained, LaneContext, Refusal, start_thread
+from grasp_fc_ros.node.marker_lane import MarkerLane
+from grasp_fc_ros.node.replies import Replies, refused_verdicts
+
+# Batches whose chunks may be queued for the workers at once: with one, the workers
+# idle while a decided batch is answered and the next one converted and chunked.
+# Tuned: docs/performance.md#batch-topic.
+BATCHES_IN_PROGRESS = 2
+
+
+@dataclass
+class BatchInProgress:
+    """A batch taken from the queue: its chunks on the workers, or its failed verdicts.
+
+    ``start`` is when it was taken (the lane's clock, s), ``conversion_s`` the time its
+    conversion took.
+    """
+
+    query: ContactArrayBatch
+    start: float
+    conversion_s: float
+    decision: Decision | None = None
+    failed: Verdicts | None = None
+
+
+class BatchLane:
+    """Queue, decide and answer batches, in arrival order.
+
+    Parameters
+    ----------
+    node : Node
+        Owns the subscription (spun by the node's executor).
+    context : LaneContext
+    replies : Replies
+        Encodes and publishes the answers.
+    markers : MarkerLane
+        Offered every answered batch.
+    """
+
+    def __init__(self, node: Node, context: LaneContext, replies: Replies, markers: MarkerLane):
+        self._context = context
+        self._replies = replies
+        self._markers = markers
+        self._lock = threading.Lock()
+        # One condition per waiting thread, so that a notify wakes the one with work.
+        self._startable = threading.Condition(self._lock)
+        self._started = threading.Condition(self._lock)
+        self._queue: deque[ContactArrayBatch] = deque()
+        # Batches whose chunks are on the workers, oldest first: answered in this order.
+        self._in_progress: deque[BatchInProgress] = deque()
+        self._queued_grasps = 0
+        self._busy_grasps = 0
+        self._stopping = False
+        serialized = replies.serialized
+        node.create_subscription(ContactArrayBatch, CONTACTS_BATCH_TOPIC,
+                                 self._on_serialized if serialized else self._on_batch,
+                                 copy.copy(QUERY_QOS), raw=serialized,
+                                 qos_overriding_options=QoSOverridingOptions.with_default_policies())
+        self._threads = [start_thread("next_batch", self._start_next, self.stopping, context),
+                         start_thread("answer_batch", self._answer_oldest, self.stopping,
+                                      context)]
+
+    def stopping(self) -> bool:
+        return self._stopping
+
+    @property
+    def queued(self) -> int:
+        """Batches waiting to be started."""
+        with self._lock:
+            return len(self._queue)
+
+    @property
+    def in_progress(self) -> int:
+        """Batches started and not answered yet."""
+        with self._lock:
+            return len(self._in_progress)
+
+    def counts(self) -> dict[str, int]:
+        with self._lock:
+            return {"pending_batch_grasps": self._queued_grasps + self._busy_grasps}
+
+    # --- in: the node's executor ----------------------------------------------------------
+
+    def _on_serialized(self, raw: bytes) -> None:
+        """A serialized batch: read with numpy, or by rclpy if in another layout."""
+        try:
+            try:
+                query = wire.decode_contact_array_batch(raw)
+            except ValueError:
+                query = deserialize_message(raw, ContactArrayBatch)
+        except Exception as exc:  # noqa: BLE001 - unreadable: nobody to answer
+            self._context.internal_error("an unreadable batch (no reply sent)", exc)
+            return
+        self._on_batch(query)
+
+    def _on_batch(self, query: ContactArrayBatch) -> None:
+        context = self._context
+        try:
+            n_grasps = batch_size(query)
+            context.statistics.count_received(n_grasps)
+            settings = context.settings()
+            refusal = context.refusals.oversize(n_grasps, settings)
+            if refusal is None:
+                with self._lock:
+                    queued = self._queued_grasps
+                    accepted = not self._stopping and not (
+                        queued and queued + n_grasps > settings.max_batch)
+                    if accepted:
+                        self._queue.append(query)
+                        self._queued_grasps += n_grasps
+                        self._startable.notify()
+                if accepted:
+                    return
+                refusal = (context.refusals.shutdown(n_grasps) if self._stopping else
+                           context.refusals.overloaded(f"{queued} batch grasps pending",
+                                                       n_grasps, settings))
+            self._replies.publish_batch(self._replies.batch_refusal(query, refusal))
+        except Exception as exc:  # noqa: BLE001
+            context.internal_error("a batch (no reply sent)", exc)
+
+    # --- the next_batch thread ------------------------------------------------------------
+
+    def _start_next(self) -> None:
+        """Start the oldest queued batch once fewer than BATCHES_IN_PROGRESS are."""
+        with self._lock:
+            self._startable.wait_for(lambda: self._stopping or (
+                self._queue and len(self._in_progress) < BATCHES_IN_PROGRESS))
+            if self._stopping:
+                return
+            query = self._queue.popleft()
+            self._queued_grasps -= len(query.ids)
+            self._busy_grasps += len(query.ids)
+        batch = self._start(query)
+        with self._lock:
+            self._in_progress.append(batch)
+            self._started.notify()
+
+    def _start(self, query: ContactArrayBatch) -> BatchInProgress:
+        """Convert a batch and queue its chunks; a failure becomes its answer."""
+        context = self._context
+        start = context.clock()
+        try:
+            packed = batch_to_packed(query)
+            conversion_s = context.clock() - start
+            decision = context.pool.start(packed, context.settings(), PRIORITY_BATCH)
+            return BatchInProgress(query, start, conversion_s, decision)
+        except MalformedBatch as exc:
+            if context.may_log("malformed"):
+                context.logger.warning(str(exc))
+            context.statistics.record_refused(Status.INVALID_INPUT, len(query.ids))
+            failed = refused_verdicts(query, Refusal(Status.INVALID_INPUT, str(exc)))
+        except Exception as exc:  # noqa: BLE001 - any failure must still be answered
+            failed = self._internal_error(query, exc)
+        return BatchInProgress(query, start, 0.0, failed=failed)
+
+    # --- the answer_batch thread ----------------------------------------------------------
+
+    def _answer_oldest(self) -> None:
+        """Publish the answer to the oldest batch in progress once it is decided."""
+        with self._lock:
+            self._started.wait_for(lambda: self._in_progress or self._stopping)
+            if self._stopping:
+                return  # drain() answers the batches in progress
+            batch = self._in_progress[0]
+        cancelled = False
+        try:
+            verdicts, answer = self._answer(batch)
+        except Cancelled:
+            cancelled = True  # left in progress: drain() answers it
+            raise
+        finally:
+            if not cancelled:  # answered, or failed beyond answering: never retried
+                with self._lock:
+                    self._in_progress.popleft()
+                    self._busy_grasps -= len(batch.query.ids)
+                    self._startable.notify()
+        self._replies.publish_batch(answer)
+        self._markers.offer_batch(batch.query, verdicts)
+
+    def _answer(self, batch: BatchInProgress
+                ) -> tuple[Verdicts, ForceClosureVerdictArray | bytes]:
+        """Wait for a batch's verdicts and count them: the verdicts and the answer to
+        publish; any failure becomes one answer for all of it.
+
+        Raises
+        ------
+        Cancelled
+            If the lane stops meanwhile.
+        """
+        context = self._context
+        query, failed = batch.query, batch.failed
+        if failed is None:
+            assert batch.decision is not None
+            try:
+                verdicts, seconds = batch.decision.result(self.stopping)
+                context.warn_invalid(verdicts)
+                seconds["conversion_s"] = batch.conversion_s
+                answer = self._replies.batch_answer(verdicts, query)
+                # Counted only once the answer exists, so a failure cannot count it twice.
+                context.statistics.record(verdicts.status, seconds,
+                                          context.clock() - batch.start)
+                return verdicts, answer
+            except Cancelled:
+                raise
+            except Exception as exc:  # noqa: BLE001 - any failure must still be answered
+                failed = self._internal_error(query, exc)
+        return failed, self._replies.batch_answer(failed, query)
+
+    def _internal_error(self, query: ContactArrayBatch, exc: Exception) -> Verdicts:
+        self._context.internal_error(f"a batch of {len(query.ids)} grasps", exc)
+        self._context.statistics.record_failures(len(query.ids))
+        return refused_verdicts(query, Refusal(Status.SOLVER_FAILURE, f"internal error: {exc}"))
+
+    # --- shutdown -------------------------------------------------------------------------
+
+    def stop(self) -> None:
+        """Refuse new batches and end both threads (the batches in progress stay, for
+        :meth:`drain`)."""
+        with self._lock:
+            self._stopping = True
+            self._startable.notify_all()
+            self._started.notify_all()
+        for thread in self._threads:
+            thread.join()
+
+    def drain(self) -> Drained:
+        """Answer the batches in progress and queued, in order: each refused at
+        conversion keeps its answer, the others get SHUTDOWN_MESSAGE (counted in
+        grasps)."""
+        with self._lock:
+            batches = [(b.query, b.failed) for b in self._in_progress]
+            batches += [(query, None) for query in self._queue]
+            self._in_progress, self._queue = deque(), deque()
+        total = sum(len(query.ids) for query, _ in batches)
+        if not batches or not self._context.rclpy_context.ok():
+            return Drained(unanswered=total)
+        answered = 0
+        try:
+            for query, failed in batches:
+                if failed is None:
+                    answer = self._replies.batch_refusal(
+                        query, self._context.refusals.shutdown(len(query.ids)))
+                else:
+                    answer = self._replies.batch_answer(failed, query)
+                self._replies.publish_batch(answer)
+                answered += len(query.ids)
+        except Exception as exc:  # noqa: BLE001 - shutdown goes on
+            self._context.logger.warning(f"cannot answer queued batches at shutdown: {exc}")
+        return Drained(answered, total - answered)

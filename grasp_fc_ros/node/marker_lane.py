@@ -1,0 +1,105 @@
+"""The node's side of its RViz markers: offers of answered queries, ``clear_markers``.
+
+The markers are built and published by a process of its own
+(:mod:`grasp_fc_ros.markers.publisher`), started when ``publish_markers`` turns on; the
+lanes offer every answered message here *after* its verdicts are out. An offer only
+queues a reference; one that fails is logged and counted, never a lost verdict.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from grasp_fc_msgs.msg import ContactArray, ContactArrayBatch
+from rclpy.node import Node
+from std_srvs.srv import Empty
+
+from grasp_fc_ros.engine.packed import Verdicts
+from grasp_fc_ros.interface.names import CLEAR_MARKERS_SERVICE
+from grasp_fc_ros.markers.publisher import (
+    MarkerProcess,
+    MarkerPublisher,
+    MarkerSettings,
+    MarkerSink,
+)
+from grasp_fc_ros.node.lane import Drained
+from grasp_fc_ros.node.parameters import LiveParameters
+
+
+class MarkerLane:
+    """Offers answered messages to a :class:`~grasp_fc_ros.markers.publisher.MarkerPublisher`
+    while ``publish_markers`` is on, and serves ``clear_markers``.
+
+    Parameters
+    ----------
+    node : Node
+    parameters : LiveParameters
+        The marker settings and the node's default friction, read per offer.
+    on_error : callable(what, exception)
+        Told about marker work that failed.
+    sink : MarkerSink, optional
+        Where the markers are built (default: the marker process, a node
+        ``<name>_markers`` in the node's namespace).
+    """
+
+    def __init__(self, node: Node, parameters: LiveParameters,
+                 on_error: Callable[[str, Exception], None], sink: MarkerSink | None = None):
+        self._parameters = parameters
+        self._on_error = on_error
+        self.publisher = MarkerPublisher(
+            sink or MarkerProcess(node.get_namespace(), f"{node.get_name()}_markers"), on_error)
+        node.create_service(Empty, CLEAR_MARKERS_SERVICE, self._on_clear)
+        parameters.on_marker_settings(self._settings_changed)
+        self._settings_changed(parameters.markers)
+
+    @property
+    def enabled(self) -> bool:
+        return self._parameters.markers.enabled
+
+    def offer_singles(self, queries: Sequence[ContactArray], replies: Sequence[Any]) -> None:
+        """Answered single queries (messages) and their verdict messages."""
+        self._offer(self.publisher.offer_singles, queries, replies)
+
+    def offer_serialized_singles(self, raws: Sequence[bytes], verdicts: Verdicts) -> None:
+        """Answered single queries taken serialized, and their verdicts."""
+        self._offer(self.publisher.offer_serialized_singles, raws, verdicts)
+
+    def offer_service(self, grasps: Sequence[ContactArray], replies: Sequence[Any]) -> None:
+        """An answered service request and its verdict messages."""
+        self._offer(self.publisher.offer_service, grasps, replies)
+
+    def offer_batch(self, query: ContactArrayBatch, verdicts: Verdicts) -> None:
+        """An answered batch and its verdicts."""
+        self._offer(self.publisher.offer_batch, query, verdicts)
+
+    def _offer(self, offer: Callable[..., None], queries: Any, answers: Any) -> None:
+        settings = self._parameters.markers
+        if not settings.enabled:
+            return
+        try:
+            offer(queries, answers, settings, self._parameters.settings.friction_coefficient)
+        except Exception as exc:  # noqa: BLE001 - its verdicts are out and counted already
+            self._on_error("markers", exc)
+
+    def _settings_changed(self, settings: MarkerSettings) -> None:
+        if settings.enabled:
+            try:
+                self.publisher.start()
+            except Exception as exc:  # noqa: BLE001 - the parameter stays set
+                self._on_error("markers (marker process not started)", exc)
+
+    def _on_clear(self, request: Empty.Request, response: Empty.Response) -> Empty.Response:
+        """std_srvs/Empty: publish a DELETEALL on ``markers`` (queued marker work goes)."""
+        self.publisher.clear()
+        return response
+
+    def counts(self) -> dict[str, int]:
+        return self.publisher.counts()
+
+    def stop(self) -> None:
+        """Stop the marker thread and process (queued marker work is discarded)."""
+        self.publisher.close()
+
+    def drain(self) -> Drained:
+        return Drained()  # markers are best effort: nothing to answer
