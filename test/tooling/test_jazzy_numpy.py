@@ -26,9 +26,8 @@ PINNED_FROM_PYPI = ("clarabel", "numba", "pytest", "pytest-timeout", "hypothesis
 # The core's tests that run there: the fast paths, the exact test, grasp forces, input
 # checks and minimum friction (the rest of the core's suite passed too when this was
 # written: see docs/install.md).
-CORE_TEST_FILES = ("test_core_one_grasp.py", "test_core_fast_exact.py", "test_core_exact.py",
-                   "test_core_grasp_forces.py", "test_core_input.py",
-                   "test_core_minimum_friction.py")
+CORE_TEST_FILES = ("test_one_grasp.py", "test_fast_exact.py", "test_exact.py",
+                   "test_grasp_forces.py", "test_input.py", "test_minimum_friction.py")
 # The test-only LP reference (scipy's HiGHS) gives up on one near-degenerate pyramid
 # with scipy 1.11.4 ("model_status is Unknown"); the core is not involved.
 DESELECTED = "not lp_pyramids_bracket_the_minimum_friction"
@@ -120,7 +119,7 @@ def test_core_passes_with_jazzy_numpy_and_the_pinned_clarabel_and_numba() -> Non
     pins = dict(r.split("==") for r in requirements)
     assert versions.stdout.split() == [pins["numpy"], pins["scipy"], pins["clarabel"],
                                        pins["numba"]]
-    files = [str(p) for name in CORE_TEST_FILES for p in sorted((ROOT / "test").rglob(name))]
+    files = [str(p) for name in CORE_TEST_FILES for p in sorted((ROOT / "test" / "core").glob(name))]
     assert len(files) == len(CORE_TEST_FILES), f"core test files not found: {files}"
     env = dict(os.environ, PYTHONPATH=str(ROOT), NUMBA_CACHE_DIR=str(venv / "numba_cache"))
     env.pop("PYTHONHOME", None)
