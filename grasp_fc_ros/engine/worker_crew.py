@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+import logging
 import os
 import queue
 import signal
@@ -34,6 +35,8 @@ from grasp_fc_ros.engine.child_process import ONE_THREAD_ENV, read_message, writ
 from grasp_fc_ros.engine.evaluation import evaluate
 from grasp_fc_ros.engine.packed import PackedGrasps, Settings, Verdicts
 from grasp_fc_ros.engine.shared_chunk import PICKLED, SHARED, SharedChunk
+
+_logger = logging.getLogger(__name__)
 
 #: The command that starts a worker process; the crew appends its memory file's
 #: descriptor (see :func:`.worker.serve`).
@@ -133,7 +136,7 @@ class WorkerCrew:
         self.command = tuple(command)
         self.worker_timeout_s = worker_timeout_s
         self.start_timeout_s = start_timeout_s
-        self.log = log
+        self._log = log
         self.closing = threading.Event()
         self._tasks: queue.PriorityQueue = queue.PriorityQueue()
         self._order = itertools.count()
@@ -146,6 +149,13 @@ class WorkerCrew:
         self._watchdog.start()
         for slot in self._slots:
             slot.ready.wait()
+
+    def say(self, message: str) -> None:
+        """Tell ``log``; a failing ``log`` must not stop the slot's thread that calls it."""
+        try:
+            self._log(message)
+        except Exception:  # noqa: BLE001 - the message still reaches this module's logger
+            _logger.exception("the pool's log failed on: %s", message)
 
     def submit(self, chunk: PackedGrasps, settings: Settings, priority: int) -> Future:
         """Queue ``chunk``; a Future of its (verdicts, seconds), cancelled if the crew
@@ -176,12 +186,12 @@ class WorkerCrew:
             return
         where = describe_chunk(task.chunk)
         if len(task.deaths) < DEATHS_PER_CHUNK:
-            self.log(f"{reason}; its chunk ({where}) is decided again")
+            self.say(f"{reason}; its chunk ({where}) is decided again")
             self.requeue(task)
             return
         message = (f"worker process died twice deciding this chunk ({where}): "
                    + "; then ".join(task.deaths))
-        self.log(message)
+        self.say(message)
         settle_failed(task, message)
 
     def retire(self, index: int, reason: str) -> bool:
@@ -192,7 +202,7 @@ class WorkerCrew:
             left = self._active
         if self.closing.is_set():
             return False
-        self.log(f"worker {index}: no worker process could be started ({reason}); "
+        self.say(f"worker {index}: no worker process could be started ({reason}); "
                  + (f"its chunks go to the {left} other worker(s)" if left
                     else "chunks are decided in this process from now on"))
         return not left
@@ -268,7 +278,12 @@ class _Slot:
         finally:
             self.ready.set()
         if failure is None:
-            failure = self._feed()
+            try:
+                failure = self._feed()
+            except Exception as exc:  # noqa: BLE001 - a bug: this slot stops, others go on
+                _logger.exception("worker slot %d failed", self.index)
+                self._drop_process()
+                failure = f"its thread failed: {exc!r}"
             last = failure is not None and self.crew.retire(self.index, failure)
         if last:
             self._decide_here()
@@ -326,7 +341,7 @@ class _Slot:
         process = self._process
         assert process is not None
         if process.poll() is not None:  # died while idle: not this chunk's doing
-            self.crew.log(f"{self._lost(process, None, 'while idle')}; starting another")
+            self.crew.say(f"{self._lost(process, None, 'while idle')}; starting another")
             self.crew.requeue(task)
             return False
         try:
@@ -434,11 +449,15 @@ class _Slot:
         self._thread.join(timeout_s)
         if self._thread.is_alive():
             return  # still deciding a chunk in this process: it is a daemon thread
+        self._drop_process()
+        self.shared.close()
+
+    def _drop_process(self) -> None:
+        """Kill and reap the worker process, if there is one."""
         with self._lock:
             process = self._process
         if process is not None:
             self._discard(process)
-        self.shared.close()
 
 
 def _pipes(process: subprocess.Popen[bytes]) -> tuple[IO[bytes], IO[bytes]]:

@@ -253,6 +253,23 @@ def test_a_job_chunk_that_kills_its_workers_fails_alone(grasps, make_pool):
     assert_as_core(outcome.verdicts, expected, ~failed)
 
 
+def test_a_log_that_raises_does_not_stop_the_pool(grasps):
+    request, expected = grasps
+
+    def broken_log(message: str) -> None:
+        raise RuntimeError("log is broken")
+
+    pool = EvaluationPool(2, chunk_contacts=CHUNK_CONTACTS, log=broken_log,
+                          worker_command=faulty("--die-on", TARGET_ID))
+    try:
+        verdicts, _ = pool.decide(request, Settings())
+        assert (verdicts.status[TARGET] == Status.SOLVER_FAILURE).all()
+        assert_as_core(verdicts, expected, np.r_[0:TARGET.start, TARGET.stop:N_GRASPS])
+        wait_until(lambda: len(pool.worker_pids()) == 2, "both workers replaced")
+    finally:
+        pool.close()
+
+
 # --- a worker that hangs -----------------------------------------------------------------
 
 def test_a_stopped_worker_is_killed_after_the_bound_and_its_chunk_decided_again(
