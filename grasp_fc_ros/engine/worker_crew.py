@@ -117,7 +117,7 @@ class WorkerCrew:
     Parameters
     ----------
     workers : int
-        Number of worker processes (>= 1). They start at once, side by side; the
+        Number of worker processes (>= 1): the first, then the others side by side; the
         constructor returns when each is ready or its slot has retired.
     command : sequence of str
         Starts a worker (:data:`WORKER_COMMAND`); the descriptor of its memory file is
@@ -143,10 +143,16 @@ class WorkerCrew:
         self._lock = threading.Lock()
         self._active = workers  # slots not retired
         self._restarts = 0
-        self._slots = [_Slot(self, index) for index in range(workers)]
+        self._slots: list[_Slot] = []
         self._watchdog = threading.Thread(target=self._watch, daemon=True,
                                           name="grasp_fc_watchdog")
         self._watchdog.start()
+        # The first worker starts alone: in a fresh install it compiles the core's
+        # kernels into numba's cache, which the others then load instead of compiling
+        # them too, side by side, on the same cores.
+        self._slots.append(_Slot(self, 0))
+        self._slots[0].ready.wait()
+        self._slots += [_Slot(self, index) for index in range(1, workers)]
         for slot in self._slots:
             slot.ready.wait()
 
