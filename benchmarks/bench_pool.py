@@ -21,8 +21,8 @@ import numpy as np
 from bench_ros import bench_core, bench_core_everywhere, ceiling_pool, tree_cpu_s
 
 from grasp_fc_ros.engine.packed import PackedGrasps, Settings
-from grasp_fc_ros.objects import make_object, sample_grasps
 from grasp_fc_ros.engine.pool import EvaluationPool
+from grasp_fc_ros.objects import make_object, sample_grasps
 
 N_FINGERS = 6
 MU = 0.5  # as bench_ros.bench_core decides the same grasps
@@ -61,15 +61,14 @@ def main(argv=None) -> int:
         for _ in range(args.rounds):
             core, _ = bench_core(batches)
             ceiling = bench_core_everywhere(everywhere, taken, args.workers)
-            owner, workers = time.process_time(), [tree_cpu_s(w.process.pid)
-                                                   for w in pool._workers]
+            pids = pool.worker_pids()
+            owner, workers = time.process_time(), [tree_cpu_s(pid) for pid in pids]
             start = time.perf_counter()
             for decision in [pool.start(request, Settings()) for request in requests]:
                 decision.result()
             rate = n_grasps / (time.perf_counter() - start)
             owner = (time.process_time() - owner) / n_grasps
-            workers = sum(tree_cpu_s(w.process.pid) - c
-                          for w, c in zip(pool._workers, workers)) / n_grasps
+            workers = sum(tree_cpu_s(pid) - c for pid, c in zip(pids, workers)) / n_grasps
             ratios.append(rate / core)
             print(f"core {core:8.0f} grasps/s; core in {args.workers} processes "
                   f"{ceiling:8.0f} ({ceiling / core:.2f}x); pool {rate:8.0f} "

@@ -1,9 +1,15 @@
 """Deciding packed grasps, in worker processes and in chunks (ROS-free).
 
+* :mod:`.packed` -- the data: packed grasps, their verdicts, the settings;
 * :mod:`.evaluation` -- packed grasps in, verdicts out (the core on the node's layout);
-* :mod:`.workers` -- the pool of worker processes that decide chunks of a request;
+* :mod:`.contact_forces` -- the forces that hold a load, for one packed grasp;
+* :mod:`.chunking` -- how requests and long jobs are cut into chunks;
+* :mod:`.pool` -- the pool of worker processes that decides the chunks of a request;
+* :mod:`.worker_crew` -- the pool's worker processes, replaced when they die or hang;
+* :mod:`.worker`, :mod:`.shared_chunk`, :mod:`.child_process` -- a worker process, the
+  memory it shares with the pool, and the framing of their messages;
 * :mod:`.long_jobs` -- a long job chunk by chunk, with progress and a prompt stop.
 
 Importing this package imports none of them: a client that needs only the data types
-of :mod:`.evaluation` does not start or load the pool.
+of :mod:`.packed` does not start or load the pool.
 """

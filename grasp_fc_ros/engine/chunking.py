@@ -11,27 +11,24 @@ import math
 
 import numpy as np
 
-# Contacts per chunk: ~2,700 6-finger grasps, ~20 ms of work on the latest 2-core EPYC
-# (~35 ms on the slower one), under the ~50 ms that a request of more than INLINE_GRASPS
-# grasps or a shutdown may wait for a chunk in progress. The core's own cost per grasp
-# levels off from ~680 grasps a call (0.023 ms per grasp in calls of 42, 0.018 from 680
-# on); larger chunks save the node's cost per chunk (feeding a worker, waking threads).
-# benchmarks/bench_ros.py, batches of 10,000, alternating runs: 4,096 contacts 1.24x and
-# 1.26x the core alone (node process 1.26-1.30 us of CPU per grasp), 8,192 1.30x and
-# 1.37x, 16,384 1.38x, 1.41x, 1.38x and 1.40x (0.70-0.94 us), 32,768 1.36x and 1.41x.
+# Contacts per chunk: the batch rate's best, since larger chunks save the node's cost
+# per chunk (feeding a worker, waking threads) while the core's own cost per grasp has
+# levelled off long before; and a chunk in progress still takes well under the ~50 ms
+# that a request of more than INLINE_GRASPS grasps or a shutdown may wait for it
+# (tuned: docs/performance.md#worker-chunks).
 CHUNK_CONTACTS = 16384
 
 
 # Chunks of a batch with soft contacts hold CHUNK_CONTACTS / 64 = 256 contacts: their
-# exact test (Clarabel path) measured 0.13-0.65 ms per grasp of 3-6 fingers against the
-# fast stage's 0.004-0.04 (benchmarks/bench_soft.py), so a chunk stays near 10-30 ms.
+# exact test takes the Clarabel path, tens of times a hard grasp's cost, so that a soft
+# chunk takes about as long as a hard one (tuned: docs/performance.md#worker-chunks).
 SOFT_CHUNK_DIVISOR = 64
 
 
 # A request of fewer chunks than workers is split into one chunk per worker, as equal as
-# grasps allow, down to chunks of this many contacts (~170 6-finger grasps, where the
-# core's cost per grasp is within ~15% of its best, per the figures above): a 1,000-grasp
-# batch went as chunks of 682 and 318 grasps, leaving one worker idle a third of the time.
+# grasps allow, so that no worker idles while another decides a large chunk; down to
+# chunks of this many contacts, where the core's cost per grasp is still near its best
+# (tuned: docs/performance.md#worker-chunks).
 MIN_CHUNK_CONTACTS = 1024
 
 

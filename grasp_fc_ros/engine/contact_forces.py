@@ -7,6 +7,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from grasp_fc_ros.core import optimal_contact_forces
 from grasp_fc_ros.engine.evaluation import effective_friction, find_invalid
@@ -53,8 +54,8 @@ class ContactForces:
         return cls(False, max_normal_force, np.empty((0, 3)), np.empty(0))
 
 
-def contact_forces_for_load(packed: PackedGrasps, wrench, max_normal_forces,
-                            settings: Settings) -> ContactForces:
+def contact_forces_for_load(packed: PackedGrasps, wrench: ArrayLike,
+                            max_normal_forces: ArrayLike, settings: Settings) -> ContactForces:
     """Least-largest-normal-force contact forces of one grasp holding a load.
 
     Parameters

@@ -17,7 +17,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from grasp_fc_ros.core import Status, check_force_closure, minimum_friction, validate_grasps
+from grasp_fc_ros.core import (
+    ForceClosureResult,
+    Status,
+    check_force_closure,
+    minimum_friction,
+    validate_grasps,
+)
 from grasp_fc_ros.core.tolerances import MARGIN_TOL
 from grasp_fc_ros.engine.packed import MIN_CONTACTS, PackedGrasps, Settings, Verdicts
 
@@ -98,8 +104,7 @@ def find_invalid(packed: PackedGrasps, mu: np.ndarray, settings: Settings
 def _all_contacts_valid(packed: PackedGrasps, mu: np.ndarray) -> bool:
     """True iff no contact has a problem: all contacts as one grasp through the core's
     :func:`validate_grasps`, whose all-valid fast path is cheaper than the per-contact
-    call (measured: 23 against 28 us for one 6-finger grasp, 41 against 155 us for a
-    chunk of 682)."""
+    call (tuned: docs/performance.md#worker-chunks)."""
     if len(mu) < MIN_CONTACTS:
         return False
     torsional = 0.0 if packed.torsional is None else packed.torsional[None]
@@ -167,9 +172,8 @@ def _one_size(packed: PackedGrasps, settings: Settings) -> bool:
     """Whether all grasps of ``packed`` have one accepted contact count: then
     :func:`evaluate` gives them to the core as they are, in one call that validates
     them (views of the packed arrays, no per-group indexing), and takes the general
-    path only if the core finds an invalid grasp. Measured on a worker's chunk of 666
-    6-finger grasps: the general path's validation, grouping and indexing took ~0.4 ms
-    of its ~10 ms."""
+    path only if the core finds an invalid grasp: no validation, grouping and indexing
+    of its own (tuned: docs/performance.md#worker-chunks)."""
     counts = packed.counts
     return (len(counts) > 1 and MIN_CONTACTS <= counts[0] <= settings.max_contacts
             and bool((counts == counts[0]).all()))
@@ -190,6 +194,7 @@ def _decide_groups(packed: PackedGrasps, mu: np.ndarray, settings: Settings,
     if settings.compute_min_friction:
         seconds["min_friction_s"] = 0.0
     starts = packed.starts
+    min_friction = verdicts.min_friction  # an array when the settings ask for mu*
     for group in groups:
         n = int(packed.counts[group[0]])
         rows = starts[group, None] + np.arange(n)
@@ -209,14 +214,11 @@ def _decide_groups(packed: PackedGrasps, mu: np.ndarray, settings: Settings,
         for key in ("filter_s", "exact_s"):
             seconds[key] += result.timing.get(key, 0.0)
         if settings.certificates:
-            verdicts.contact_forces[rows] = result.contact_forces
-            if verdicts.contact_torques is not None:
-                verdicts.contact_torques[rows] = result.contact_torques
-            verdicts.separating_wrench[group] = result.separating_wrench
-        if settings.compute_min_friction:
+            _store_certificates(verdicts, result, group, rows)
+        if min_friction is not None:
             began = time.perf_counter()
             try:
-                verdicts.min_friction[group] = group_min_friction(
+                min_friction[group] = group_min_friction(
                     packed.positions[rows], packed.normals[rows], mu[rows],
                     None if packed.torsional is None else packed.torsional[rows])
             except Exception as exc:  # noqa: BLE001 - an optional extra: verdicts stand
@@ -224,6 +226,19 @@ def _decide_groups(packed: PackedGrasps, mu: np.ndarray, settings: Settings,
                     verdicts.messages[i] = f"min_friction not computed: {exc}"
             seconds["min_friction_s"] += time.perf_counter() - began
     return verdicts, seconds
+
+
+def _store_certificates(verdicts: Verdicts, result: ForceClosureResult, group: np.ndarray,
+                        rows: np.ndarray) -> None:
+    """Copy the certificates of the grasps ``group`` (contacts ``rows``) from the core's
+    ``result`` into ``verdicts`` (made with certificates by
+    :meth:`Verdicts.failed_grasps`)."""
+    forces, wrenches = verdicts.contact_forces, verdicts.separating_wrench
+    assert forces is not None and wrenches is not None, "verdicts made without certificates"
+    forces[rows] = result.contact_forces
+    if verdicts.contact_torques is not None:
+        verdicts.contact_torques[rows] = result.contact_torques
+    wrenches[group] = result.separating_wrench
 
 
 def _decide_lone_grasp(packed: PackedGrasps, settings: Settings
@@ -235,9 +250,9 @@ def _decide_lone_grasp(packed: PackedGrasps, settings: Settings
     give the core in its one-grasp form (:func:`_core_arguments`). The general path
     validates it first (per contact, so that it can name a bad one) and then calls the
     core, which validates it again; this path makes the same core call
-    (:func:`_check_group`) alone, so the verdict is the same. Measured on one 6-finger
-    grasp: 35 against 117 us. Invalid input makes the core raise ValueError: the general
-    path then decides the grasp again and says which contact is wrong.
+    (:func:`_check_group`) alone, so the verdict is the same, sooner (tuned:
+    docs/performance.md#one-grasp). Invalid input makes the core raise ValueError: the
+    general path then decides the grasp again and says which contact is wrong.
     """
     if (len(packed) != 1 or settings.compute_min_friction
             or not MIN_CONTACTS <= packed.counts[0] <= settings.max_contacts):
@@ -261,23 +276,29 @@ def _decide_lone_grasp(packed: PackedGrasps, settings: Settings
                       "exact_s": result.timing.get("exact_s", 0.0)}
 
 
-def _check_group(arguments: tuple, packed: PackedGrasps, rows: np.ndarray,
-                 settings: Settings):
+# (positions, normals, mu) as the core takes them: see _core_arguments.
+CoreArguments = tuple[np.ndarray, np.ndarray, "np.ndarray | float"]
+
+
+def _check_group(arguments: CoreArguments, packed: PackedGrasps, rows: np.ndarray,
+                 settings: Settings) -> ForceClosureResult:
     """The core's result for the same-size grasps ``rows`` (G, n) of ``packed``, given
     their :func:`_core_arguments`, with the filter and certificates the settings ask."""
+    positions, normals, mu = arguments
     return check_force_closure(
-        *arguments, use_filter="auto" if settings.use_filter else False,
+        positions, normals, mu, use_filter="auto" if settings.use_filter else False,
         origins=settings.filter_origins, certificates=settings.certificates,
         torsional_friction=0.0 if packed.torsional is None else packed.torsional[rows])
 
 
 def _core_arguments(packed: PackedGrasps, rows: np.ndarray, mu: np.ndarray,
-                    settings: Settings) -> tuple:
+                    settings: Settings) -> CoreArguments:
     """(positions, normals, mu) of the same-size grasps ``rows`` (G, n) for the core.
 
     A lone hard grasp with one friction coefficient, without certificates, goes as
     (n, 3) arrays and a float: the core's one-grasp compiled path (the same verdict),
-    ~0.3 ms less than a batch of one, which a single query waits for.
+    faster than a batch of one, which a single query waits for
+    (docs/performance.md#one-grasp).
     """
     if (len(rows) == 1 and packed.torsional is None and not settings.certificates
             and (mu[rows[0]] == mu[rows[0, 0]]).all()):
@@ -308,10 +329,10 @@ def group_min_friction(positions: np.ndarray, normals: np.ndarray, mu: np.ndarra
         :func:`grasp_fc_ros.core.minimum_friction` with ``margin=MARGIN_TOL``: the
         boundary of the node's own verdicts (FORCE_CLOSURE needs a margin of
         MARGIN_TOL), so a verdict at friction above mu* is FORCE_CLOSURE and below it
-        is not. The force-closure boundary itself (margin 0) lies a little lower
-        (measured on 300 random 6-finger box grasps: median 3e-5 relative), and there
-        check_force_closure still says no on 38 of them at mu*(1 + 1e-3). Always > 0;
-        inf: no friction up to MU_CAP; NaN: not certified.
+        is not. The force-closure boundary itself (margin 0) lies a little lower, where
+        check_force_closure can still say no just above it
+        (docs/performance.md#minimum-friction). Always > 0; inf: no friction up to
+        MU_CAP; NaN: not certified.
     """
     return minimum_friction(positions, normals, mu / mu.max(axis=1, keepdims=True),
                             margin=MARGIN_TOL,

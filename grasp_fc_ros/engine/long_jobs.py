@@ -26,13 +26,12 @@ from grasp_fc_ros.engine.chunking import adapted_chunk_contacts, chunk_end
 from grasp_fc_ros.engine.packed import PackedGrasps, Settings, Verdicts
 from grasp_fc_ros.engine.pool import PRIORITY_BATCH, EvaluationPool
 
-# How often a job waiting for a chunk looks at its stop condition (s). Measured on the
-# action (10 cancels, shared 2-core machine): from the cancel callback to the goal's end
-# 5-31 ms with the pool's 20 ms poll, most of it this wait; a few hundred wake-ups a
-# second cost next to nothing.
+# How often a job waiting for a chunk looks at its stop condition (s): this wait is most
+# of a cancel's latency, hence shorter than the pool's POLL_S, and a few hundred wake-ups
+# a second cost next to nothing (tuned: docs/performance.md#action).
 STOP_POLL_S = 0.005
 # Progress reports at most this often (s): 4 Hz, well above the 1 Hz the action
-# promises, and a negligible cost next to a chunk (~10-20 ms of work).
+# promises, and a negligible cost next to a chunk's work.
 REPORT_PERIOD_S = 0.25
 # Chunks of one job queued at once per worker: one being decided and one waiting, so a
 # worker never idles between two chunks of the job, while a second job's (or a batch's)
@@ -118,8 +117,9 @@ class _Tally:
 
 def _chunk_result(future: Future, chunk: PackedGrasps, settings: Settings
                   ) -> tuple[Verdicts, dict]:
-    """A finished chunk's verdicts; a failed worker fails this chunk only (its
-    certificates NaN)."""
+    """A finished chunk's verdicts. The pool answers even a chunk its workers died on
+    (with SOLVER_FAILURE verdicts); a Future's exception (the core raising in a pool
+    without workers) fails this chunk only, its certificates NaN."""
     try:
         return future.result()
     except Exception as exc:  # noqa: BLE001 - the rest of the job goes on

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from grasp_fc_ros.core import Status
 
@@ -177,7 +178,7 @@ class Verdicts:
         return len(self.ids)
 
     @classmethod
-    def failed(cls, ids, status: Status, message: str) -> Verdicts:
+    def failed(cls, ids: ArrayLike, status: Status, message: str) -> Verdicts:
         """Every grasp ``ids`` answered with ``status`` and the same ``message``."""
         ids = np.asarray(ids, dtype=np.uint64)
         n = len(ids)

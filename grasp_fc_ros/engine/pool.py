@@ -14,24 +14,24 @@ A chunk's arrays reach its worker through memory shared with it
 
 from __future__ import annotations
 
-import itertools
-import os
-import queue
-import subprocess
-import sys
-import threading
-from collections.abc import Callable
-from concurrent.futures import Future
+import logging
+from collections.abc import Callable, Sequence
+from concurrent.futures import CancelledError, Future
 from concurrent.futures import TimeoutError as FutureTimeout
 
-from grasp_fc_ros.engine.child_process import ONE_THREAD_ENV, read_message, write_message
 from grasp_fc_ros.engine.chunking import CHUNK_CONTACTS, SOFT_CHUNK_DIVISOR, chunk_size
 from grasp_fc_ros.engine.evaluation import evaluate
 from grasp_fc_ros.engine.packed import PackedGrasps, Settings, Verdicts
-from grasp_fc_ros.engine.shared_chunk import PICKLED, SHARED, SharedChunk
+from grasp_fc_ros.engine.worker_crew import (
+    START_TIMEOUT_S,
+    WORKER_COMMAND,
+    WORKER_TIMEOUT_S,
+    WorkerCrew,
+)
 
-# Requests up to this many grasps are decided inline (one core call, ~0.1-0.2 ms): a
-# service call or a trickle of single queries does not wait behind batch chunks.
+# Requests up to this many grasps are decided inline (one core call; tuned:
+# docs/performance.md#service-latency): a service call or a trickle of single queries
+# does not wait behind batch chunks.
 INLINE_GRASPS = 4
 # How often a waiting caller looks at its cancel condition (s).
 POLL_S = 0.02
@@ -39,60 +39,12 @@ POLL_S = 0.02
 PRIORITY_INTERACTIVE = 0
 PRIORITY_BATCH = 1
 
+_log = logging.getLogger(__name__)
+
 
 class Cancelled(Exception):
-    """The caller's cancel condition became true while its chunks were being decided."""
-
-
-class _Worker:
-    """One worker process and the thread that feeds it chunks from the shared queue."""
-
-    def __init__(self, tasks: queue.PriorityQueue, closing: threading.Event, index: int):
-        self._tasks = tasks
-        self._closing = closing
-        self.shared = SharedChunk.create()
-        self.process = self._start()
-        self.thread = threading.Thread(target=self._feed, daemon=True,
-                                       name=f"grasp_fc_worker_{index}")
-        self.thread.start()
-
-    def _start(self) -> subprocess.Popen:
-        """A new worker process, once it says it has imported the core (a pool is ready
-        when its constructor returns, and the first chunks do not wait for imports)."""
-        process = subprocess.Popen(
-            [sys.executable, "-m", "grasp_fc_ros.engine.worker", str(self.shared.fd)],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, pass_fds=(self.shared.fd,),
-            env={**os.environ, **ONE_THREAD_ENV})
-        read_message(process.stdout)
-        return process
-
-    def _feed(self):
-        while True:
-            _, _, task = self._tasks.get()
-            if task is None:
-                return  # the pool is closing
-            future, chunk, settings = task
-            if not future.set_running_or_notify_cancel():
-                continue
-            try:
-                layout = self.shared.put(chunk)
-                write_message(self.process.stdin, (SHARED, layout, settings) if layout is not None
-                       else (PICKLED, chunk, settings))
-                ok, answer = read_message(self.process.stdout)
-            except Exception as exc:  # noqa: BLE001 - the worker died: fail this chunk only
-                future.set_exception(RuntimeError(f"worker process failed: {exc!r}"))
-                if self._closing.is_set():
-                    return
-                if self.process.poll() is None:
-                    self.process.kill()
-                self.process = self._start()
-                continue
-            if ok:
-                future.set_result(answer)
-            else:
-                future.set_exception(RuntimeError(answer))
-
-
+    """The caller's cancel condition became true while its chunks were being decided, or
+    the pool was closed."""
 
 
 class Decision:
@@ -108,18 +60,21 @@ class Decision:
     def result(self, cancelled: Callable[[], bool] = lambda: False) -> tuple[Verdicts, dict]:
         """The verdicts, in order, and the seconds per stage summed over the chunks.
 
+        Every grasp has a verdict: a chunk on which worker processes died twice has
+        SOLVER_FAILURE verdicts saying so (see :class:`EvaluationPool`), the others
+        theirs.
+
         Raises
         ------
         Cancelled
             If ``cancelled()`` became true before all chunks were decided (the chunks
-            not started yet are dropped).
-        RuntimeError
-            If a worker failed on a chunk.
+            not decided yet are dropped), or the pool was closed meanwhile.
         """
         if self._ready is not None:
             return self._ready
         try:
-            parts, seconds = [], {}
+            parts: list[Verdicts] = []
+            seconds: dict[str, float] = {}
             for future in self._futures:
                 verdicts, chunk_seconds = self._wait(future, cancelled)
                 parts.append(verdicts)
@@ -131,7 +86,7 @@ class Decision:
                 future.cancel()
 
     @staticmethod
-    def _wait(future: Future, cancelled: Callable[[], bool]):
+    def _wait(future: Future, cancelled: Callable[[], bool]) -> tuple[Verdicts, dict]:
         while True:
             if cancelled():
                 raise Cancelled()
@@ -139,10 +94,20 @@ class Decision:
                 return future.result(POLL_S)
             except FutureTimeout:
                 continue
+            except CancelledError:
+                raise Cancelled("the pool was closed") from None
 
 
 class EvaluationPool:
     """Decide packed grasps, large ones in chunks on ``workers`` processes.
+
+    A worker that dies while deciding a chunk, or does not answer it within its bound
+    (``worker_timeout_s`` plus a time per contact:
+    :func:`~.worker_crew.answer_bound_s`; it is then killed), is replaced, and the chunk
+    is decided again by the next free worker. Only a chunk on which workers die twice
+    is not: its grasps get SOLVER_FAILURE verdicts saying so, the rest of the request
+    its own. A worker that cannot be started leaves its chunks to the others; with no
+    worker left, chunks are decided in this process. See :mod:`.worker_crew`.
 
     Parameters
     ----------
@@ -150,15 +115,31 @@ class EvaluationPool:
         Number of worker processes; 0 decides everything in the calling thread.
     chunk_contacts : int
         Largest number of contacts sent to a worker at once.
+    worker_timeout_s : float
+        Least time a worker may take to answer a chunk before it counts as hung (s).
+    start_timeout_s : float
+        Longest a worker may take to start (imports, loading or compiling the core's
+        kernels) before it counts as failed (s).
+    worker_command : sequence of str, optional
+        The command that starts a worker process, to which the pool appends a file
+        descriptor (default :data:`~.worker_crew.WORKER_COMMAND`,
+        ``python -m grasp_fc_ros.engine.worker``). A seam: fault tests start workers
+        that die on chosen chunks; a deployment may wrap the command (``nice``).
+    log : callable (str) -> None, optional
+        Told of every worker that dies, hangs or cannot start and what became of its
+        chunk (default: this module's :mod:`logging` logger, as warnings).
     """
 
-    def __init__(self, workers: int, chunk_contacts: int = CHUNK_CONTACTS):
+    def __init__(self, workers: int, chunk_contacts: int = CHUNK_CONTACTS, *,
+                 worker_timeout_s: float = WORKER_TIMEOUT_S,
+                 start_timeout_s: float = START_TIMEOUT_S,
+                 worker_command: Sequence[str] | None = None,
+                 log: Callable[[str], None] | None = None):
         self.workers = workers
         self._chunk_contacts = chunk_contacts
-        self._tasks: queue.PriorityQueue = queue.PriorityQueue()
-        self._order = itertools.count()
-        self._closing = threading.Event()
-        self._workers = [_Worker(self._tasks, self._closing, i) for i in range(workers)]
+        self._crew = WorkerCrew(workers, WORKER_COMMAND if worker_command is None
+                                else worker_command, worker_timeout_s, start_timeout_s,
+                                _log.warning if log is None else log) if workers else None
 
     def decide(self, packed: PackedGrasps, settings: Settings,
                cancelled: Callable[[], bool] = lambda: False,
@@ -184,19 +165,16 @@ class EvaluationPool:
         :data:`INLINE_GRASPS` grasps (or with no workers) are decided here, before
         returning.
         """
-        if not self._workers or len(packed) <= INLINE_GRASPS:
+        if self._crew is None or len(packed) <= INLINE_GRASPS:
             return Decision([], evaluate(packed, settings))
-        futures = []
-        # Soft grasps take the exact test's Clarabel path, ~15-60x a hard grasp's cost
-        # (benchmarks/bench_soft.py): smaller chunks keep one chunk's delay as short.
+        # Soft grasps take the exact test's Clarabel path, many times a hard grasp's cost
+        # (tuned: docs/performance.md#worker-chunks): smaller chunks keep one chunk's delay
+        # as short.
         limit = (self._chunk_contacts if packed.torsional is None
                  else max(1, self._chunk_contacts // SOFT_CHUNK_DIVISOR))
-        size = chunk_size(int(packed.counts.sum()), len(self._workers), limit)
-        for chunk in packed.chunks(size):
-            future: Future = Future()
-            self._tasks.put((priority, next(self._order), (future, chunk, settings)))
-            futures.append(future)
-        return Decision(futures)
+        size = chunk_size(int(packed.counts.sum()), self.workers, limit)
+        return Decision([self._crew.submit(chunk, settings, priority)
+                         for chunk in packed.chunks(size)])
 
     @property
     def chunk_contacts(self) -> int:
@@ -209,30 +187,33 @@ class EvaluationPool:
 
         For callers that pace their own chunks (the ``label_grasps`` action). Without
         workers the chunk is decided at once in the calling thread (the Future is done
-        on return). A worker failure sets the Future's exception (RuntimeError).
+        on return; an exception of the core is its exception). A chunk on which workers
+        die twice gets SOLVER_FAILURE verdicts saying so, as with :meth:`start`; the
+        Future is cancelled if the pool closes first.
         """
+        if self._crew is not None:
+            return self._crew.submit(chunk, settings, priority)
         future: Future = Future()
-        if not self._workers:
-            future.set_running_or_notify_cancel()
-            try:
-                future.set_result(evaluate(chunk, settings))
-            except Exception as exc:  # noqa: BLE001 - reported through the Future
-                future.set_exception(exc)
-            return future
-        self._tasks.put((priority, next(self._order), (future, chunk, settings)))
+        future.set_running_or_notify_cancel()
+        try:
+            future.set_result(evaluate(chunk, settings))
+        except Exception as exc:  # noqa: BLE001 - reported through the Future
+            future.set_exception(exc)
         return future
 
-    def close(self):
-        """Stop the workers at once (a chunk in progress is abandoned)."""
-        self._closing.set()
-        for worker in self._workers:
-            self._tasks.put((-1, next(self._order), None))
-        for worker in self._workers:
-            worker.process.kill()
-            worker.process.wait()
-        for worker in self._workers:
-            worker.thread.join(timeout=1.0)
-            if not worker.thread.is_alive():
-                worker.shared.close()
-        self._workers = []
+    def worker_pids(self) -> list[int]:
+        """Process ids of the worker processes running now (for monitoring and fault
+        tests); empty without workers."""
+        return [] if self._crew is None else self._crew.pids()
 
+    @property
+    def worker_restarts(self) -> int:
+        """Worker processes that died or were killed as hung since the pool started."""
+        return 0 if self._crew is None else self._crew.restarts
+
+    def close(self) -> None:
+        """Stop the workers at once: chunks in progress are abandoned, and the requests
+        still waiting for chunks get :class:`Cancelled`."""
+        if self._crew is not None:
+            self._crew.close()
+            self._crew = None

@@ -13,10 +13,9 @@ from grasp_fc_ros.engine.packed import PackedGrasps
 # Bytes of the memory each worker shares with its owner for the chunks' arrays: a chunk
 # of CHUNK_CONTACTS hard contacts takes 16 * grasps + 56 * contacts bytes, at most
 # 1,048,576 (two-contact grasps); 2 MiB leave room, and pages never written cost nothing.
-# Pickled through the pipes, 10,000-grasp batches (3 MB) in chunks of 4,096 contacts
-# cost the pool's owner ~0.85 and the workers ~9.1 us of CPU per grasp, shared ~0.66
-# and ~8.3 (benchmarks/bench_pool.py, alternating runs). A chunk that does not fit (huge grasps,
-# thousands of empty ones) still goes through the pipe.
+# Shared, a chunk costs the pool's owner and the workers less CPU than pickled through
+# the pipes (tuned: docs/performance.md#worker-pool). A chunk that does not fit (huge
+# grasps, thousands of empty ones) still goes through the pipe.
 SHARED_BYTES = 2 << 20
 
 

@@ -10,16 +10,27 @@ from __future__ import annotations
 
 import signal
 import sys
+from collections.abc import Callable
 
 from grasp_fc_ros.core import warm_up
 from grasp_fc_ros.engine.child_process import read_message, write_message
 from grasp_fc_ros.engine.evaluation import evaluate
+from grasp_fc_ros.engine.packed import PackedGrasps, Settings, Verdicts
 from grasp_fc_ros.engine.shared_chunk import SHARED, SharedChunk
 
+#: What a worker does with a chunk: :func:`~.evaluation.evaluate`'s signature.
+Decide = Callable[[PackedGrasps, Settings], tuple[Verdicts, dict]]
 
-def serve(shared_fd: int):
+
+def serve(shared_fd: int, decide: Decide = evaluate) -> None:
     """Worker main loop: a chunk in on stdin (its arrays in the memory of file descriptor
-    ``shared_fd``, or pickled whole), (verdicts, seconds) out on stdout."""
+    ``shared_fd``, or pickled whole), ``(True, decide(chunk, settings))`` out on stdout,
+    or ``(False, reason)`` if ``decide`` raised.
+
+    ``decide`` is a seam for fault tests (test/engine/faulty_worker.py wraps
+    :func:`~.evaluation.evaluate` in a worker that dies or hangs on chosen chunks);
+    the pool's workers use :func:`~.evaluation.evaluate` itself.
+    """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     stdin, stdout = sys.stdin.buffer, sys.stdout.buffer
     # Anything else printing to stdout would corrupt the stream: send it to stderr.
@@ -32,8 +43,9 @@ def serve(shared_fd: int):
             how, chunk, settings = read_message(stdin)
         except EOFError:
             return  # the owner closed the pipe or died
+        answer: tuple[bool, object]
         try:
-            answer = True, evaluate(shared.get(chunk) if how == SHARED else chunk, settings)
+            answer = True, decide(shared.get(chunk) if how == SHARED else chunk, settings)
         except Exception as exc:  # noqa: BLE001 - reported to the owner, worker goes on
             answer = False, f"{type(exc).__name__}: {exc}"
         write_message(stdout, answer)

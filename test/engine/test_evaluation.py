@@ -1,20 +1,17 @@
-"""grasp_fc_ros.engine.evaluation and the worker pool without ROS: packed grasps in,
-verdicts out, structured validation errors, chunks on worker processes."""
+"""grasp_fc_ros.engine.evaluation without ROS: packed grasps in, verdicts out, structured
+validation errors, requests cut into chunks. The worker pool: test_workers.py."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from grasp_fc_ros.core import Status, check_force_closure
 from grasp_fc_ros.engine.evaluation import InvalidGrasp, evaluate, find_invalid
 from grasp_fc_ros.engine.packed import PackedGrasps, Settings, Verdicts
 from grasp_fc_ros.objects import make_object, sample_grasps
-from grasp_fc_ros.engine import shared_chunk
-from grasp_fc_ros.engine.chunking import chunk_size
-from grasp_fc_ros.engine.pool import EvaluationPool
-from grasp_fc_ros.engine.shared_chunk import SharedChunk
 
 # The exact test's margin depends on which grasps share a solver call, to solver accuracy.
 MARGIN_ABS_TOL = 1e-6
@@ -113,7 +110,8 @@ def test_invalid_grasps_are_structured_and_spare_the_others(mixed):
     ]
     verdicts, _ = evaluate(packed, settings_)
     assert verdicts.messages[1] == "grasp 1 (id 101), contact 2: position is not finite"
-    assert verdicts.messages[4] == "grasp 4 (id 104): 1 contacts; a grasp needs 2 to max_contacts=64"
+    assert verdicts.messages[4] == ("grasp 4 (id 104): 1 contacts; a grasp needs 2 to "
+                                    "max_contacts=64")
     assert (verdicts.status[[1, 3, 4, 5]] == Status.INVALID_INPUT).all()
     good = [0, 2]
     assert all(verdicts.messages[i] == "" for i in good)
@@ -260,153 +258,3 @@ def test_chunks_partition_the_grasps_in_order(sizes, bound):
         # A chunk holds at most `bound` contacts, unless it is a single larger grasp.
         assert c.counts.sum() <= bound or len(c) == 1
         assert len(c.positions) == c.counts.sum()
-
-
-@pytest.mark.parametrize("total, workers, expected", [
-    (6000, 2, 3000),     # 1,000 6-finger grasps: two equal chunks, not 4096 + 1904
-    (10_000, 2, 3334),   # three chunks within the bound, as equal as possible
-    (100_000, 2, 4000),  # 25 chunks
-    (1500, 2, 1500),     # splitting would leave chunks under MIN_CHUNK_CONTACTS
-    (2048, 2, 1024),
-    (6000, 0, 3000),     # no workers: the bound alone
-    (0, 2, 1),
-])
-def test_chunks_are_balanced_over_the_workers(total, workers, expected):
-    assert chunk_size(total, workers, 4096) == expected
-
-
-def test_worker_pool_gives_the_inline_verdicts_in_order():
-    rng = np.random.default_rng(12)
-    positions, normals = sample_grasps(make_object("box"), 300, 6, rng)
-    packed = pack(list(zip(positions, normals)))
-    inline, _ = evaluate(packed, Settings())
-    pool = EvaluationPool(2, chunk_contacts=200)  # 9 chunks of 33 grasps or fewer
-    try:
-        pooled, seconds = pool.decide(packed, Settings())
-    finally:
-        pool.close()
-    np.testing.assert_array_equal(pooled.ids, inline.ids)
-    np.testing.assert_array_equal(pooled.status, inline.status)
-    np.testing.assert_allclose(pooled.margin, inline.margin, rtol=MARGIN_REL_TOL,
-                               atol=MARGIN_ABS_TOL, equal_nan=True)
-    assert pooled.messages == inline.messages
-    assert seconds["exact_s"] > 0
-
-
-def test_started_requests_are_decided_side_by_side_and_collected_in_any_order():
-    rng = np.random.default_rng(14)
-    positions, normals = sample_grasps(make_object("box"), 120, 6, rng)
-    first = pack(list(zip(positions[:80], normals[:80])))
-    second = pack(list(zip(positions[80:], normals[80:])))
-    tiny = first.slice(0, 2)  # decided inline, at start
-    pool = EvaluationPool(1, chunk_contacts=120)  # 20 grasps a chunk, one worker
-    try:
-        decisions = [pool.start(packed, Settings()) for packed in (first, second, tiny)]
-        results = [decision.result()[0] for decision in reversed(decisions)][::-1]
-    finally:
-        pool.close()
-    for packed, got in zip((first, second, tiny), results):
-        inline, _ = evaluate(packed, Settings())
-        np.testing.assert_array_equal(got.ids, inline.ids)
-        np.testing.assert_array_equal(got.status, inline.status)
-
-
-def test_a_killed_worker_fails_its_chunk_and_is_replaced():
-    rng = np.random.default_rng(13)
-    positions, normals = sample_grasps(make_object("box"), 400, 6, rng)
-    packed = pack(list(zip(positions, normals)))
-    pool = EvaluationPool(1, chunk_contacts=60)  # 40 chunks, one worker
-    try:
-        victim = pool._workers[0].process
-        killed = []
-
-        def kill_once():
-            if not killed:
-                killed.append(True)
-                victim.kill()
-            return False
-
-        with pytest.raises(RuntimeError, match="worker process failed"):
-            pool.decide(packed, Settings(), cancelled=kill_once)
-        # The replacement answers the next request, with the inline verdicts.
-        first = packed.slice(0, 20)
-        again, _ = pool.decide(first, Settings())
-        np.testing.assert_array_equal(again.status, evaluate(first, Settings())[0].status)
-        assert pool._workers[0].process is not victim
-    finally:
-        pool.close()
-
-
-# --- chunks in shared memory --------------------------------------------------------------
-
-@settings(max_examples=60, deadline=None)
-@given(counts=st.lists(st.integers(0, 7), max_size=12), soft=st.booleans(),
-       name_by_id=st.booleans(), first_index=st.integers(0, 10**6), seed=st.integers(0, 99))
-def test_a_shared_chunk_reads_back_what_was_put(counts, soft, name_by_id, first_index, seed):
-    rng = np.random.default_rng(seed)
-    k = sum(counts)
-    chunk = PackedGrasps(
-        ids=rng.integers(0, 2**63, len(counts)).astype(np.uint64) + 2**63,
-        counts=np.array(counts, np.int64), positions=rng.normal(size=(k, 3)),
-        normals=rng.normal(size=(k, 3)), mu=rng.uniform(-1, 1, k), name_by_id=name_by_id,
-        first_index=first_index, torsional=rng.uniform(0, 0.01, k) if soft else None)
-    shared = SharedChunk.create()
-    try:
-        shared.put(PackedGrasps(  # a larger chunk first: nothing of it may show through
-            ids=np.arange(40, dtype=np.uint64), counts=np.full(40, 3),
-            positions=np.ones((120, 3)), normals=np.ones((120, 3)), mu=np.ones(120),
-            torsional=np.ones(120)))
-        # Another mapping of the same memory file, as the worker process has.
-        reader = SharedChunk(shared.fd)
-        got = reader.get(shared.put(chunk))
-        for name in ("ids", "counts", "positions", "normals", "mu"):
-            np.testing.assert_array_equal(getattr(got, name), getattr(chunk, name))
-            assert getattr(got, name).dtype == getattr(chunk, name).dtype
-        assert (got.name_by_id, got.first_index) == (name_by_id, first_index)
-        if soft:
-            np.testing.assert_array_equal(got.torsional, chunk.torsional)
-        else:
-            assert got.torsional is None
-        del got  # views of the memory: it cannot be unmapped while they exist
-        reader.memory.close()
-    finally:
-        shared.close()
-
-
-def test_a_chunk_too_large_for_the_shared_memory_is_refused():
-    positions = np.zeros((1000, 3))
-    chunk = PackedGrasps(ids=np.arange(250, dtype=np.uint64), counts=np.full(250, 4),
-                         positions=positions, normals=positions, mu=np.zeros(1000))
-    shared = SharedChunk.create(16 * 250 + 56 * 1000 - 8)  # 8 bytes short
-    try:
-        assert shared.put(chunk) is None
-    finally:
-        shared.close()
-    shared = SharedChunk.create(16 * 250 + 56 * 1000)  # exactly enough
-    try:
-        assert shared.get(shared.put(chunk)).ids.tolist() == chunk.ids.tolist()
-    finally:
-        shared.close()
-
-
-def test_chunks_that_do_not_fit_go_through_the_pipe_with_the_same_verdicts(monkeypatch):
-    """With shared memory too small for any chunk, every chunk is pickled through the
-    pipe, and the verdicts are those decided inline."""
-    rng = np.random.default_rng(21)
-    positions, normals = sample_grasps(make_object("box"), 60, 6, rng)
-    packed = pack(list(zip(positions, normals)))
-    monkeypatch.setattr(shared_chunk, "SHARED_BYTES", 64)
-    sent = []
-    put = SharedChunk.put
-    monkeypatch.setattr(SharedChunk, "put",
-                        lambda self, chunk: sent.append(put(self, chunk)) or sent[-1])
-    pool = EvaluationPool(2, chunk_contacts=60)  # 10 grasps a chunk
-    try:
-        got, _ = pool.decide(packed, Settings())
-    finally:
-        pool.close()
-    assert len(sent) == 6 and all(layout is None for layout in sent)
-    want, _ = evaluate(packed, Settings())
-    np.testing.assert_array_equal(got.ids, want.ids)
-    np.testing.assert_array_equal(got.status, want.status)
-    np.testing.assert_array_equal(got.margin, want.margin)

@@ -1,0 +1,166 @@
+"""Worker faults, the long form: a worker process SIGKILLed in the middle of a large batch,
+through the node and on the worker pool alone; no grasp may be lost to it.
+
+1. node: the force_closure node in its own process (max_batch = the batch's size), one
+   batch of --grasps 6-finger grasps through grasp_fc_ros.client.GraspClient; once one
+   of the node's worker processes (children of the node, found through /proc) is busy
+   on it, that worker is SIGKILLed.
+2. engine: the same grasps on grasp_fc_ros.engine.pool.EvaluationPool in this process,
+   a busy worker SIGKILLed the same way.
+
+Each prints the grasps answered SOLVER_FAILURE (target 0) and the verdicts that differ
+from the core's (check_force_closure in this process on the same grasps: status and
+force closure; target 0), whether the kill came while the request was still being
+decided, and the seconds from sending to the answer.
+
+Usage: python benchmarks/bench_faults.py [--grasps N] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+import time
+from collections.abc import Callable, Iterable
+from concurrent.futures import Future
+from pathlib import Path
+
+import numpy as np
+import rclpy
+from bench_ros import process_cpu_s, start_node, stop_node, verdict
+
+from grasp_fc_ros.core import Status, check_force_closure
+from grasp_fc_ros.engine.packed import PackedGrasps, Settings, Verdicts
+from grasp_fc_ros.engine.pool import EvaluationPool
+from grasp_fc_ros.objects import make_object, sample_grasps
+
+N_FINGERS = 6
+MU = 0.5  # the node's default friction
+GRASPS = 200_000
+QUICK_GRASPS = 20_000
+# A worker counts as busy on the request once it has used this much more CPU (s).
+BUSY_CPU_S = 0.1
+REPLY_TIMEOUT_S = 600.0
+WORKER_MODULE = "grasp_fc_ros.engine.worker"
+
+
+def worker_pids(parent: int) -> list[int]:
+    """The pool's worker processes among the children of process ``parent`` (/proc)."""
+    found = []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            stat = Path(f"/proc/{entry}/stat").read_text()
+            command = Path(f"/proc/{entry}/cmdline").read_bytes()
+        except OSError:
+            continue
+        if (int(stat.rsplit(")", 1)[1].split()[1]) == parent
+                and WORKER_MODULE.encode() in command):
+            found.append(int(entry))
+    return found
+
+
+def kill_when_busy(pids: Iterable[int], answer: Future) -> tuple[int, bool]:
+    """SIGKILL the first of ``pids`` to use BUSY_CPU_S more CPU: (its pid, whether the
+    request was still being decided then)."""
+    start = {pid: process_cpu_s(pid) for pid in pids}
+    deadline = time.monotonic() + REPLY_TIMEOUT_S
+    while time.monotonic() < deadline:
+        for pid, used in start.items():
+            if process_cpu_s(pid) - used >= BUSY_CPU_S:
+                pending = not answer.done()
+                os.kill(pid, signal.SIGKILL)
+                return pid, pending
+        time.sleep(0.002)
+    raise RuntimeError("no worker got busy on the request")
+
+
+def report(where: str, verdicts: Verdicts, expected, killed: int, pending: bool,
+           seconds: float) -> bool:
+    """Print the failures and disagreements with the core; whether both are 0."""
+    failures = int(np.count_nonzero(verdicts.status == Status.SOLVER_FAILURE))
+    differ = int(np.count_nonzero((verdicts.status != expected.status)
+                                  | (verdicts.force_closure != expected.force_closure)))
+    lost = len(expected.status) - len(verdicts)
+    ok = failures == 0 and differ == 0 and lost == 0
+    print(f"{where}: worker {killed} SIGKILLed "
+          f"{'mid-request' if pending else 'AFTER the request was decided'}; answered in "
+          f"{seconds:.1f} s; {failures} failures, {differ} verdicts differ from the core's"
+          f"{f', {lost} grasps missing' if lost else ''}  [target 0 and 0: {verdict(ok)}]")
+    if failures:
+        first = int(np.flatnonzero(verdicts.status == Status.SOLVER_FAILURE)[0])
+        print(f"    e.g. grasp {first}: {verdicts.messages[first]}")
+    return ok
+
+
+def through_node(positions: np.ndarray, normals: np.ndarray, expected) -> bool:
+    node, client = start_node("faults", ["-p", f"max_batch:={len(positions)}"])
+    try:
+        began = time.perf_counter()
+        answer = client.submit_batch(positions, normals)
+        killed, pending = kill_when_busy(wait_for_workers(node.pid), answer)
+        verdicts = answer.result(REPLY_TIMEOUT_S)
+        return report(f"node, one {len(positions)}-grasp batch", verdicts, expected, killed,
+                      pending, time.perf_counter() - began)
+    finally:
+        stop_node(node, client)
+
+
+def wait_for_workers(parent: int) -> list[int]:
+    deadline = time.monotonic() + REPLY_TIMEOUT_S
+    while not (pids := worker_pids(parent)):
+        if time.monotonic() > deadline:
+            raise RuntimeError("the node has no worker processes")
+        time.sleep(0.05)
+    return pids
+
+
+def on_pool(positions: np.ndarray, normals: np.ndarray, expected,
+            log: Callable[[str], None]) -> bool:
+    n_grasps = len(positions)
+    request = PackedGrasps(ids=np.arange(n_grasps, dtype=np.uint64),
+                           counts=np.full(n_grasps, N_FINGERS),
+                           positions=positions.reshape(-1, 3), normals=normals.reshape(-1, 3),
+                           mu=np.full(n_grasps * N_FINGERS, MU))
+    pool = EvaluationPool(os.cpu_count() or 1, log=log)
+    try:
+        began = time.perf_counter()
+        decision = pool.start(request, Settings())
+        answer: Future = Future()  # done once the decision's result is in
+        killed, pending = kill_when_busy(pool.worker_pids(), answer)
+        verdicts, _ = decision.result()
+        answer.set_result(None)
+        return report(f"engine, one {n_grasps}-grasp request on {pool.workers} workers",
+                      verdicts, expected, killed, pending, time.perf_counter() - began)
+    finally:
+        pool.close()
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="a worker SIGKILLed mid-batch: no grasp lost")
+    parser.add_argument("--grasps", type=int, default=None,
+                        help=f"grasps in the batch (default {GRASPS}; --quick {QUICK_GRASPS})")
+    parser.add_argument("--quick", action="store_true", help="the smoke test's short form")
+    args = parser.parse_args(argv)
+    n_grasps = args.grasps or (QUICK_GRASPS if args.quick else GRASPS)
+    positions, normals = sample_grasps(make_object("box"), n_grasps, N_FINGERS,
+                                       np.random.default_rng(0))
+    began = time.perf_counter()
+    expected = check_force_closure(positions, normals, MU)
+    print(f"{n_grasps} {N_FINGERS}-finger box grasps; the core alone decided them in "
+          f"{time.perf_counter() - began:.1f} s; {os.cpu_count()} CPUs")
+    rclpy.init()
+    try:
+        node_ok = through_node(positions, normals, expected)
+    finally:
+        rclpy.try_shutdown()
+    engine_ok = on_pool(positions, normals, expected, log=lambda line: print(f"    pool: {line}"))
+    print(f"no grasp lost to a worker's death: {verdict(node_ok and engine_ok)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
