@@ -20,6 +20,8 @@ Closure Grasp":
 * :mod:`.grasp_forces` -- the least largest normal force that holds a given load;
 * :mod:`.force_interior_point` -- its fast stage for hard contacts: a compiled
   interior-point method, every answer checked in numpy;
+* :mod:`._kernels` -- the compiled building blocks of the three interior-point stages
+  (JIT decorator, contact frames, grasp maps, 6 x 6 Cholesky, second-order cone steps);
 * :mod:`.stacked_socp` -- many same-shape SOCPs in one Clarabel solve (for the two above);
 * :mod:`.contact_model` -- hard contacts and soft fingers (torsional friction): cones,
   wrench columns, depths and work, in one place;

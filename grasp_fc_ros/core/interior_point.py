@@ -39,13 +39,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .tolerances import (FAST_RANK_TOL, MARGIN_ACCURACY, MARGIN_TOL, ROUNDING_SLACK,
-                         SEPARATION_TARGET, SHARED_NORMAL_TOL)
-
-try:
-    import numba
-except ImportError:  # pragma: no cover - numba is a pinned runtime dependency
-    numba = None
+from ._kernels.cones import (MIN_STEP, NO_LIMIT, STEP_FRACTION, jordan_divide_into,
+                             jordan_product_into, max_step, nt_scaling, scaled_inverse_apply)
+from ._kernels.frames import normal_split, tangent_frames, work_at, wrench_rows
+from ._kernels.grasp_map import apply_grasp_map, certified_rank
+from ._kernels.jit import jit, kernel_array
+from ._kernels.linear_algebra import cholesky, cholesky_solve
+from .tolerances import (MARGIN_ACCURACY, MARGIN_TOL, ROUNDING_SLACK, SEPARATION_TARGET,
+                         SHARED_NORMAL_TOL)
 
 #: Result codes of the kernel. CONVERGED: the signed mode's gap closed (no verdict).
 FORCE_CLOSURE, NOT_FORCE_CLOSURE, UNDECIDED, CONVERGED = 0, 1, 2, 3
@@ -55,10 +56,6 @@ FORCE_CLOSURE, NOT_FORCE_CLOSURE, UNDECIDED, CONVERGED = 0, 1, 2, 3
 #: MARGIN_ACCURACY 1.5-7 on average; 40 only bounds a stuck or marginal grasp.
 MAX_ITERATIONS = 40
 
-#: Fraction of the step to the cone boundary taken (the usual 0.99 of interior-point
-#: methods: close enough to converge fast, far enough to keep the scaling well-defined).
-STEP_FRACTION = 0.99
-
 #: Centring with the optimum asked for: sigma = min(CAP, (1 - alpha_aff)^POWER) instead
 #: of Mehrotra's (1 - alpha_aff)^3, which is kept for verdicts. Iterating to the optimum,
 #: the cube's too little centring in the late iterations left affine steps of 0.6-0.9
@@ -67,9 +64,6 @@ STEP_FRACTION = 0.99
 #: grasps per cell), while on verdicts it cost up to 3% and the cube stays there.
 OPTIMUM_CENTRING_POWER = 1.5
 OPTIMUM_CENTRING_CAP = 0.1
-
-#: A step shorter than this means the iteration has stalled: hand the grasp over.
-MIN_STEP = 1e-10
 
 _EPS = float(np.finfo(np.float64).eps)
 
@@ -101,171 +95,7 @@ SIGNED_RELATIVE_GAP = 1e-3
 TRIVIAL_BOUND_SLACK = 1e-12
 
 
-def _jit(function):
-    """``numba.njit(cache=True)``; without a usable cache directory, uncached."""
-    try:
-        return numba.njit(cache=True, error_model="numpy")(function)
-    except RuntimeError:  # no writable cache location at all: compile per process
-        return numba.njit(cache=False, error_model="numpy")(function)
-
-
-def kernel_array(values) -> np.ndarray:
-    """``values`` as a C-contiguous, writable float64 array, to pass to a compiled kernel.
-
-    numba compiles a kernel once per argument type, and a read-only array (from
-    ``np.frombuffer``, ``np.broadcast_to`` or an unpickled buffer) is a type of its own:
-    passed as it is, it made the node's first queries compile the exact stage again
-    after :func:`warm_up` (~15 s of CPU in a fresh install, a cache load in every later
-    process). Only such arrays are copied.
-    """
-    return np.require(values, np.float64, ("C", "W"))
-
-
-def _frames(normals, first, second):
-    """Duff et al.'s branch-free tangents (n, 3) into ``first`` and ``second``, for unit
-    normals (n, 3)."""
-    n = normals.shape[0]
-    for i in range(n):
-        x, y, z = normals[i, 0], normals[i, 1], normals[i, 2]
-        sign = 1.0 if z >= 0.0 else -1.0
-        a = -1.0 / (sign + z)
-        b = x * y * a
-        first[i, 0], first[i, 1], first[i, 2] = 1.0 + sign * x * x * a, sign * b, -sign * x
-        second[i, 0], second[i, 1], second[i, 2] = b, sign + y * y * a, -y
-
-
-def _wrench_rows(unit, direction, rows):
-    """Wrenches (n, 6) into ``rows`` of unit forces along ``direction`` (n, 3) at ``unit``."""
-    for i in range(unit.shape[0]):
-        u, e = unit[i], direction[i]
-        rows[i, 0], rows[i, 1], rows[i, 2] = e[0], e[1], e[2]
-        rows[i, 3] = u[1] * e[2] - u[2] * e[1]
-        rows[i, 4] = u[2] * e[0] - u[0] * e[2]
-        rows[i, 5] = u[0] * e[1] - u[1] * e[0]
-
-
-def _work_at(w, point):
-    """The work vector (3 floats) w_F + w_T x point of wrench w (6,) at ``point`` (3,):
-    G_i^T w for the contact there."""
-    return (w[0] + w[4] * point[2] - w[5] * point[1],
-            w[1] + w[5] * point[0] - w[3] * point[2],
-            w[2] + w[3] * point[1] - w[4] * point[0])
-
-
-def _normal_split(x0, x1, x2, normal):
-    """Normal component and tangential length of the vector (x0, x1, x2) at a unit
-    ``normal`` (3,)."""
-    x_n = x0 * normal[0] + x1 * normal[1] + x2 * normal[2]
-    x_t = np.sqrt((x0 - x_n * normal[0]) ** 2 + (x1 - x_n * normal[1]) ** 2
-                  + (x2 - x_n * normal[2]) ** 2)
-    return x_n, x_t
-
-
-def _gram(unit, gram):
-    """G G^T (6 x 6) into ``gram`` for global force components at ``unit`` (n, 3):
-    [[n I, -sum [u]x], [sum [u]x, sum (|u|^2 I - u u^T)]]."""
-    gram[:] = 0.0
-    sx = sy = sz = 0.0
-    for i in range(unit.shape[0]):
-        x, y, z = unit[i, 0], unit[i, 1], unit[i, 2]
-        sx += x
-        sy += y
-        sz += z
-        square = x * x + y * y + z * z
-        for r in range(3):
-            for c in range(3):
-                gram[3 + r, 3 + c] -= unit[i, r] * unit[i, c]
-            gram[3 + r, 3 + r] += square
-    for r in range(3):
-        gram[r, r] = unit.shape[0]
-    # sum [u]x = [[0, -sz, sy], [sz, 0, -sx], [-sy, sx, 0]] in the lower-left block.
-    cross = ((0.0, -sz, sy), (sz, 0.0, -sx), (-sy, sx, 0.0))
-    for r in range(3):
-        for c in range(3):
-            gram[3 + r, c] = cross[r][c]
-            gram[c, 3 + r] = cross[r][c]
-
-
-def _apply_grasp_map(unit, forces, out):
-    """G f (6,) into ``out`` for global forces (n, 3) at ``unit``."""
-    out[:] = 0.0
-    for i in range(unit.shape[0]):
-        u, f = unit[i], forces[i]
-        out[0] += f[0]
-        out[1] += f[1]
-        out[2] += f[2]
-        out[3] += u[1] * f[2] - u[2] * f[1]
-        out[4] += u[2] * f[0] - u[0] * f[2]
-        out[5] += u[0] * f[1] - u[1] * f[0]
-
-
-def _cholesky_solve(factor, rhs, x, y):
-    """Solve (L L^T) x = rhs for a lower-triangular 6 x 6 L; ``y`` is scratch (x may be
-    rhs). The literal size lets the compiler unroll both substitutions (3x faster than
-    loops over ``rhs.shape[0]``, measured)."""
-    for r in range(6):
-        acc = rhs[r]
-        for c in range(r):
-            acc -= factor[r, c] * y[c]
-        y[r] = acc / factor[r, r]
-    for r in range(5, -1, -1):
-        acc = y[r]
-        for c in range(r + 1, 6):
-            acc -= factor[c, r] * x[c]
-        x[r] = acc / factor[r, r]
-
-
-def _triangular_inverse_norm2(factor, column):
-    """|L^-1|_F^2 of a lower-triangular 6 x 6 L, by forward substitution column by
-    column (literal size, as in :func:`_cholesky_solve`)."""
-    total = 0.0
-    for k in range(6):
-        for r in range(6):
-            if r < k:
-                column[r] = 0.0
-                continue
-            acc = 1.0 if r == k else 0.0
-            for c in range(k, r):
-                acc -= factor[r, c] * column[c]
-            column[r] = acc / factor[r, r]
-            total += column[r] * column[r]
-    return total
-
-
-def _cholesky(matrix, factor):
-    """Lower Cholesky factor of a 6 x 6 ``matrix`` into ``factor`` (literal size, as in
-    :func:`_cholesky_solve`); False on a non-positive pivot."""
-    factor[:] = 0.0
-    for r in range(6):
-        for c in range(r + 1):
-            acc = matrix[r, c]
-            for k in range(c):
-                acc -= factor[r, k] * factor[c, k]
-            if r == c:
-                if not acc > 0.0:
-                    return False
-                factor[r, r] = np.sqrt(acc)
-            else:
-                factor[r, c] = acc / factor[c, c]
-    return True
-
-
-def _certified_rank(unit, gram, gram_factor, scratch):
-    """(sigma_min, |G|_F) of the grasp map at ``unit`` (n, 3), with G G^T into ``gram``
-    and its Cholesky factor into ``gram_factor``; sigma_min is 0 where rank 6 is not
-    certain (sigma_min^2 <= FAST_RANK_TOL^2 trace(G G^T))."""
-    _gram(unit, gram)
-    trace = np.trace(gram)
-    if not _cholesky(gram, gram_factor):
-        return 0.0, np.sqrt(trace)
-    # lambda_min(G G^T) = 1 / |L^-T L^-1|_2 >= 1 / |L^-1|_F^2: a lower bound on sigma_min,
-    # so the witness slack errs on the safe side; lambda_max <= trace likewise.
-    lambda_min = 1.0 / _triangular_inverse_norm2(gram_factor, scratch)
-    if not lambda_min > FAST_RANK_TOL * FAST_RANK_TOL * trace:
-        return 0.0, np.sqrt(trace)
-    return np.sqrt(lambda_min), np.sqrt(trace)
-
-
+@jit
 def _witness(unit, normals, tangent, bitangent, mu, z, sigma, gram_factor, sigma_min,
              grasp_norm, out, forces, y, check, scratch):
     """Certified depth of the forces of primal iterate z (n, 3); the projected forces,
@@ -280,16 +110,16 @@ def _witness(unit, normals, tangent, bitangent, mu, z, sigma, gram_factor, sigma
         for k in range(3):
             forces[i, k] = c_n * normals[i, k] - mu[i] * (z[i, 1] * tangent[i, k]
                                                           + z[i, 2] * bitangent[i, k])
-    _apply_grasp_map(unit, forces, check)
-    _cholesky_solve(gram_factor, check, y, scratch)
+    apply_grasp_map(unit, forces, check)
+    cholesky_solve(gram_factor, check, y, scratch)
     size = 0.0
     for i in range(n):
-        g0, g1, g2 = _work_at(y, unit[i])                              # G_i^T y
+        g0, g1, g2 = work_at(y, unit[i])                              # G_i^T y
         forces[i, 0] -= g0
         forces[i, 1] -= g1
         forces[i, 2] -= g2
         size += forces[i, 0] ** 2 + forces[i, 1] ** 2 + forces[i, 2] ** 2
-    _apply_grasp_map(unit, forces, check)
+    apply_grasp_map(unit, forces, check)
     residual = 0.0
     for r in range(6):
         residual += check[r] * check[r]
@@ -298,7 +128,7 @@ def _witness(unit, normals, tangent, bitangent, mu, z, sigma, gram_factor, sigma
     total = 0.0
     worst = np.inf
     for i in range(n):
-        f_n, tangential = _normal_split(forces[i, 0], forces[i, 1], forces[i, 2], normals[i])
+        f_n, tangential = normal_split(forces[i, 0], forces[i, 1], forces[i, 2], normals[i])
         worst = min(worst, mu[i] * f_n - tangential - (mu[i] + 1.0) * reach)
         total += f_n
     slack = np.sqrt(n) * reach
@@ -310,6 +140,7 @@ def _witness(unit, normals, tangent, bitangent, mu, z, sigma, gram_factor, sigma
     return worst / (total + slack)
 
 
+@jit
 def _unprojected_depth(z, mu, t_p):
     """Depth t_p + min_i mu_i (z0_i - |z_t,i|) of the forces of primal iterate z before
     the projection onto equilibrium (mu_i c_n,i - |c_t,i| = t_p + mu_i (z0_i - |z_t,i|),
@@ -321,6 +152,7 @@ def _unprojected_depth(z, mu, t_p):
     return t_p + lowest
 
 
+@jit
 def _bound(unit, normals, mu, w, normal_work):
     """Certified upper bound on t* from wrench w (6,), and whether w meets the
     separation target (L <= SEPARATION_TARGET max_j |a_j|)."""
@@ -332,8 +164,8 @@ def _bound(unit, normals, mu, w, normal_work):
     largest = 0.0
     mu_max = 0.0
     for i in range(n):
-        a0, a1, a2 = _work_at(w, unit[i])
-        a_n, a_t = _normal_split(a0, a1, a2, normals[i])
+        a0, a1, a2 = work_at(w, unit[i])
+        a_n, a_t = normal_split(a0, a1, a2, normals[i])
         normal_work[i] = a_n
         level = max(level, a_n + mu[i] * a_t)
         largest = max(largest, np.sqrt(a0 * a0 + a1 * a1 + a2 * a2))
@@ -348,87 +180,7 @@ def _bound(unit, normals, mu, w, normal_work):
     return bound, raw_level <= SEPARATION_TARGET * largest
 
 
-def _nt_scaling(z, s, scaling, inverse_vector):
-    """Nesterov-Todd scaling of one 3-cone pair, for z, s interior.
-
-    Fills ``scaling`` (3, 3) with W (W z = W^-1 s) and ``inverse_vector`` (3,) with
-    J v, where W = eta Wbar, Wbar^2 = 2 v v^T - J; so W^-1 = (1/eta) J Wbar J and
-    W^-2 = (1/eta^2) (2 (Jv)(Jv)^T - J). Returns 1/eta^2, or NaN if z or s has left
-    the cone interior.
-    """
-    z_det = z[0] * z[0] - z[1] * z[1] - z[2] * z[2]
-    s_det = s[0] * s[0] - s[1] * s[1] - s[2] * s[2]
-    if not (z_det > 0.0 and s_det > 0.0 and z[0] > 0.0 and s[0] > 0.0):
-        return np.nan
-    # Four reciprocals instead of fifteen divisions (the divider bounds this function;
-    # 2x faster, measured); rounding of the scaling only, which no certificate uses.
-    z_root, s_root = np.sqrt(z_det), np.sqrt(s_det)
-    z_inv, s_inv = 1.0 / z_root, 1.0 / s_root
-    gamma = np.sqrt(0.5 * (1.0 + (z[0] * s[0] + z[1] * s[1] + z[2] * s[2]) * (z_inv * s_inv)))
-    half_inv_gamma = 0.5 / gamma
-    v0 = (s[0] * s_inv + z[0] * z_inv) * half_inv_gamma
-    v1 = (s[1] * s_inv - z[1] * z_inv) * half_inv_gamma
-    v2 = (s[2] * s_inv - z[2] * z_inv) * half_inv_gamma
-    eta = np.sqrt(s_root * z_inv)
-    off = eta / (1.0 + v0)
-    scaling[0, 0] = eta * v0
-    scaling[0, 1] = scaling[1, 0] = eta * v1
-    scaling[0, 2] = scaling[2, 0] = eta * v2
-    scaling[1, 1] = eta + off * v1 * v1
-    scaling[2, 2] = eta + off * v2 * v2
-    scaling[1, 2] = scaling[2, 1] = off * v1 * v2
-    inverse_vector[0], inverse_vector[1], inverse_vector[2] = v0, -v1, -v2
-    return z_root * s_inv
-
-
-def _scaled_inverse_apply(scaling, inv_eta2, x, out):
-    """out = W^-1 x = J W J x / eta^2 for W = eta Wbar (``scaling``) and its 1/eta^2."""
-    jx0, jx1, jx2 = x[0], -x[1], -x[2]
-    for r in range(3):
-        sign = 1.0 if r == 0 else -1.0
-        out[r] = sign * inv_eta2 * (scaling[r, 0] * jx0 + scaling[r, 1] * jx1 + scaling[r, 2] * jx2)
-
-
-def _inverse_apply(scaling, x, out):
-    """out = W^-1 x from W = eta Wbar alone (1/eta^2 = 1 / det W)."""
-    inv_eta2 = 1.0 / (scaling[0, 0] ** 2 - scaling[0, 1] ** 2 - scaling[0, 2] ** 2)
-    _scaled_inverse_apply(scaling, inv_eta2, x, out)
-
-
-def _jordan_product_into(x, y, out):
-    """out = x o y (out may not alias x or y)."""
-    out0 = x[0] * y[0] + x[1] * y[1] + x[2] * y[2]
-    out1 = x[0] * y[1] + y[0] * x[1]
-    out2 = x[0] * y[2] + y[0] * x[2]
-    out[0], out[1], out[2] = out0, out1, out2
-
-
-def _jordan_divide_into(lam, r, out):
-    """out with lam o out = r."""
-    det = lam[0] * lam[0] - lam[1] * lam[1] - lam[2] * lam[2]
-    out[0] = (lam[0] * r[0] - lam[1] * r[1] - lam[2] * r[2]) / det
-    out[1] = (r[1] - out[0] * lam[1]) / lam[0]
-    out[2] = (r[2] - out[0] * lam[2]) / lam[0]
-
-
-def _max_step(x, dx):
-    """Largest alpha (capped at 1e30) with x + alpha dx in the 3-cone, x interior."""
-    a = dx[0] * dx[0] - dx[1] * dx[1] - dx[2] * dx[2]
-    b = 2.0 * (x[0] * dx[0] - x[1] * dx[1] - x[2] * dx[2])
-    c = x[0] * x[0] - x[1] * x[1] - x[2] * x[2]
-    # The smallest positive root of a alpha^2 + b alpha + c (c > 0), one division:
-    # 2c / (sqrt(D) - b) for b < 0 (both terms positive, no cancellation); for b >= 0 a
-    # positive root needs a < 0, and is (-b - sqrt(D)) / (2a), again without cancellation.
-    if b < 0.0:
-        disc = b * b - 4.0 * a * c
-        if disc < 0.0:
-            return 1e30      # a > 0 and no real root: dx points into the cone
-        return 2.0 * c / (np.sqrt(disc) - b)
-    if a < 0.0:
-        return (-b - np.sqrt(b * b - 4.0 * a * c)) / (2.0 * a)
-    return 1e30          # both roots negative (or none): dx lies in the cone
-
-
+@jit
 def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signed_level,
                  forces_out, wrench_out, work3, work6, rows, a_mat, scalings, mats, work_n,
                  a_gram):
@@ -459,7 +211,7 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
     inv_eta2, normal_work = work_n[0], work_n[1]
     q, w_dz, second_order = y[:3], y[3:], scratch[:3]
 
-    sigma_min, grasp_norm = _certified_rank(unit, gram, gram_factor, scratch)
+    sigma_min, grasp_norm = certified_rank(unit, gram, gram_factor, scratch)
     if not sigma_min > 0.0:
         return UNDECIDED, -np.inf, np.inf, 0
     # A first trial wrench: pull against the mean inward normal. It separates every
@@ -474,10 +226,10 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
     if bound < MARGIN_TOL and (separating or not want_wrench) and not signed:
         wrench_out[:] = trial
         return NOT_FORCE_CLOSURE, -np.inf, bound, 0
-    _frames(normals, tangent, bitangent)
-    _wrench_rows(unit, normals, b_n)
-    _wrench_rows(unit, tangent, b_t1)
-    _wrench_rows(unit, bitangent, b_t2)
+    tangent_frames(normals, tangent, bitangent)
+    wrench_rows(unit, normals, b_n)
+    wrench_rows(unit, tangent, b_t1)
+    wrench_rows(unit, bitangent, b_t2)
     sigma = 0.0
     d[:] = 0.0
     for i in range(n):
@@ -494,16 +246,16 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
     for i in range(n):
         for r in range(6):
             g_sum[r] += b_n[i, r]
-    _cholesky_solve(gram_factor, g_sum, solved, scratch)
+    cholesky_solve(gram_factor, g_sum, solved, scratch)
     schur = n - np.dot(g_sum, solved)
     if not schur > SHARED_NORMAL_TOL * n:
         return UNDECIDED, -np.inf, np.inf, 0
     # y = (y6, y7) of (M M^T) y = (d, 0): y7 = -g.GG^-1 d / schur, y6 = GG^-1 (d - g y7).
-    _cholesky_solve(gram_factor, d, gg_d, scratch)
+    cholesky_solve(gram_factor, d, gg_d, scratch)
     y7 = -np.dot(g_sum, gg_d) / schur
     for r in range(6):
         solved[r] = d[r] - g_sum[r] * y7
-    _cholesky_solve(gram_factor, solved, y6, scratch)
+    cholesky_solve(gram_factor, solved, y6, scratch)
     start_t = np.inf
     for i in range(n):
         u = unit[i]
@@ -597,7 +349,7 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
         gap = 0.0
         finite = True
         for i in range(n):
-            inv_eta2[i] = _nt_scaling(z[i], s[i], scalings[i], jv[i])
+            inv_eta2[i] = nt_scaling(z[i], s[i], scalings[i], jv[i])
             if not np.isfinite(inv_eta2[i]):
                 finite = False
                 break
@@ -620,7 +372,7 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
         for r in range(6):
             for c in range(r):
                 hessian[c, r] = hessian[r, c]
-        if not _cholesky(hessian, factor):
+        if not cholesky(hessian, factor):
             last = True
             continue
         # Predictor (affine) direction: lam o (W dz + W^-1 ds) = -lam o lam gives
@@ -630,18 +382,18 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
         # so the step to its boundary is that of lam along u and along -lam - u.
         for r in range(6):
             rhs[r] = -d[r]
-        _cholesky_solve(factor, rhs, dw, scratch)
-        alpha = 1e30
+        cholesky_solve(factor, rhs, dw, scratch)
+        alpha = NO_LIMIT
         for i in range(n):
             for k in range(3):
                 acc = 0.0
                 for r in range(6):
                     acc -= a_mat[i, r, k] * dw[r]
                 ds[i, k] = acc
-            _scaled_inverse_apply(scalings[i], inv_eta2[i], ds[i], u_aff[i])
+            scaled_inverse_apply(scalings[i], inv_eta2[i], ds[i], u_aff[i])
             for k in range(3):
                 w_dz[k] = -lam[i, k] - u_aff[i, k]
-            alpha = min(alpha, _max_step(lam[i], u_aff[i]), _max_step(lam[i], w_dz))
+            alpha = min(alpha, max_step(lam[i], u_aff[i]), max_step(lam[i], w_dz))
         # Mehrotra's centring from the affine step: for feasible iterates dz . ds = 0,
         # so that step would leave the gap (1 - alpha) gap.
         shrink = 1.0 - min(1.0, alpha)
@@ -658,15 +410,15 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
         for i in range(n):
             for k in range(3):
                 w_dz[k] = lam[i, k] + u_aff[i, k]     # -W dz of the predictor
-            _jordan_product_into(u_aff[i], w_dz, second_order)
+            jordan_product_into(u_aff[i], w_dz, second_order)
             second_order[0] += target
-            _jordan_divide_into(lam[i], second_order, q)
-            _scaled_inverse_apply(scalings[i], inv_eta2[i], q, winv_q[i])
+            jordan_divide_into(lam[i], second_order, q)
+            scaled_inverse_apply(scalings[i], inv_eta2[i], q, winv_q[i])
             for r in range(6):
                 rhs[r] -= (a_mat[i, r, 0] * winv_q[i, 0] + a_mat[i, r, 1] * winv_q[i, 1]
                            + a_mat[i, r, 2] * winv_q[i, 2])
-        _cholesky_solve(factor, rhs, dw, scratch)
-        alpha = 1e30
+        cholesky_solve(factor, rhs, dw, scratch)
+        alpha = NO_LIMIT
         for i in range(n):
             for k in range(3):
                 acc = 0.0
@@ -678,7 +430,7 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
             for k in range(3):
                 j_ds = ds[i, k] if k == 0 else -ds[i, k]
                 dz[i, k] = winv_q[i, k] - z[i, k] - inv_eta2[i] * (2.0 * jv[i, k] * proj - j_ds)
-            alpha = min(alpha, _max_step(z[i], dz[i]), _max_step(s[i], ds[i]))
+            alpha = min(alpha, max_step(z[i], dz[i]), max_step(s[i], ds[i]))
         alpha = min(1.0, STEP_FRACTION * alpha)
         if not alpha > MIN_STEP:
             last = True
@@ -696,6 +448,7 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
     return UNDECIDED, t_lo, t_hi, iteration
 
 
+@jit
 def _solve_all(unit, normals, mu, want_optimum, want_wrench, signed_gap, signed_level):
     n_grasps, n_contacts = mu.shape
     codes = np.empty(n_grasps, dtype=np.int8)
@@ -718,13 +471,6 @@ def _solve_all(unit, normals, mu, want_optimum, want_wrench, signed_gap, signed_
             forces[g], wrench[g], work3, work6, rows, a_mat, scalings, mats, work_n, a_gram)
     return codes, t_lo, t_hi, iterations, forces, wrench
 
-
-for _name in ("_frames", "_wrench_rows", "_work_at", "_normal_split", "_gram", "_apply_grasp_map", "_cholesky_solve",
-              "_cholesky", "_triangular_inverse_norm2", "_certified_rank", "_witness",
-              "_unprojected_depth", "_bound", "_nt_scaling", "_scaled_inverse_apply",
-              "_inverse_apply", "_jordan_product_into", "_jordan_divide_into", "_max_step",
-              "_solve_grasp", "_solve_all"):
-    globals()[_name] = _jit(globals()[_name])
 
 
 def solve_fast(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray,

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import force_interior_point, interior_point, positive_span
-from .interior_point import _jit
+from ._kernels.jit import jit
 from .tolerances import MAX_ABS_COORDINATE, MAX_FRICTION_COEFFICIENT, MIN_NORMAL_COMPONENT
 
 #: Largest contact count the fast path takes: a one-grasp query of more contacts is
@@ -72,7 +72,7 @@ def _prepare_one(positions, normals, mu, unit, directions, friction):
     return True
 
 
-_prepare_one = _jit(_prepare_one)
+_prepare_one = jit(_prepare_one)
 
 
 def check_one(positions, normals, mu: float, want_optimum: bool):
@@ -81,7 +81,7 @@ def check_one(positions, normals, mu: float, want_optimum: bool):
     Parameters
     ----------
     positions, normals : ndarray of float64, shape (n, 3), C-contiguous and writable
-        (:func:`~.interior_point.kernel_array`)
+        (:func:`~._kernels.jit.kernel_array`)
     mu : float
     want_optimum : bool
         As ``margin="optimum"``.

@@ -30,7 +30,7 @@ import numpy as np
 from .certificates import normalise_positions, to_caller_wrench, verify_certificates
 from .exact_test import MARGIN_CHOICES, solve_exact
 from .grasp_input import MIN_CONTACTS, GraspBatch, prepare_grasps
-from .interior_point import kernel_array
+from ._kernels.jit import kernel_array
 from .one_grasp import MAX_FAST_CONTACTS, check_one
 from .torque_space_filter import passes_torque_filter, resolve_use_filter
 

@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-from .interior_point import _jit, kernel_array
+from ._kernels.jit import jit, kernel_array
 from .tolerances import PARALLEL_TOL, SPAN_TOL
 from .torque_sets import TorqueSetKind, TorqueSets, cross, dot
 
@@ -266,7 +266,7 @@ def _pair_test_kernel(vectors):
     return found, on_a_line
 
 
-_pair_test_kernel = _jit(_pair_test_kernel)
+_pair_test_kernel = jit(_pair_test_kernel)
 
 
 def warm_up() -> None:

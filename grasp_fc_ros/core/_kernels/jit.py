@@ -1,0 +1,55 @@
+"""The JIT decorator of the core's kernels, and the array form they take."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+import numpy as np
+
+try:
+    import numba
+except ImportError:  # pragma: no cover - numba is a pinned runtime dependency
+    numba = None
+
+Function = TypeVar("Function", bound=Callable[..., Any])
+
+
+def jit(function: Function) -> Function:
+    """``numba.njit(cache=True, error_model="numpy")``; without a usable cache
+    directory, uncached.
+
+    The compiled function takes the same arguments and returns the same values as
+    ``function`` (so its annotations stand for both). ``error_model="numpy"``: a
+    division by zero gives inf or NaN, as in numpy, instead of raising.
+
+    numba stores the machine code next to the defining file (or in the user's cache
+    directory when the install is read-only) and keys it on that file's source alone:
+    a kernel that calls kernels of other files keeps its cached code after those files
+    change, until its own file changes or the ``__pycache__/*.nbi`` files are removed.
+    """
+    try:
+        return numba.njit(cache=True, error_model="numpy")(function)
+    except RuntimeError:  # no writable cache location at all: compile per process
+        return numba.njit(cache=False, error_model="numpy")(function)
+
+
+def kernel_array(values: Any) -> np.ndarray:
+    """``values`` as a C-contiguous, writable float64 array, to pass to a compiled kernel.
+
+    Parameters
+    ----------
+    values : array_like, any shape
+
+    Returns
+    -------
+    ndarray of float64, the same shape
+        ``values`` itself where it already has that form, else a copy.
+
+    numba compiles a kernel once per argument type, and a read-only array (from
+    ``np.frombuffer``, ``np.broadcast_to`` or an unpickled buffer) is a type of its own:
+    passed as it is, it made the node's first queries compile the exact stage again
+    after ``warm_up`` (a full compile in a fresh install, a cache load in every later
+    process). Only such arrays are copied.
+    """
+    return np.require(values, np.float64, ("C", "W"))

@@ -1,0 +1,98 @@
+"""The 6 x 6 Cholesky factor, its solves and the norm of its inverse (numba).
+
+Every loop runs over the literal size 6, which lets the compiler unroll it (faster than
+loops over ``shape[0]``; tuned: docs/performance.md#exact-stage).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .jit import jit
+
+
+@jit
+def cholesky(matrix: np.ndarray, factor: np.ndarray) -> bool:
+    """Lower Cholesky factor L (L L^T = matrix) of a symmetric 6 x 6 matrix.
+
+    Parameters
+    ----------
+    matrix : ndarray, shape (6, 6)
+        Only its lower triangle is read.
+    factor : ndarray, shape (6, 6)
+        Output: L, zero above the diagonal.
+
+    Returns
+    -------
+    bool
+        False on a pivot that is not positive (``factor`` is then incomplete).
+    """
+    factor[:] = 0.0
+    for r in range(6):
+        for c in range(r + 1):
+            acc = matrix[r, c]
+            for k in range(c):
+                acc -= factor[r, k] * factor[c, k]
+            if r == c:
+                if not acc > 0.0:
+                    return False
+                factor[r, r] = np.sqrt(acc)
+            else:
+                factor[r, c] = acc / factor[c, c]
+    return True
+
+
+@jit
+def cholesky_solve(factor: np.ndarray, rhs: np.ndarray, x: np.ndarray,
+                   y: np.ndarray) -> None:
+    """Solve (L L^T) x = rhs by forward and back substitution.
+
+    Parameters
+    ----------
+    factor : ndarray, shape (6, 6)
+        Lower-triangular L (from :func:`cholesky`).
+    rhs : ndarray, shape (6,)
+    x : ndarray, shape (6,)
+        Output; may be ``rhs`` itself.
+    y : ndarray, shape (6,)
+        Scratch.
+    """
+    for r in range(6):
+        acc = rhs[r]
+        for c in range(r):
+            acc -= factor[r, c] * y[c]
+        y[r] = acc / factor[r, r]
+    for r in range(5, -1, -1):
+        acc = y[r]
+        for c in range(r + 1, 6):
+            acc -= factor[c, r] * x[c]
+        x[r] = acc / factor[r, r]
+
+
+@jit
+def triangular_inverse_norm2(factor: np.ndarray, column: np.ndarray) -> float:
+    """|L^-1|_F^2 of a lower-triangular 6 x 6 L, by forward substitution column by column.
+
+    Parameters
+    ----------
+    factor : ndarray, shape (6, 6)
+        Lower-triangular L with a positive diagonal.
+    column : ndarray, shape (6,)
+        Scratch.
+
+    Returns
+    -------
+    float
+    """
+    total = 0.0
+    for k in range(6):
+        for r in range(6):
+            if r < k:
+                column[r] = 0.0
+                continue
+            acc = 1.0 if r == k else 0.0
+            for c in range(k, r):
+                acc -= factor[r, c] * column[c]
+            column[r] = acc / factor[r, r]
+            total += column[r] * column[r]
+    return total
