@@ -7,10 +7,19 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from grasp_cases import adversarial_grasps, ellipsoid_grasps, random_rotation
-from grasp_fc_ros.core import (certificates, check_force_closure, force_interior_point,
-                               grasp_forces, warm_up)
-from grasp_fc_ros.core.grasp_forces import (FORCE_TOL, OPTIMALITY_TOL, lower_bound,
-                                            optimal_contact_forces)
+from grasp_fc_ros.core import (
+    certificates,
+    check_force_closure,
+    force_interior_point,
+    grasp_forces,
+    warm_up,
+)
+from grasp_fc_ros.core.grasp_forces import (
+    FORCE_TOL,
+    OPTIMALITY_TOL,
+    lower_bound,
+    optimal_contact_forces,
+)
 from grasp_fc_ros.objects import make_object, sample_grasps
 from reference_pyramids import pyramid_min_max_force
 

@@ -7,8 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from grasp_cases import MU_PAPER, adversarial_grasps, ellipsoid_grasps
-from grasp_fc_ros.core import check_force_closure
-from grasp_fc_ros.core import pipeline
+from grasp_fc_ros.core import check_force_closure, pipeline
 from grasp_fc_ros.core.certificates import normalise_positions
 from grasp_fc_ros.core.grasp_input import prepare_grasps
 from grasp_fc_ros.core.one_grasp import _prepare_one
@@ -44,7 +43,7 @@ def test_results_equal_the_general_path(monkeypatch):
                         or decided[-1])
     rng = np.random.default_rng(5)
     cases = [(p, n) for size in (2, 3, 5, 6, 8, 20)
-             for p, n in zip(*ellipsoid_grasps(rng, 40, size))]
+             for p, n in zip(*ellipsoid_grasps(rng, 40, size), strict=True)]
     cases += adversarial_grasps(rng) + adversarial_grasps(rng, n_contacts=4)
     for positions, normals in cases:
         positions, normals = np.asarray(positions, float), np.asarray(normals, float)

@@ -39,11 +39,21 @@ and none of 8,000 grasps was left undecided.
 
 from __future__ import annotations
 
+from typing import TypeAlias
+
 import numpy as np
 
-from ._kernels.cones import (MIN_STEP, NO_LIMIT, STEP_FRACTION, inverse_apply,
-                             jordan_divide_into, jordan_product_into, max_step, nt_scaling,
-                             positive_step)
+from ._kernels.cones import (
+    MIN_STEP,
+    NO_LIMIT,
+    STEP_FRACTION,
+    inverse_apply,
+    jordan_divide_into,
+    jordan_product_into,
+    max_step,
+    nt_scaling,
+    positive_step,
+)
 from ._kernels.frames import normal_split, tangent_frames, work_at
 from ._kernels.grasp_map import add_congruence, add_wrench, apply_grasp_map, certified_rank
 from ._kernels.jit import jit, kernel_array
@@ -52,6 +62,9 @@ from ._kernels.linear_algebra import cholesky, cholesky_solve
 #: Result codes of the kernel: forces and a wrench that meet the stop rule; a wrench
 #: proving s* = inf; neither (for the Clarabel path).
 SOLVED, INFEASIBLE, UNDECIDED = 0, 1, 2
+
+#: What :func:`solve_fast_forces` returns: codes, beta, iterations, forces, wrench.
+ForcesResult: TypeAlias = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 #: Iterations before a grasp is handed to the Clarabel path.
 MAX_ITERATIONS = 50
@@ -71,7 +84,8 @@ START_GAP = 1.0
 
 
 @jit
-def _lower_bound(unit, normals, mu, limits, direction, w, excess):
+def _lower_bound(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, limits: np.ndarray,
+                 direction: np.ndarray, w: np.ndarray, excess: np.ndarray) -> float:
     """The dual bound of :func:`.grasp_forces.lower_bound` for wrench w (6,) (this sign,
     without rounding slack): 0 where w proves nothing, inf where no forces hold W.
     ``excess`` (n,) is scratch."""
@@ -111,8 +125,11 @@ def _lower_bound(unit, normals, mu, limits, direction, w, excess):
 
 
 @jit
-def _upper_bound(unit, normals, tangent, bitangent, mu, limits, direction, z, beta,
-                 gram_factor, forces, check, y, scratch):
+def _upper_bound(unit: np.ndarray, normals: np.ndarray, tangent: np.ndarray,
+                 bitangent: np.ndarray, mu: np.ndarray, limits: np.ndarray,
+                 direction: np.ndarray, z: np.ndarray, beta: float, gram_factor: np.ndarray,
+                 forces: np.ndarray, check: np.ndarray, y: np.ndarray,
+                 scratch: np.ndarray) -> tuple[float, float]:
     """(s, violation) of the force iterate z (n, 3): forces c_i / beta into ``forces``
     (n, 3, world frame), then their projection onto G f + W = 0; s its largest normal
     force, violation the largest excess over a cone or a limit."""
@@ -137,7 +154,8 @@ def _upper_bound(unit, normals, tangent, bitangent, mu, limits, direction, z, be
 
 
 @jit
-def _slacks(unit, edges, w, u, v, s, work):
+def _slacks(unit: np.ndarray, edges: np.ndarray, w: np.ndarray, u: np.ndarray, v: np.ndarray,
+            s: np.ndarray, work: np.ndarray) -> None:
     """The wrench side's cone slacks s_i = (u_i + v_i, 0, 0) + R_i^T G_i^T w into s
     (n, 3), R_i's columns ``edges[:, i]`` (-n_i, mu_i t1_i, mu_i t2_i); ``work`` (3,)
     is scratch."""
@@ -149,9 +167,11 @@ def _slacks(unit, edges, w, u, v, s, work):
 
 
 @jit
-def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol,
-                 infeasible_bound, forces_out, wrench_out, work3, work6, mats, scalings,
-                 edges, work_n):
+def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, limits: np.ndarray,
+                 direction: np.ndarray, force_tol: float, optimality_tol: float,
+                 infeasible_bound: float, forces_out: np.ndarray, wrench_out: np.ndarray,
+                 work3: np.ndarray, work6: np.ndarray, mats: np.ndarray, scalings: np.ndarray,
+                 edges: np.ndarray, work_n: np.ndarray) -> tuple[int, float, int]:
     """Solve one unit-size grasp. Returns (code, beta, iterations).
 
     ``forces_out`` (n, 3) gets the forces c_i / beta (world frame, before the
@@ -435,7 +455,8 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
 
 
 @jit
-def _workspace(n_contacts):
+def _workspace(n_contacts: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                         np.ndarray, np.ndarray]:
     """Scratch of :func:`_solve_grasp` for grasps of ``n_contacts`` contacts, reused from
     grasp to grasp: work3, work6, mats, scalings, edges, work_n."""
     return (np.empty((12, n_contacts, 3)), np.empty((9, 6)), np.empty((6, 6, 6)),
@@ -444,8 +465,11 @@ def _workspace(n_contacts):
 
 
 @jit
-def _solve_without_idle(unit, normals, mu, limits, direction, force_tol, optimality_tol,
-                        infeasible_bound, forces_out, wrench_out, active):
+def _solve_without_idle(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray,
+                        limits: np.ndarray, direction: np.ndarray, force_tol: float,
+                        optimality_tol: float, infeasible_bound: float,
+                        forces_out: np.ndarray, wrench_out: np.ndarray,
+                        active: int) -> tuple[int, float, int]:
     """:func:`_solve_grasp` on the ``active`` contacts with a limit > 0 only: a contact
     limited to 0 carries no force (and leaves the force side no interior point), so it
     is dropped and gets force 0. Rare: the copies and scratch are allocated here."""
@@ -464,8 +488,10 @@ def _solve_without_idle(unit, normals, mu, limits, direction, force_tol, optimal
 
 
 @jit
-def _solve_all(unit, normals, mu, limits, direction, force_tol, optimality_tol,
-               infeasible_bound):
+def _solve_all(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, limits: np.ndarray,
+               direction: np.ndarray, force_tol: float, optimality_tol: float,
+               infeasible_bound: float) -> ForcesResult:
+    """:func:`solve_fast_forces` on kernel arrays, with the stop tolerances applied."""
     n_grasps, n_contacts = mu.shape
     codes = np.full(n_grasps, UNDECIDED, dtype=np.int8)
     beta = np.full(n_grasps, np.nan)
@@ -493,7 +519,7 @@ def _solve_all(unit, normals, mu, limits, direction, force_tol, optimality_tol,
 
 def solve_fast_forces(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray,
                       limits: np.ndarray, direction: np.ndarray, force_tol: float,
-                      optimality_tol: float, infeasible_bound: float):
+                      optimality_tol: float, infeasible_bound: float) -> ForcesResult:
     """Run the fast s* stage on unit-size hard grasps and unit wrenches.
 
     Parameters

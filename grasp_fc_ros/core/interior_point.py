@@ -5,8 +5,8 @@ The margin problem of :mod:`.exact_test`, with the normalisation row eliminated
 to the local work vector of contact i, Bn_i its normal row, Bt_i its tangential rows):
 
     primal  min sum_i z0_i   s.t.  sum_i A_i z_i = -d,  z_i in Q^3,
-            A_i = [Bn_i - d, -mu_i Bt_i^T]              (forces: t = (1 - sum z0) / sigma,
-                                                          c_n,i = z0_i + t/mu_i, c_t,i = -mu_i z_t,i)
+            A_i = [Bn_i - d, -mu_i Bt_i^T]
+            (forces: t = (1 - sum z0) / sigma, c_n,i = z0_i + t/mu_i, c_t,i = -mu_i z_t,i)
     dual    max -d . w       s.t.  s_i = (1 + d.w - Bn_i.w, mu_i Bt_i w) in Q^3.
 
 Six dual variables whatever the number of contacts, so each iteration solves one 6 x 6
@@ -37,19 +37,38 @@ file, or in the user's cache directory when the install is read-only; call
 
 from __future__ import annotations
 
+from typing import TypeAlias
+
 import numpy as np
 
-from ._kernels.cones import (MIN_STEP, NO_LIMIT, STEP_FRACTION, jordan_divide_into,
-                             jordan_product_into, max_step, nt_scaling, scaled_inverse_apply)
+from ._kernels.cones import (
+    MIN_STEP,
+    NO_LIMIT,
+    STEP_FRACTION,
+    jordan_divide_into,
+    jordan_product_into,
+    max_step,
+    nt_scaling,
+    scaled_inverse_apply,
+)
 from ._kernels.frames import normal_split, tangent_frames, work_at, wrench_rows
 from ._kernels.grasp_map import apply_grasp_map, certified_rank
 from ._kernels.jit import jit, kernel_array
 from ._kernels.linear_algebra import cholesky, cholesky_solve
-from .tolerances import (MARGIN_ACCURACY, MARGIN_TOL, ROUNDING_SLACK, SEPARATION_TARGET,
-                         SHARED_NORMAL_TOL)
+from .tolerances import (
+    MARGIN_ACCURACY,
+    MARGIN_TOL,
+    ROUNDING_SLACK,
+    SEPARATION_TARGET,
+    SHARED_NORMAL_TOL,
+)
 
 #: Result codes of the kernel. CONVERGED: the signed mode's gap closed (no verdict).
 FORCE_CLOSURE, NOT_FORCE_CLOSURE, UNDECIDED, CONVERGED = 0, 1, 2, 3
+
+#: What :func:`solve_fast` returns: codes, t_lo, t_hi, iterations, forces, wrench.
+FastResult: TypeAlias = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                              np.ndarray]
 
 #: Iterations before a grasp is handed to the Clarabel path. On the box benchmark a
 #: verdict takes 0.8-1.7 iterations on average (at most 7), the margin to
@@ -96,8 +115,11 @@ TRIVIAL_BOUND_SLACK = 1e-12
 
 
 @jit
-def _witness(unit, normals, tangent, bitangent, mu, z, sigma, gram_factor, sigma_min,
-             grasp_norm, out, forces, y, check, scratch):
+def _witness(unit: np.ndarray, normals: np.ndarray, tangent: np.ndarray,
+             bitangent: np.ndarray, mu: np.ndarray, z: np.ndarray, sigma: float,
+             gram_factor: np.ndarray, sigma_min: float, grasp_norm: float, out: np.ndarray,
+             forces: np.ndarray, y: np.ndarray, check: np.ndarray,
+             scratch: np.ndarray) -> float:
     """Certified depth of the forces of primal iterate z (n, 3); the projected forces,
     scaled to total one, go to ``out`` (n, 3). -inf when the total is not positive."""
     n = unit.shape[0]
@@ -141,7 +163,7 @@ def _witness(unit, normals, tangent, bitangent, mu, z, sigma, gram_factor, sigma
 
 
 @jit
-def _unprojected_depth(z, mu, t_p):
+def _unprojected_depth(z: np.ndarray, mu: np.ndarray, t_p: float) -> float:
     """Depth t_p + min_i mu_i (z0_i - |z_t,i|) of the forces of primal iterate z before
     the projection onto equilibrium (mu_i c_n,i - |c_t,i| = t_p + mu_i (z0_i - |z_t,i|),
     normal forces summing to one): the iterates are in equilibrium up to rounding, so
@@ -153,7 +175,8 @@ def _unprojected_depth(z, mu, t_p):
 
 
 @jit
-def _bound(unit, normals, mu, w, normal_work):
+def _bound(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, w: np.ndarray,
+           normal_work: np.ndarray) -> tuple[float, bool]:
     """Certified upper bound on t* from wrench w (6,), and whether w meets the
     separation target (L <= SEPARATION_TARGET max_j |a_j|)."""
     n = unit.shape[0]
@@ -181,9 +204,12 @@ def _bound(unit, normals, mu, w, normal_work):
 
 
 @jit
-def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signed_level,
-                 forces_out, wrench_out, work3, work6, rows, a_mat, scalings, mats, work_n,
-                 a_gram):
+def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_optimum: bool,
+                 want_wrench: bool, signed_gap: float, signed_level: float,
+                 forces_out: np.ndarray, wrench_out: np.ndarray, work3: np.ndarray,
+                 work6: np.ndarray, rows: np.ndarray, a_mat: np.ndarray, scalings: np.ndarray,
+                 mats: np.ndarray, work_n: np.ndarray,
+                 a_gram: np.ndarray) -> tuple[int, float, float, int]:
     """Decide one unit-size grasp. Returns (code, t_lo, t_hi, iterations).
 
     ``signed_gap`` > 0 selects the signed mode (for :mod:`.minimum_friction`): no verdict;
@@ -354,13 +380,16 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
                 finite = False
                 break
             for r in range(3):
-                lam[i, r] = scalings[i, r, 0] * z[i, 0] + scalings[i, r, 1] * z[i, 1] + scalings[i, r, 2] * z[i, 2]
+                lam[i, r] = (scalings[i, r, 0] * z[i, 0] + scalings[i, r, 1] * z[i, 1]
+                             + scalings[i, r, 2] * z[i, 2])
             for r in range(6):
-                g[r] = a_mat[i, r, 0] * jv[i, 0] + a_mat[i, r, 1] * jv[i, 1] + a_mat[i, r, 2] * jv[i, 2]
+                g[r] = (a_mat[i, r, 0] * jv[i, 0] + a_mat[i, r, 1] * jv[i, 1]
+                        + a_mat[i, r, 2] * jv[i, 2])
             if iteration == 0:
                 for r in range(6):
                     for c in range(r + 1):
-                        a_gram[i, r, c] = (a_mat[i, r, 1] * a_mat[i, c, 1] + a_mat[i, r, 2] * a_mat[i, c, 2]
+                        a_gram[i, r, c] = (a_mat[i, r, 1] * a_mat[i, c, 1]
+                                           + a_mat[i, r, 2] * a_mat[i, c, 2]
                                            - a_mat[i, r, 0] * a_mat[i, c, 0])
             for r in range(6):
                 for c in range(r + 1):
@@ -449,7 +478,9 @@ def _solve_grasp(unit, normals, mu, want_optimum, want_wrench, signed_gap, signe
 
 
 @jit
-def _solve_all(unit, normals, mu, want_optimum, want_wrench, signed_gap, signed_level):
+def _solve_all(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_optimum: bool,
+               want_wrench: bool, signed_gap: float, signed_level: float) -> FastResult:
+    """:func:`solve_fast` on kernel arrays (:func:`._kernels.jit.kernel_array`)."""
     n_grasps, n_contacts = mu.shape
     codes = np.empty(n_grasps, dtype=np.int8)
     t_lo = np.empty(n_grasps)
@@ -475,7 +506,7 @@ def _solve_all(unit, normals, mu, want_optimum, want_wrench, signed_gap, signed_
 
 def solve_fast(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray,
                want_optimum: bool = False, want_wrench: bool = False,
-               signed_gap: float = 0.0, signed_level: float = 0.0):
+               signed_gap: float = 0.0, signed_level: float = 0.0) -> FastResult:
     """Run the fast exact stage on unit-size grasps.
 
     Parameters

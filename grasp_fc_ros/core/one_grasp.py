@@ -22,7 +22,9 @@ from .tolerances import MAX_ABS_COORDINATE, MAX_FRICTION_COEFFICIENT, MIN_NORMAL
 MAX_FAST_CONTACTS = 64
 
 
-def _prepare_one(positions, normals, mu, unit, directions, friction):
+@jit
+def _prepare_one(positions: np.ndarray, normals: np.ndarray, mu: float, unit: np.ndarray,
+                 directions: np.ndarray, friction: np.ndarray) -> bool:
     """Validate one grasp (n, 3), (n, 3), scalar mu like :func:`.grasp_input._all_valid`
     and normalise it into ``unit``, ``directions`` (n, 3) and ``friction`` (n,).
     False (outputs undefined) where the input is not valid."""
@@ -72,10 +74,8 @@ def _prepare_one(positions, normals, mu, unit, directions, friction):
     return True
 
 
-_prepare_one = jit(_prepare_one)
-
-
-def check_one(positions, normals, mu: float, want_optimum: bool):
+def check_one(positions: np.ndarray, normals: np.ndarray, mu: float,
+              want_optimum: bool) -> tuple[bool, float, float] | None:
     """Decide one valid grasp on the fast stage, or say it must take the general path.
 
     Parameters
@@ -101,7 +101,7 @@ def check_one(positions, normals, mu: float, want_optimum: bool):
                                                            want_optimum, False, 0.0, 0.0)
     if codes[0] == interior_point.UNDECIDED:
         return None
-    return codes[0] == interior_point.FORCE_CLOSURE, t_lo[0], t_hi[0]
+    return bool(codes[0] == interior_point.FORCE_CLOSURE), t_lo[0], t_hi[0]
 
 
 def warm_up() -> None:

@@ -24,13 +24,15 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from enum import IntEnum
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
-from .certificates import normalise_positions, to_caller_wrench, verify_certificates
-from .exact_test import MARGIN_CHOICES, solve_exact
-from .grasp_input import MIN_CONTACTS, GraspBatch, prepare_grasps
 from ._kernels.jit import kernel_array
+from .certificates import normalise_positions, to_caller_wrench, verify_batch
+from .exact_test import MARGIN_CHOICES, ExactResult, solve_exact
+from .grasp_input import MIN_CONTACTS, GraspBatch, prepare_grasps
 from .one_grasp import MAX_FAST_CONTACTS, check_one
 from .torque_space_filter import passes_torque_filter, resolve_use_filter
 
@@ -54,7 +56,8 @@ _FORCE_CLOSURE, _NOT_FORCE_CLOSURE, _FILTERED_OUT, _SOLVER_FAILURE = (
 
 @dataclass(frozen=True)
 class ForceClosureResult:
-    """Verdicts of :func:`check_force_closure`: 0-d arrays for one grasp, (N,) for a batch.
+    """Verdicts of :func:`check_force_closure`: (N,) arrays for a batch, their elements
+    (numpy scalars) for one grasp (annotated in the batch form, see :mod:`.grasp_input`).
 
     Attributes
     ----------
@@ -99,7 +102,7 @@ class ForceClosureResult:
     filtered_out: np.ndarray
     margin: np.ndarray
     status: np.ndarray
-    timing: dict = field(default_factory=dict)
+    timing: dict[str, float] = field(default_factory=dict)
     margin_upper: np.ndarray | None = None
     contact_forces: np.ndarray | None = None
     separating_wrench: np.ndarray | None = None
@@ -107,10 +110,10 @@ class ForceClosureResult:
     contact_torques: np.ndarray | None = None
 
 
-def check_force_closure(positions, normals, mu, use_filter: bool | str = "auto",
-                        origins: str = "seed", margin: str = "optimum",
-                        certificates: bool = False,
-                        torsional_friction=0.0) -> ForceClosureResult:
+def check_force_closure(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayLike,
+                        use_filter: bool | str = "auto", origins: str = "seed",
+                        margin: str = "optimum", certificates: bool = False,
+                        torsional_friction: npt.ArrayLike | None = 0.0) -> ForceClosureResult:
     """Decide force closure of one grasp or a batch: the filter, then the exact test.
 
     Parameters
@@ -156,13 +159,14 @@ def check_force_closure(positions, normals, mu, use_filter: bool | str = "auto",
                         origins, margin, certificates)
 
 
-def _one_grasp(positions, normals, mu, use_filter, origins, margin):
+def _one_grasp(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayLike,
+               use_filter: bool | str, origins: str, margin: str) -> ForceClosureResult | None:
     """The result for one grasp of float64 arrays (n, 3) and a scalar mu, decided on the
     fast path of :mod:`.one_grasp` where the filter is not to run; else None."""
     if not (type(positions) is np.ndarray and type(normals) is np.ndarray
             and (isinstance(mu, (float, np.floating))
                  # (a huge int would make float() raise: the general path words it)
-                 or (isinstance(mu, (int, np.integer)) and abs(mu) <= 2 ** 53))
+                 or (isinstance(mu, (int, np.integer)) and abs(int(mu)) <= 2 ** 53))
             and positions.dtype == np.float64 and normals.dtype == np.float64
             and positions.ndim == 2 and positions.shape == normals.shape
             and positions.shape[1] == 3
@@ -176,12 +180,14 @@ def _one_grasp(positions, normals, mu, use_filter, origins, margin):
     if decided is None:
         return None
     force_closure, t_lo, t_hi = decided
-    return ForceClosureResult(
-        force_closure=np.bool_(force_closure), filtered_out=np.False_,
-        margin=np.float64(max(t_lo, 0.0)),
-        status=np.uint8(_FORCE_CLOSURE if force_closure else _NOT_FORCE_CLOSURE),
-        timing={"filter_s": 0.0, "exact_s": time.perf_counter() - start},
-        margin_upper=np.float64(t_hi))
+    # The numpy scalars a batch of one unbatches to (:meth:`GraspBatch.unbatch`).
+    scalars: dict[str, Any] = {
+        "force_closure": np.bool_(force_closure), "filtered_out": np.False_,
+        "margin": np.float64(max(t_lo, 0.0)),
+        "status": np.uint8(_FORCE_CLOSURE if force_closure else _NOT_FORCE_CLOSURE),
+        "margin_upper": np.float64(t_hi)}
+    return ForceClosureResult(timing={"filter_s": 0.0, "exact_s": time.perf_counter() - start},
+                              **scalars)
 
 
 def run_pipeline(grasps: GraspBatch, use_filter: bool | str = True, origins: str = "seed",
@@ -231,8 +237,8 @@ def _subset(grasps: GraspBatch, indices: np.ndarray) -> GraspBatch:
                       single=False, torsional=torsional)
 
 
-def _certificates(grasps: GraspBatch, survivors: np.ndarray, exact,
-                  filter_wrench: np.ndarray | None, status: np.ndarray) -> dict:
+def _certificates(grasps: GraspBatch, survivors: np.ndarray, exact: ExactResult,
+                  filter_wrench: np.ndarray | None, status: np.ndarray) -> dict[str, np.ndarray]:
     """Contact forces, separating wrenches and marginal flags, each verified in the
     caller's frame (a certificate that fails its check is replaced by NaN).
 
@@ -252,8 +258,8 @@ def _certificates(grasps: GraspBatch, survivors: np.ndarray, exact,
     if grasps.torsional is not None:
         torques = np.full((n_grasps, n_contacts), np.nan)
         torques[survivors] = exact.torques
-    forces_ok, wrench_ok = verify_certificates(grasps.positions, grasps.normals, grasps.mu,
-                                               forces, wrench, grasps.torsional, torques)
+    forces_ok, wrench_ok = verify_batch(grasps.positions, grasps.normals, grasps.mu, forces,
+                                        wrench, grasps.torsional, torques)
     forces[~forces_ok] = np.nan
     wrench[~wrench_ok] = np.nan
     extra = {"contact_forces": forces, "separating_wrench": wrench,
@@ -264,7 +270,8 @@ def _certificates(grasps: GraspBatch, survivors: np.ndarray, exact,
     return extra
 
 
-def exact_force_closure(positions, normals, mu, torsional_friction=0.0) -> np.ndarray:
+def exact_force_closure(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayLike,
+                        torsional_friction: npt.ArrayLike | None = 0.0) -> np.ndarray:
     """The exact force-closure test alone (no filter).
 
     Parameters
@@ -277,7 +284,7 @@ def exact_force_closure(positions, normals, mu, torsional_friction=0.0) -> np.nd
 
     Returns
     -------
-    ndarray of bool, shape () for one grasp or (N,)
+    numpy bool for one grasp, ndarray of bool, shape (N,), for a batch
         True where the grasp is force closure (with a verified witness).
 
     Raises

@@ -14,13 +14,13 @@ has c . v >= 0 for every v in every set (all sets lie in one closed half-space).
   boundary torques on one closed side. If no pair is non-parallel the torques span a
   line at most and cannot span R^3.
   That pair test costs O(K^3) for K boundary torques (compiled with numba: a loop
-  over problems, no large intermediates). Two things bound it for many torques. First, a subset that spans proves
-  that the whole set spans, and the torques extreme along 14 fixed directions usually
-  do (a pair test on 14 vectors, whatever K). Second, what that leaves undecided from
-  ``HULL_MIN_VECTORS`` torques on goes to the convex hull of the torques (Qhull,
-  O(K log K) per problem) instead: they fail to span iff the origin is not strictly
-  inside the hull, and then a facet the origin is not strictly behind gives a
-  separating direction (its outward normal, negated).
+  over problems, no large intermediates). Two things bound it for many torques.
+  First, a subset that spans proves that the whole set spans, and the torques extreme
+  along 14 fixed directions usually do (a pair test on 14 vectors, whatever K).
+  Second, what that leaves undecided from ``HULL_MIN_VECTORS`` torques on goes to the
+  convex hull of the torques (Qhull, O(K log K) per problem) instead: they fail to span
+  iff the origin is not strictly inside the hull, and then a facet the origin is not
+  strictly behind gives a separating direction (its outward normal, negated).
 
 Every separating direction is checked against every torque before a problem is called
 non-spanning, so rounding (or a hull computed imprecisely) can only make a problem
@@ -30,6 +30,8 @@ more than the loop.
 """
 
 from __future__ import annotations
+
+from typing import Literal, overload
 
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
@@ -54,7 +56,18 @@ _PROBES = np.array([[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (
                     if abs(x) + abs(y) + abs(z) in (1, 3)], dtype=float)
 
 
-def positively_spans(sets: TorqueSets, directions: bool = False):
+@overload
+def positively_spans(sets: TorqueSets, directions: Literal[False] = False) -> np.ndarray: ...
+@overload
+def positively_spans(sets: TorqueSets,
+                     directions: Literal[True]) -> tuple[np.ndarray, np.ndarray]: ...
+@overload
+def positively_spans(sets: TorqueSets,
+                     directions: bool) -> np.ndarray | tuple[np.ndarray, np.ndarray]: ...
+
+
+def positively_spans(sets: TorqueSets,
+                     directions: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Whether the torque sets of each problem positively span R^3.
 
     Parameters
@@ -80,20 +93,19 @@ def positively_spans(sets: TorqueSets, directions: bool = False):
     direction = np.full((3, spans.size), np.nan) if directions else None
     for part, test in ((has_plane, _spans_with_plane), (~has_plane, _fans_span)):
         if part.any():
-            found = test(sets.subset((slice(None), part)), directions)
-            if directions:
-                spans[part], direction[:, part] = found
-            else:
-                spans[part] = found
-    return (spans, direction) if directions else spans
+            spans[part], found = test(sets.subset((slice(None), part)), directions)
+            if direction is not None and found is not None:
+                direction[:, part] = found
+    return spans if direction is None else (spans, direction)
 
 
-def _spans_with_plane(sets: TorqueSets, directions: bool = False):
+def _spans_with_plane(sets: TorqueSets,
+                      directions: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
     """Positive span for problems that contain at least one plane. Shapes (m, B).
 
-    Returns spans (B,), and with ``directions`` also the separating direction (3, B):
+    Returns spans (B,) and, with ``directions``, the separating direction (3, B):
     minus (plus) the pivot plane's normal where nothing reaches its positive (negative)
-    side.
+    side (None without ``directions``).
     """
     is_plane = sets.kind == _PLANE
     pivot = is_plane.argmax(axis=0)
@@ -111,18 +123,20 @@ def _spans_with_plane(sets: TorqueSets, directions: bool = False):
     has_neg = (reaches_neg | crossing_plane).any(axis=0)
     spans = has_pos & has_neg
     if not directions:
-        return spans
+        return spans, None
     sign = np.where(has_pos, 1.0, -1.0)
     return spans, np.where(spans, np.nan, sign * normal[:, 0])
 
 
-def _fans_span(sets: TorqueSets, directions: bool = False):
+def _fans_span(sets: TorqueSets,
+               directions: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
     """Positive span for problems whose sets are fans or null sets. Shapes (m, B).
 
     Null sets contribute zero vectors, which lie on every side of every plane and
     make no pair non-parallel, so they need no special case.
 
-    Returns spans (B,), and with ``directions`` also the separating directions (3, B).
+    Returns spans (B,) and, with ``directions``, the separating directions (3, B)
+    (None without).
     """
     vectors = np.concatenate((sets.first, sets.second), axis=1)        # (3, K, B)
     found = _direction_at_mean(vectors)
@@ -136,7 +150,7 @@ def _fans_span(sets: TorqueSets, directions: bool = False):
     elif undecided.size:
         found[:, undecided] = _pair_test(vectors[:, :, undecided])
     spans = np.isnan(found[0])
-    return (spans, found) if directions else spans
+    return spans, (found if directions else None)
 
 
 def _direction_at_mean(vectors: np.ndarray) -> np.ndarray:
@@ -212,7 +226,8 @@ def _pair_test(vectors: np.ndarray) -> np.ndarray:
     return found
 
 
-def _pair_test_kernel(vectors):
+@jit
+def _pair_test_kernel(vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Compiled core of :func:`_pair_test`: directions (3, B) (NaN where none, and where
     the problem's vectors are on a line) and the on-a-line flags (B,)."""
     n_vectors, n_problems = vectors.shape[1], vectors.shape[2]
@@ -264,9 +279,6 @@ def _pair_test_kernel(vectors):
                 break
         on_a_line[problem] = not any_pair
     return found, on_a_line
-
-
-_pair_test_kernel = jit(_pair_test_kernel)
 
 
 def warm_up() -> None:

@@ -79,8 +79,9 @@ CERTIFICATE_TOL = 1e-6
 
 #: Rounding allowance of the filter's check of its own wrenches, in units of
 #: eps * (1 + mu_i), for a_i computed from a unit direction and lever arms scaled to at
-#: most one: the worst case of the few products and sums involved, doubled. It matters only when every a_j is rounding noise
-#: (a wrench no contact can do any work on, e.g. the torque about a line of contacts).
+#: most one: the worst case of the few products and sums involved, doubled. It matters
+#: only when every a_j is rounding noise (a wrench no contact can do any work on, e.g.
+#: the torque about a line of contacts).
 WORK_ROUNDING_ULPS = 16
 
 #: Contact forces pass :func:`verify_certificates` if their net force and net torque

@@ -3,25 +3,25 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
+import numba
 import numpy as np
 
-try:
-    import numba
-except ImportError:  # pragma: no cover - numba is a pinned runtime dependency
-    numba = None
+if TYPE_CHECKING:
+    from numba.core.dispatcher import Dispatcher
 
 Function = TypeVar("Function", bound=Callable[..., Any])
 
 
-def jit(function: Function) -> Function:
+def jit(function: Function) -> Dispatcher[Function]:
     """``numba.njit(cache=True, error_model="numpy")``; without a usable cache
     directory, uncached.
 
-    The compiled function takes the same arguments and returns the same values as
-    ``function`` (so its annotations stand for both). ``error_model="numpy"``: a
-    division by zero gives inf or NaN, as in numpy, instead of raising.
+    The compiled function takes the arguments of ``function`` and returns what it does
+    (the annotations serve mypy; numba compiles one specialisation per argument type).
+    ``error_model="numpy"``: a division by zero gives inf or NaN, as in numpy, instead
+    of raising.
 
     numba stores the machine code next to the defining file (or in the user's cache
     directory when the install is read-only) and keys it on that file's source alone:
