@@ -61,9 +61,9 @@ from .tolerances import MARGIN_TOL, RANK_TOL
 #: What ``margin`` asks for (see :func:`solve_exact`).
 MARGIN_CHOICES = ("optimum", "bound")
 
-#: Grasps per Clarabel solve. Measured on 6-finger grasps (CPU time per grasp): flat
-#: from 16 to 64, then slower as the slowest grasp of a batch sets its iteration count
-#: (256: -20%, 1024: -45%).
+#: Grasps per Clarabel solve: CPU time per grasp is flat up to about this size and grows
+#: beyond it, as the slowest grasp of a batch sets its iteration count (tuned:
+#: docs/performance.md#exact-stage).
 SOLVE_BATCH = 64
 
 #: Per-grasp answers of the Clarabel path: force_closure, t_lo, t_hi, failure (or
@@ -91,9 +91,10 @@ def _settings(tight: bool) -> clarabel.DefaultSettings:
         settings.tol_gap_abs = settings.tol_gap_rel = RETRY_TOL
         settings.tol_feas = RETRY_TOL
     else:
-        # Iterative refinement of each KKT solve cost ~45% of the batch solve time here,
-        # and its accuracy is not needed: force closure needs a witness verified in
-        # numpy, and grasps the batch cannot settle are retried alone, refined.
+        # Iterative refinement of each KKT solve costs much of the batch solve time here
+        # (docs/performance.md#exact-stage), and its accuracy is not needed: force closure
+        # needs a witness verified in numpy, and grasps the batch cannot settle are
+        # retried alone, refined.
         settings.iterative_refinement_enable = False
     return settings
 

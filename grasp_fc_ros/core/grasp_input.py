@@ -143,8 +143,8 @@ def _largest_component(vectors: np.ndarray) -> np.ndarray:
     """max |component| of vectors (..., 3): shape (...); NaN where a component is NaN.
 
     Two elementwise maxima (exact, and propagating NaN as ``max`` does): numpy's reduction
-    over a last axis of length 3 took 44 ns per vector against 5 ns, 0.3 us per 6-finger
-    grasp in every validation and normalisation of the normals.
+    over a last axis of length 3 is several times slower, in every validation and
+    normalisation of the normals (tuned: docs/performance.md#one-grasp).
     """
     size = np.abs(vectors)
     return np.maximum(np.maximum(size[..., 0], size[..., 1]), size[..., 2])

@@ -70,17 +70,16 @@ FORCE_CLOSURE, NOT_FORCE_CLOSURE, UNDECIDED, CONVERGED = 0, 1, 2, 3
 FastResult: TypeAlias = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                               np.ndarray]
 
-#: Iterations before a grasp is handed to the Clarabel path. On the box benchmark a
-#: verdict takes 0.8-1.7 iterations on average (at most 7), the margin to
-#: MARGIN_ACCURACY 1.5-7 on average; 40 only bounds a stuck or marginal grasp.
+#: Iterations before a grasp is handed to the Clarabel path. Verdicts and margins take a
+#: few on average (docs/performance.md#exact-stage); 40 only bounds a stuck or marginal
+#: grasp.
 MAX_ITERATIONS = 40
 
 #: Centring with the optimum asked for: sigma = min(CAP, (1 - alpha_aff)^POWER) instead
 #: of Mehrotra's (1 - alpha_aff)^3, which is kept for verdicts. Iterating to the optimum,
-#: the cube's too little centring in the late iterations left affine steps of 0.6-0.9
-#: (gaps shrinking ~10x per iteration); this rule cut the mean iterations to the margin
-#: by 4-7% on the box, ellipsoid and mug (n = 4, 6, 8; mu = tan 10 deg, 0.5; 1,500-2,000
-#: grasps per cell), while on verdicts it cost up to 3% and the cube stays there.
+#: the cube centres too little in the late iterations (short affine steps, slowly
+#: shrinking gaps); this rule takes fewer iterations to the margin, while on verdicts the
+#: cube is the faster (tuned: docs/performance.md#exact-stage).
 OPTIMUM_CENTRING_POWER = 1.5
 OPTIMUM_CENTRING_CAP = 0.1
 
@@ -88,20 +87,19 @@ _EPS = float(np.finfo(np.float64).eps)
 
 #: For verdicts, the witness is computed only where it could raise max(t_lo, 0): where
 #: :func:`_unprojected_depth` exceeds it less this allowance, which covers the
-#: projection's rounding (~1e-15) many times over. A speed heuristic only (1.1-1.2x on
-#: verdicts, measured; with the optimum asked for, where ``CHECK_GAP`` already gates the
-#: witness, it cost 1-3% and is not used): a skipped witness could have changed neither
-#: the verdict nor the reported interval (t_lo enters both only through max(t_lo, 0); a
-#: certifying witness is MARGIN_TOL deep), and a mistaken skip only costs an iteration.
+#: projection's rounding (~1e-15) many times over. A speed heuristic only (it pays on
+#: verdicts; with the optimum asked for, where ``CHECK_GAP`` already gates the witness,
+#: it does not and is not used; tuned: docs/performance.md#exact-stage): a skipped
+#: witness could have changed neither the verdict nor the reported interval (t_lo enters
+#: both only through max(t_lo, 0); a certifying witness is MARGIN_TOL deep), and a
+#: mistaken skip only costs an iteration.
 WITNESS_SKIP_SLACK = 1e-9
 
 #: With ``want_optimum``, the certificate checks are skipped while the iterates' primal
 #: and dual objectives are more than this apart (10 MARGIN_ACCURACY): they cannot close
-#: the interval yet (at the iterate before the one that closes it, the certified width
-#: was 0.4-0.9 of the objectives' gap, 10th-90th percentile). A speed heuristic only
-#: (every return is still from a checked iterate). 100 MARGIN_ACCURACY changed no stop
-#: on the benchmark's 24,000 box grasps and saved ~10-15% of the optimum's time; 10
-#: MARGIN_ACCURACY changed none of 12,000 more (n = 4, 6, 8; two mu) and saved 0-4%.
+#: the interval yet (the certified width is a sizeable part of the objectives' gap). A
+#: speed heuristic only: every return is still from a checked iterate (tuned:
+#: docs/performance.md#exact-stage).
 CHECK_GAP = 1e-7
 
 #: The signed mode also stops where its gap is this fraction of the margin's distance
@@ -221,9 +219,9 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
     optimum's multipliers).
 
     The remaining arguments are scratch space of the batch, reused from grasp to grasp
-    (allocating it per grasp cost ~25% of the run time): work3 (12, n, 3), work6 (13, 6),
-    rows (3, n, 6), a_mat (n, 6, 3), scalings (n, 3, 3), mats (4, 6, 6), work_n (2, n),
-    a_gram (n, 6, 6).
+    (allocating it per grasp would cost a large share of the run time): work3 (12, n, 3),
+    work6 (13, 6), rows (3, n, 6), a_mat (n, 6, 3), scalings (n, 3, 3), mats (4, 6, 6),
+    work_n (2, n), a_gram (n, 6, 6).
     """
     n = unit.shape[0]
     (tangent, bitangent, z, s, candidate, jv, lam, dz, ds, u_aff, winv_q,

@@ -68,7 +68,8 @@ ABS_TOL = 1e-9
 #: the largest friction coefficient the core accepts (MAX_FRICTION_COEFFICIENT, 1e3; no
 #: physical contact comes near it), so that inf means exactly "not force closure at any
 #: friction check_force_closure can be asked about" (with ratios 1), and the search never
-#: solves at frictions the solvers are not measured at (Clarabel fails from ~3e4).
+#: solves at frictions beyond those the solvers are known to handle (see
+#: MAX_FRICTION_COEFFICIENT).
 MU_CAP = MAX_FRICTION_COEFFICIENT
 
 #: First friction tried when no closed-form upper bound is at hand, and the factor by
@@ -76,14 +77,15 @@ MU_CAP = MAX_FRICTION_COEFFICIENT
 MU_START = 10.0
 ESCALATE = 100.0
 
-#: SOCP solves allowed per grasp. Measured: mean 5-8, at most ~20 on random grasps; the
-#: limit only ends a grasp whose certificates stall (it is then reported NaN, not guessed).
+#: SOCP solves allowed per grasp, well above what random grasps need
+#: (docs/performance.md#minimum-friction): the limit only ends a grasp whose certificates
+#: stall (it is then reported NaN, not guessed).
 MAX_SOLVES = 40
 
 #: A grasp whose solves improved neither bound this many times in a row (each after the
 #: first alone, at a new lam) is given up: reported NaN with its certified bounds. Seen
-#: on ~0.1% of 4-finger box grasps (a lone side contact that only friction balances),
-#: where Clarabel cannot resolve the margin (~1e-9) near mu* to the needed accuracy.
+#: on rare 4-finger box grasps (a lone side contact that only friction balances), where
+#: Clarabel cannot resolve the margin (~1e-9) near mu* to the needed accuracy.
 MAX_STALLS = 3
 
 #: Relative rounding slack of the lower certificate: the work a = G^T w is computed to
@@ -125,11 +127,11 @@ FAST_GAP = SOLVER_TOL
 
 #: A fast solve that broke down before FAST_GAP is used all the same where its dual
 #: objective and certified witness depth are this close (relative to 1/sigma). Near
-#: mu* the kernel breaks down at gaps of 1e-9 to 1e-7 on ~4% of the solves (6-finger
-#: box grasps); their certificates are checked like any other, the search only steps
-#: from a slightly rougher margin, and a solve that then improves neither bound is redone
-#: by Clarabel alone. Measured: 1e-9 sent ~540 of ~14,600 solves to Clarabel, 1e-6 sent
-#: 8, with the same solves per grasp (7.3) and 1.25x the throughput.
+#: mu* the kernel breaks down on some solves at gaps of up to ~1e-7; their certificates
+#: are checked like any other, the search only steps from a slightly rougher margin, and
+#: a solve that then improves neither bound is redone by Clarabel alone. Far fewer solves
+#: go to Clarabel than with a tighter value, for the same solves per grasp (tuned:
+#: docs/performance.md#minimum-friction).
 FAST_ACCEPT = 1e-6
 
 #: Bisection steps for the largest L a wrench certifies: 2^-32 (~2e-10) of the bracket,
@@ -190,9 +192,8 @@ def minimum_friction(positions: npt.ArrayLike, normals: npt.ArrayLike,
         force closure (margin above ``margin``) for every mu > mu*, and for no
         mu < mu* (margin at most max(margin, CERT_MARGIN)). 0: force closure for every
         positive friction; inf: for none up to MU_CAP; NaN: not certified to the
-        tolerance (given up after MAX_STALLS fruitless solves, or MAX_SOLVES; ~0.1% of
-        4-finger box grasps, none in the tests; :func:`minimum_friction_bounds` still
-        gives valid bounds).
+        tolerance (given up after MAX_STALLS fruitless solves, or MAX_SOLVES; rare,
+        none in the tests; :func:`minimum_friction_bounds` still gives valid bounds).
 
     Raises
     ------

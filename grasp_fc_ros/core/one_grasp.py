@@ -1,7 +1,8 @@
 """The fast path of :func:`.pipeline.check_force_closure` for one grasp (numba).
 
-A call with one grasp spent ~0.1-0.2 ms in numpy overhead (validation, normalisation,
-batching, dispatch) around a ~10 us exact test. Here one compiled call validates the
+Through the general path, a call with one grasp spends many times longer in numpy
+overhead (validation, normalisation, batching, dispatch) than in its exact test
+(docs/performance.md#one-grasp). Here one compiled call validates the
 grasp, normalises it with the same floating-point operations as
 :func:`.grasp_input.unit_vectors` and :func:`.certificates.normalise_positions` (so the
 fast stage sees bit-identical input and the verdict cannot depend on the path), and runs
@@ -96,7 +97,7 @@ def check_one(positions: np.ndarray, normals: np.ndarray, mu: float,
     if not _prepare_one(positions, normals, mu, unit[0], directions[0], friction[0]):
         return None
     # A second compiled call rather than one kernel calling the other: numba would
-    # compile the whole exact stage again into that kernel (~40 s cold).
+    # compile the whole exact stage again into that kernel (a long cold compile).
     codes, t_lo, t_hi, _, _, _ = interior_point._solve_all(unit, directions, friction,
                                                            want_optimum, False, 0.0, 0.0)
     if codes[0] == interior_point.UNDECIDED:

@@ -8,8 +8,9 @@ equilibrating internal force can be (mu f_n - |f_t|, normal forces summing to on
 for a grasp map of rank < 6). Both ends reported are certified:
 ``margin <= t* <= margin_upper``. ``margin="optimum"`` (default) narrows the interval to
 MARGIN_ACCURACY (1e-8) where the fast stage decides (Clarabel's ~1e-8 accuracy on its
-fallback grasps); ``margin="bound"`` stops at the verdict, which is about twice as
-fast, and reports whatever interval was certified by then (often wide).
+fallback grasps); ``margin="bound"`` stops at the verdict, which is faster
+(docs/performance.md#exact-stage), and reports whatever interval was certified by then
+(often wide).
 
 Soft contacts
 -------------
@@ -47,8 +48,8 @@ class Status(IntEnum):
     SOLVER_FAILURE = 4     #: the solver could not decide, even after a retry
 
 
-# Plain integers for the per-call path: each IntEnum attribute lookup costs a few
-# microseconds, a measurable part of a one-grasp call.
+# Plain integers for the per-call path: an IntEnum attribute lookup is a noticeable part
+# of a one-grasp call (docs/performance.md#one-grasp).
 _FORCE_CLOSURE, _NOT_FORCE_CLOSURE, _FILTERED_OUT, _SOLVER_FAILURE = (
     int(Status.FORCE_CLOSURE), int(Status.NOT_FORCE_CLOSURE), int(Status.FILTERED_OUT),
     int(Status.SOLVER_FAILURE))

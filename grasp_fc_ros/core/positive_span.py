@@ -45,10 +45,9 @@ _FAN = int(TorqueSetKind.FAN)
 _PLANE = int(TorqueSetKind.PLANE)
 
 #: From this many boundary torques per problem (fans-only case, after the extreme-subset
-#: proof) the convex-hull test replaces the pair test. Measured (benchmarks/
-#: bench_filter.py --paths, box grasps, mu = 0.01, a loaded machine): the pair test's
-#: cost grows as K^3, the hull's (about 0.1 ms per call) as K log K; they cross between
-#: K = 26 and 38 (14 to 20 contacts).
+#: proof) the convex-hull test replaces the pair test: the pair test's cost grows as K^3,
+#: the hull's as K log K from a higher start; this is where they cross (tuned:
+#: docs/performance.md#filter, from benchmarks/bench_filter.py --paths).
 HULL_MIN_VECTORS = 36
 
 #: Probe directions of :func:`_extremes_span`: the 6 axes and the 8 diagonals.
@@ -156,8 +155,8 @@ def _fans_span(sets: TorqueSets,
 def _direction_at_mean(vectors: np.ndarray) -> np.ndarray:
     """Cheap first try: does the mean of the vectors itself separate them?
 
-    When all vectors lie in a half-space their mean often does (about one problem in
-    ten on random six-finger grasps), and checking one direction costs K dot products
+    When all vectors lie in a half-space their mean often does (on random six-finger
+    grasps, for a fair share of the problems), and checking one direction costs K dot products
     instead of the pair test's K (K - 1) / 2 cross and K (K - 1) (K - 2) / 6 triple
     products.
 

@@ -17,7 +17,7 @@ import clarabel
 import numpy as np
 from scipy import sparse  # clarabel's Python API takes scipy CSC matrices
 
-#: Grasps per Clarabel solve: the exact test's measured sweet spot (see exact_test.py).
+#: Grasps per Clarabel solve: the exact test's (see exact_test.py).
 SOLVE_BATCH = 64
 
 #: Interior-point iterations allowed per solve; an unconverged batch is retried alone.
@@ -109,8 +109,8 @@ def settings(tol: float | None) -> clarabel.DefaultSettings:
     result = clarabel.DefaultSettings()
     result.verbose = False
     result.max_iter = MAX_ITERATIONS
-    # Iterative refinement of each KKT solve cost ~30% of the time of these solves
-    # (measured on 6-finger minimum-friction batches), and every answer is checked in
+    # Iterative refinement of each KKT solve costs a good part of the time of these
+    # solves (docs/performance.md#minimum-friction), and every answer is checked in
     # numpy anyway (as in the exact test).
     result.iterative_refinement_enable = False
     if tol is not None:

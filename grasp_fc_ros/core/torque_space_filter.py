@@ -71,22 +71,22 @@ SpansAbout: TypeAlias = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.
 OriginVerdicts: TypeAlias = tuple[np.ndarray, np.ndarray | None, np.ndarray | None]
 
 #: Most origins ``"all"`` tries. Each costs about O(n log n), so every contact as an
-#: origin would cost O(n^2 log n): measured 10 s for one grasp of 3,000 contacts against
-#: 0.56 s for its exact test. Past 64 contacts the filter does not pay anyway.
+#: origin would cost O(n^2 log n), far more than the exact test of a grasp of thousands
+#: of contacts (docs/performance.md#filter). Past 64 contacts the filter does not pay
+#: anyway.
 MAX_ALL_ORIGINS = 64
 
 #: Largest contact count at which the filter saves more exact-test time than it costs
-#: (hit rate x exact cost per grasp > filter cost per grasp), per origin choice. Measured
-#: by benchmarks/bench_filter.py (box grasps, one core, medians of 3) against the fast
-#: exact stage at mu = 0.01, tan 10 deg and 0.5 (n = 3 to 12): with both origin choices
-#: it paid at every mu up to n = 4, at mu = 0.01 up to 5, and nowhere beyond 5 (against
-#: the Clarabel path, ~30x slower, it had paid up to n = 8). Re-run the benchmark and
-#: update when either stage changes.
+#: (hit rate x exact cost per grasp > filter cost per grasp), per origin choice, on
+#: batches, against the fast exact stage (tuned: docs/performance.md#filter, from
+#: benchmarks/bench_filter.py). Re-run the benchmark and update when either stage
+#: changes.
 FILTER_PAYS_UP_TO_CONTACTS = {"seed": 4, "all": 4}
 
 #: From this many grasps on, origins are tried one after another so that grasps
 #: already rejected skip the rest; below it, all origins go in one pass, which pays
-#: numpy's per-call overhead once instead of once per origin (measured crossover).
+#: numpy's per-call overhead once instead of once per origin (tuned:
+#: docs/performance.md#filter).
 _ONE_ORIGIN_AT_A_TIME_MIN_GRASPS = 256
 
 #: Lever arms handled per vectorised pass (problems x contacts): bounds the memory of
