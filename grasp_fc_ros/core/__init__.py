@@ -15,6 +15,7 @@ Closure Grasp":
 * :mod:`.certificates` -- internal forces and bounding wrenches, checked in numpy;
 * :mod:`.pipeline` -- the filter, then the exact test on the survivors;
 * :mod:`.one_grasp` -- the compiled fast path of one grasp through the pipeline;
+* :mod:`.one_grasp_filter` -- the torque filter of that path, compiled;
 * :mod:`.minimum_friction` -- the least friction coefficient that makes a grasp force
   closure (certified bounds);
 * :mod:`.grasp_forces` -- the least largest normal force that holds a given load;

@@ -486,19 +486,47 @@ def _solve_all(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_optim
     iterations = np.empty(n_grasps, dtype=np.int32)
     forces = np.full((n_grasps, n_contacts, 3), np.nan)
     wrench = np.full((n_grasps, 6), np.nan)
-    work3 = np.empty((12, n_contacts, 3))
-    work6 = np.empty((13, 6))
-    rows = np.empty((3, n_contacts, 6))
-    a_mat = np.empty((n_contacts, 6, 3))
-    scalings = np.empty((n_contacts, 3, 3))
-    mats = np.empty((4, 6, 6))
-    work_n = np.empty((2, n_contacts))
-    a_gram = np.empty((n_contacts, 6, 6))
+    work3, work6, rows, a_mat, scalings, mats, work_n, a_gram = _workspace(n_contacts)
     for g in range(n_grasps):
         codes[g], t_lo[g], t_hi[g], iterations[g] = _solve_grasp(
             unit[g], normals[g], mu[g], want_optimum, want_wrench, signed_gap, signed_level,
             forces[g], wrench[g], work3, work6, rows, a_mat, scalings, mats, work_n, a_gram)
     return codes, t_lo, t_hi, iterations, forces, wrench
+
+
+@jit
+def _workspace(n_contacts: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                         np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Scratch of :func:`_solve_grasp` for grasps of ``n_contacts`` contacts: work3,
+    work6, rows, a_mat, scalings, mats, work_n, a_gram."""
+    return (np.empty((12, n_contacts, 3)), np.empty((13, 6)), np.empty((3, n_contacts, 6)),
+            np.empty((n_contacts, 6, 3)), np.empty((n_contacts, 3, 3)), np.empty((4, 6, 6)),
+            np.empty((2, n_contacts)), np.empty((n_contacts, 6, 6)))
+
+
+@jit
+def solve_one(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray,
+              want_optimum: bool) -> tuple[int, float, float]:
+    """The verdict of one unit-size grasp, compiled for callers that are compiled too.
+
+    Parameters
+    ----------
+    unit, normals : ndarray, shape (n, 3)
+        As for :func:`solve_fast`, one grasp.
+    mu : ndarray, shape (n,)
+    want_optimum : bool
+
+    Returns
+    -------
+    (int, float, float)
+        code (FORCE_CLOSURE, NOT_FORCE_CLOSURE or UNDECIDED), t_lo, t_hi.
+    """
+    work3, work6, rows, a_mat, scalings, mats, work_n, a_gram = _workspace(unit.shape[0])
+    forces, wrench = np.empty((unit.shape[0], 3)), np.empty(6)
+    code, t_lo, t_hi, _ = _solve_grasp(unit, normals, mu, want_optimum, False, 0.0, 0.0,
+                                       forces, wrench, work3, work6, rows, a_mat, scalings,
+                                       mats, work_n, a_gram)
+    return code, t_lo, t_hi
 
 
 

@@ -25,7 +25,6 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from enum import IntEnum
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -34,8 +33,23 @@ from ._kernels.jit import kernel_array
 from .certificates import normalise_positions, to_caller_wrench, verify_batch
 from .exact_test import MARGIN_CHOICES, ExactResult, solve_exact
 from .grasp_input import MIN_CONTACTS, GraspBatch, prepare_grasps
-from .one_grasp import MAX_FAST_CONTACTS, check_one
-from .torque_space_filter import passes_torque_filter, resolve_use_filter
+from .interior_point import FORCE_CLOSURE, NOT_FORCE_CLOSURE
+from .one_grasp import (
+    ALL_ORIGINS,
+    FILTERED_OUT,
+    GENERAL_PATH,
+    MAX_FAST_CONTACTS,
+    SEED_ORIGINS,
+    check_one,
+    decide_one,
+)
+from .one_grasp_filter import MAX_FILTER_CONTACTS
+from .torque_space_filter import (
+    FILTER_PAYS_UP_TO_CONTACTS,
+    ORIGIN_CHOICES,
+    passes_torque_filter,
+    resolve_use_filter,
+)
 
 
 class Status(IntEnum):
@@ -53,6 +67,14 @@ class Status(IntEnum):
 _FORCE_CLOSURE, _NOT_FORCE_CLOSURE, _FILTERED_OUT, _SOLVER_FAILURE = (
     int(Status.FORCE_CLOSURE), int(Status.NOT_FORCE_CLOSURE), int(Status.FILTERED_OUT),
     int(Status.SOLVER_FAILURE))
+
+#: The one-grasp path's status scalars (numpy scalars are immutable: shared), by the
+#: code of :mod:`.one_grasp`; and its NaN margin.
+_STATUS = {FORCE_CLOSURE: np.uint8(_FORCE_CLOSURE), NOT_FORCE_CLOSURE: np.uint8(_NOT_FORCE_CLOSURE),
+           FILTERED_OUT: np.uint8(_FILTERED_OUT)}
+_NAN = np.float64(np.nan)
+_FLOAT64 = np.dtype(np.float64)
+_FLOATS, _INTEGERS = (float, np.floating), (int, np.integer)
 
 
 @dataclass(frozen=True)
@@ -110,6 +132,25 @@ class ForceClosureResult:
     marginal: np.ndarray | None = None
     contact_torques: np.ndarray | None = None
 
+    @classmethod
+    def of_one(cls, force_closure: np.generic, filtered_out: np.generic, margin: np.generic,
+               status: np.generic, margin_upper: np.generic,
+               timing: dict[str, float]) -> ForceClosureResult:
+        """The result of one grasp without certificates, from the numpy scalars a batch
+        of one unbatches to (:meth:`.grasp_input.GraspBatch.unbatch`).
+
+        Its fields are set in one step: the frozen ``__init__`` sets each of the ten
+        through ``object.__setattr__``, a large part of a one-grasp call
+        (docs/performance.md#one-grasp).
+        """
+        result = object.__new__(cls)
+        object.__setattr__(result, "__dict__", {
+            "force_closure": force_closure, "filtered_out": filtered_out, "margin": margin,
+            "status": status, "timing": timing, "margin_upper": margin_upper,
+            "contact_forces": None, "separating_wrench": None, "marginal": None,
+            "contact_torques": None})
+        return result
+
 
 def check_force_closure(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayLike,
                         use_filter: bool | str = "auto", origins: str = "seed",
@@ -149,6 +190,13 @@ def check_force_closure(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: np
     ------
     ValueError
         On bad input, naming the grasp and contact.
+
+    Notes
+    -----
+    One grasp of float64 arrays (n, 3) with a scalar ``mu``, hard contacts and no
+    certificates is decided by one compiled call (:mod:`.one_grasp`), the filter
+    included where it is to run: the results a batch gives that grasp, without numpy's
+    per-call overhead (docs/performance.md#one-grasp).
     """
     hard = torsional_friction is None or (type(torsional_friction) in (int, float)
                                           and torsional_friction == 0)
@@ -163,32 +211,60 @@ def check_force_closure(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: np
 def _one_grasp(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayLike,
                use_filter: bool | str, origins: str, margin: str) -> ForceClosureResult | None:
     """The result for one grasp of float64 arrays (n, 3) and a scalar mu, decided on the
-    fast path of :mod:`.one_grasp` where the filter is not to run; else None."""
+    compiled path of :mod:`.one_grasp` (the filter too, where it is to run and that path
+    takes it); else None.
+
+    ``timing`` puts the compiled call's time under "filter_s" for a grasp the filter
+    rejects, under "exact_s" otherwise (the filter's part of it is not measured apart).
+    Every step here is on the per-call budget (docs/performance.md#one-grasp).
+    """
     if not (type(positions) is np.ndarray and type(normals) is np.ndarray
-            and (isinstance(mu, (float, np.floating))
+            and (isinstance(mu, _FLOATS)
                  # (a huge int would make float() raise: the general path words it)
-                 or (isinstance(mu, (int, np.integer)) and abs(int(mu)) <= 2 ** 53))
-            and positions.dtype == np.float64 and normals.dtype == np.float64
-            and positions.ndim == 2 and positions.shape == normals.shape
-            and positions.shape[1] == 3
-            and MIN_CONTACTS <= positions.shape[0] <= MAX_FAST_CONTACTS
-            and margin in MARGIN_CHOICES
-            and not resolve_use_filter(use_filter, positions.shape[0], origins)):
+                 or (isinstance(mu, _INTEGERS) and abs(int(mu)) <= 2 ** 53))
+            # (native float64 arrays share this dtype object; others take the general path)
+            and positions.dtype is _FLOAT64 and normals.dtype is _FLOAT64
+            and margin in MARGIN_CHOICES):
         return None
+    shape = positions.shape
+    if not (len(shape) == 2 and shape[1] == 3 and normals.shape == shape
+            and MIN_CONTACTS <= shape[0] <= MAX_FAST_CONTACTS):
+        return None
+    if use_filter == "auto":           # resolve_use_filter's answer, without its checks
+        limit = FILTER_PAYS_UP_TO_CONTACTS.get(origins)
+        if limit is None:                  # an unknown origins: the general path says so
+            return None
+        filtered = shape[0] <= limit
+    else:
+        filtered = resolve_use_filter(use_filter, shape[0], origins)
+    if filtered and (shape[0] > MAX_FILTER_CONTACTS or origins not in ORIGIN_CHOICES):
+        return None
+    flags = positions.flags
+    if not (flags.c_contiguous and flags.writeable):
+        positions = kernel_array(positions)
+    flags = normals.flags
+    if not (flags.c_contiguous and flags.writeable):
+        normals = kernel_array(normals)
     start = time.perf_counter()
-    decided = check_one(kernel_array(positions), kernel_array(normals), float(mu),
-                        margin == "optimum")
-    if decided is None:
-        return None
-    force_closure, t_lo, t_hi = decided
-    # The numpy scalars a batch of one unbatches to (:meth:`GraspBatch.unbatch`).
-    scalars: dict[str, Any] = {
-        "force_closure": np.bool_(force_closure), "filtered_out": np.False_,
-        "margin": np.float64(max(t_lo, 0.0)),
-        "status": np.uint8(_FORCE_CLOSURE if force_closure else _NOT_FORCE_CLOSURE),
-        "margin_upper": np.float64(t_hi)}
-    return ForceClosureResult(timing={"filter_s": 0.0, "exact_s": time.perf_counter() - start},
-                              **scalars)
+    if filtered:
+        decided = decide_one(positions, normals, float(mu),
+                             ALL_ORIGINS if origins == "all" else SEED_ORIGINS,
+                             margin == "optimum")
+        if decided[0] == GENERAL_PATH:
+            return None
+    else:
+        found = check_one(positions, normals, float(mu), margin == "optimum")
+        if found is None:
+            return None
+        decided = found
+    elapsed = time.perf_counter() - start
+    code, t_lo, t_hi = decided
+    if code == FILTERED_OUT:
+        return ForceClosureResult.of_one(np.False_, np.True_, _NAN, _STATUS[code], _NAN,
+                                         {"filter_s": elapsed, "exact_s": 0.0})
+    return ForceClosureResult.of_one(np.bool_(code == FORCE_CLOSURE), np.False_,
+                                     np.float64(t_lo if t_lo > 0.0 else 0.0), _STATUS[code],
+                                     np.float64(t_hi), {"filter_s": 0.0, "exact_s": elapsed})
 
 
 def run_pipeline(grasps: GraspBatch, use_filter: bool | str = True, origins: str = "seed",

@@ -225,6 +225,10 @@ def _pair_test(vectors: np.ndarray) -> np.ndarray:
     return found
 
 
+#: Outcomes of :func:`pair_test_problem`.
+SPANS, SEPARATED, ON_A_LINE = 0, 1, 2
+
+
 @jit
 def _pair_test_kernel(vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Compiled core of :func:`_pair_test`: directions (3, B) (NaN where none, and where
@@ -237,47 +241,71 @@ def _pair_test_kernel(vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     found = np.full((3, n_problems), np.nan)
     on_a_line = np.zeros(n_problems, dtype=np.bool_)
     for problem in range(n_problems):
-        v = vectors[:, :, problem]
-        pair = 0
-        for a in range(n_vectors):
-            for b in range(a + 1, n_vectors):
-                # The same operations as torque_sets.cross.
-                normals[pair, 0] = v[1, a] * v[2, b] - v[2, a] * v[1, b]
-                normals[pair, 1] = v[2, a] * v[0, b] - v[0, a] * v[2, b]
-                normals[pair, 2] = v[0, a] * v[1, b] - v[1, a] * v[0, b]
-                lowest[pair] = 0.0
-                highest[pair] = 0.0
-                pair += 1
-        for a in range(n_vectors):
-            for b in range(a + 1, n_vectors):
-                ab = a * n_vectors - a * (a + 1) // 2 + b - a - 1
-                for c in range(b + 1, n_vectors):
-                    ac = a * n_vectors - a * (a + 1) // 2 + c - a - 1
-                    bc = b * n_vectors - b * (b + 1) // 2 + c - b - 1
-                    det = (normals[ab, 0] * v[0, c] + normals[ab, 1] * v[1, c]
-                           + normals[ab, 2] * v[2, c])
-                    lowest[ab] = min(lowest[ab], det)
-                    highest[ab] = max(highest[ab], det)
-                    lowest[bc] = min(lowest[bc], det)
-                    highest[bc] = max(highest[bc], det)
-                    lowest[ac] = min(lowest[ac], -det)
-                    highest[ac] = max(highest[ac], -det)
-        any_pair = False
-        for pair in range(n_pairs):
-            n0, n1, n2 = normals[pair, 0], normals[pair, 1], normals[pair, 2]
-            length = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-            if not length > PARALLEL_TOL:
-                continue
-            any_pair = True
-            slack = SPAN_TOL * length
-            if lowest[pair] >= -slack or highest[pair] <= slack:
-                sign = 1.0 if lowest[pair] >= -slack else -1.0
-                found[0, problem] = sign * n0 / length
-                found[1, problem] = sign * n1 / length
-                found[2, problem] = sign * n2 / length
-                break
-        on_a_line[problem] = not any_pair
+        on_a_line[problem] = pair_test_problem(vectors[:, :, problem], normals, lowest,
+                                               highest, found[:, problem]) == ON_A_LINE
     return found, on_a_line
+
+
+@jit
+def pair_test_problem(v: np.ndarray, normals: np.ndarray, lowest: np.ndarray,
+                      highest: np.ndarray, found: np.ndarray) -> int:
+    """The pair test of :func:`_pair_test` on one problem.
+
+    Parameters
+    ----------
+    v : ndarray, shape (3, K)
+        The problem's unit (or zero) vectors, component-first.
+    normals, lowest, highest : ndarray, shapes (P, 3), (P,), (P,), P >= K (K - 1) / 2
+        Scratch.
+    found : ndarray, shape (3,)
+        Output where SEPARATED: the unit separating direction; untouched otherwise.
+
+    Returns
+    -------
+    int
+        SPANS, SEPARATED, or ON_A_LINE (no pair is non-parallel: any direction
+        perpendicular to the line separates).
+    """
+    n_vectors = v.shape[1]
+    pair = 0
+    for a in range(n_vectors):
+        for b in range(a + 1, n_vectors):
+            # The same operations as torque_sets.cross.
+            normals[pair, 0] = v[1, a] * v[2, b] - v[2, a] * v[1, b]
+            normals[pair, 1] = v[2, a] * v[0, b] - v[0, a] * v[2, b]
+            normals[pair, 2] = v[0, a] * v[1, b] - v[1, a] * v[0, b]
+            lowest[pair] = 0.0
+            highest[pair] = 0.0
+            pair += 1
+    for a in range(n_vectors):
+        for b in range(a + 1, n_vectors):
+            ab = a * n_vectors - a * (a + 1) // 2 + b - a - 1
+            for c in range(b + 1, n_vectors):
+                ac = a * n_vectors - a * (a + 1) // 2 + c - a - 1
+                bc = b * n_vectors - b * (b + 1) // 2 + c - b - 1
+                det = (normals[ab, 0] * v[0, c] + normals[ab, 1] * v[1, c]
+                       + normals[ab, 2] * v[2, c])
+                lowest[ab] = min(lowest[ab], det)
+                highest[ab] = max(highest[ab], det)
+                lowest[bc] = min(lowest[bc], det)
+                highest[bc] = max(highest[bc], det)
+                lowest[ac] = min(lowest[ac], -det)
+                highest[ac] = max(highest[ac], -det)
+    any_pair = False
+    for pair in range(n_vectors * (n_vectors - 1) // 2):
+        n0, n1, n2 = normals[pair, 0], normals[pair, 1], normals[pair, 2]
+        length = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        if not length > PARALLEL_TOL:
+            continue
+        any_pair = True
+        slack = SPAN_TOL * length
+        if lowest[pair] >= -slack or highest[pair] <= slack:
+            sign = 1.0 if lowest[pair] >= -slack else -1.0
+            found[0] = sign * n0 / length
+            found[1] = sign * n1 / length
+            found[2] = sign * n2 / length
+            return SEPARATED
+    return SPANS if any_pair else ON_A_LINE
 
 
 def warm_up() -> None:
