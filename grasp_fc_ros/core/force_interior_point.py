@@ -45,16 +45,22 @@ from ._kernels.cones import (
     NO_LIMIT,
     STEP_FRACTION,
     inverse_apply,
-    jordan_divide_into,
-    jordan_product_into,
+    inverse_square_apply,
+    jordan_divide,
+    jordan_product,
     max_step,
     nt_scaling,
     positive_step,
+    scaled_apply,
+    scaling_of,
 )
 from ._kernels.frames import normal_split, tangent_frames, work_at
 from ._kernels.grasp_map import add_congruence, add_wrench, apply_grasp_map, certified_rank
-from ._kernels.jit import jit, kernel_array
+from ._kernels.jit import jit, kernel_array, row
 from ._kernels.linear_algebra import cholesky, cholesky_solve
+
+#: Index into a :data:`._kernels.cones.Scaling` of the entry (r, c) of the symmetric W.
+_SYMMETRIC = ((0, 1, 2), (1, 3, 4), (2, 4, 5))
 
 #: Result codes of the kernel: forces and a wrench that meet the stop rule; a wrench
 #: proving s* = inf; neither (for the Clarabel path).
@@ -93,8 +99,7 @@ def _lower_bound(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, limits: 
     if not along > 0.0:
         return 0.0
     for i in range(n):
-        a0, a1, a2 = work_at(w, unit[i])
-        a_n, a_t = normal_split(a0, a1, a2, normals[i])
+        a_n, a_t = normal_split(work_at(w, row(unit, i)), row(normals, i))
         excess[i] = max(a_n + mu[i] * a_t, 0.0)
     # g(beta) = sum_i excess_i min(1, beta L_i) - beta along is concave, linear between
     # the breakpoints 1 / L_i: the root lies past the last breakpoint where g >= 0.
@@ -142,9 +147,9 @@ def _upper_bound(unit: np.ndarray, normals: np.ndarray, tangent: np.ndarray,
     largest = -np.inf
     violation = 0.0
     for i in range(n):
-        g0, g1, g2 = work_at(y, unit[i])                               # G_i^T y
-        f_n, f_t = normal_split(forces[i, 0] - g0, forces[i, 1] - g1, forces[i, 2] - g2,
-                                normals[i])
+        g0, g1, g2 = work_at(y, row(unit, i))                          # G_i^T y
+        f_n, f_t = normal_split((forces[i, 0] - g0, forces[i, 1] - g1, forces[i, 2] - g2),
+                                row(normals, i))
         largest = max(largest, f_n)
         violation = max(violation, f_t - mu[i] * f_n, f_n - limits[i])
     return largest, violation
@@ -157,7 +162,7 @@ def _slacks(unit: np.ndarray, edges: np.ndarray, w: np.ndarray, u: np.ndarray, v
     (n, 3), R_i's columns ``edges[:, i]`` (-n_i, mu_i t1_i, mu_i t2_i); ``work`` (3,)
     is scratch."""
     for i in range(unit.shape[0]):
-        work[0], work[1], work[2] = work_at(w, unit[i])
+        work[0], work[1], work[2] = work_at(w, row(unit, i))
         for k in range(3):
             s[i, k] = edges[k, i, 0] * work[0] + edges[k, i, 1] * work[1] + edges[k, i, 2] * work[2]
         s[i, 0] += u[i] + v[i]
@@ -173,7 +178,7 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, limits: 
 
     ``forces_out`` (n, 3) gets the forces c_i / beta (world frame, before the
     projection), ``wrench_out`` (6,) the wrench w. The other arguments are scratch of
-    the batch: work3 (12, n, 3), work6 (9, 6), mats (6, 6, 6), scalings (n, 3, 3),
+    the batch: work3 (12, n, 3), work6 (9, 6), mats (6, 6, 6), scalings (n, 6),
     edges (3, n, 3), work_n (20, n).
     """
     n = unit.shape[0]
@@ -185,9 +190,8 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, limits: 
         work6[8])
     gram, gram_factor, schur, factor = mats[0], mats[1], mats[2], mats[3]
     winv, vy, q_mat, t_mat = mats[4, :3, :3], mats[4, 3:, :3], mats[4, :3, 3:], mats[4, 3:, 3:]
-    a, gvec, p_row, q, w_dz, second_order, vec, pe = (
-        mats[5, 0, :3], mats[5, 0, 3:], mats[5, 1, :3], mats[5, 1, 3:], mats[5, 2, :3],
-        mats[5, 2, 3:], mats[5, 3, :3], mats[5, 3, 3:])
+    a, gvec, p_row, vec, pe = (mats[5, 0, :3], mats[5, 0, 3:], mats[5, 1, :3],
+                               mats[5, 3, :3], mats[5, 3, 3:])
     (u, v, zu, zv, du, dv, dzu, dzv, rc_u, rc_v, inv_eta2, e_sum, e_cross, e_vv, r_u, r_v,
      t_u, t_v, excess, rhs_uv) = (
         work_n[0], work_n[1], work_n[2], work_n[3], work_n[4], work_n[5], work_n[6],
@@ -273,13 +277,14 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, limits: 
         gap = 0.0
         finite = True
         for i in range(n):
-            inv_eta2[i] = nt_scaling(z[i], s[i], scalings[i], jv[i])
+            inv_eta2[i], scaling, inverse_vector = nt_scaling(row(z, i), row(s, i))
             if not np.isfinite(inv_eta2[i]):
                 finite = False
                 break
-            for k in range(3):
-                lam[i, k] = (scalings[i, k, 0] * z[i, 0] + scalings[i, k, 1] * z[i, 1]
-                             + scalings[i, k, 2] * z[i, 2])
+            for k in range(6):
+                scalings[i, k] = scaling[k]
+            jv[i, 0], jv[i, 1], jv[i, 2] = inverse_vector
+            lam[i, 0], lam[i, 1], lam[i, 2] = scaled_apply(scaling, row(z, i))
             # h_i = G_i R_i W^-2 e0, W^-2 = (2 Jv Jv^T - J) / eta^2.
             pe[0] = inv_eta2[i] * (2.0 * jv[i, 0] * jv[i, 0] - 1.0)
             pe[1] = inv_eta2[i] * 2.0 * jv[i, 0] * jv[i, 1]
@@ -298,7 +303,7 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, limits: 
             for r in range(3):      # W^-1 = J W J / eta^2
                 for col in range(3):
                     sign = 1.0 if (r == 0) == (col == 0) else -1.0
-                    winv[r, col] = sign * inv_eta2[i] * scalings[i, r, col]
+                    winv[r, col] = sign * inv_eta2[i] * scaling[_SYMMETRIC[r][col]]
             g_norm = np.sqrt(winv[0, 0] ** 2 + winv[1, 0] ** 2 + winv[2, 0] ** 2)
             kappa = 1.0 / (1.0 + compliance * g_norm * g_norm)
             for k in range(3):
@@ -347,9 +352,9 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, limits: 
             break
         mean_gap = gap / n_cones
         for i in range(n):
-            jordan_product_into(lam[i], lam[i], rhs_c[i])
+            square = jordan_product(row(lam, i), row(lam, i))
             for k in range(3):
-                rhs_c[i, k] = -rhs_c[i, k]
+                rhs_c[i, k] = -square[k]
             rc_u[i] = -u[i] * zu[i]
             rc_v[i] = -v[i] * zv[i]
         alpha = NO_LIMIT
@@ -360,8 +365,8 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, limits: 
                 rhs[r] = -r_w[r]
             r2 = r_p
             for i in range(n):
-                jordan_divide_into(lam[i], rhs_c[i], q)
-                inverse_apply(scalings[i], q, winv_q[i])
+                winv_q[i, 0], winv_q[i, 1], winv_q[i, 2] = inverse_apply(
+                    scaling_of(scalings, i), jordan_divide(row(lam, i), row(rhs_c, i)))
                 t_u[i] = rc_u[i] / u[i]
                 ru = winv_q[i, 0] + t_u[i] - r_u[i]
                 if limits[i] < np.inf:
@@ -384,7 +389,7 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, limits: 
                 dw[r] += sb[r] * dy
             alpha = NO_LIMIT
             for i in range(n):
-                a[0], a[1], a[2] = work_at(dw, unit[i])
+                a[0], a[1], a[2] = work_at(dw, row(unit, i))
                 along_h = h3[i, 0] * a[0] + h3[i, 1] * a[1] + h3[i, 2] * a[2]
                 ru = du[i] - along_h
                 if limits[i] < np.inf:
@@ -399,13 +404,13 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, limits: 
                 for k in range(3):
                     ds[i, k] = edges[k, i, 0] * a[0] + edges[k, i, 1] * a[1] + edges[k, i, 2] * a[2]
                 ds[i, 0] += du[i] + dv[i]
-                # dz = W^-1 q - W^-2 ds, W^-2 ds = (2 Jv (Jv . ds) - J ds) / eta^2
-                proj = jv[i, 0] * ds[i, 0] + jv[i, 1] * ds[i, 1] + jv[i, 2] * ds[i, 2]
+                # dz = W^-1 q - W^-2 ds
+                w2_ds = inverse_square_apply(row(jv, i), inv_eta2[i], row(ds, i))
                 for k in range(3):
-                    j_ds = ds[i, k] if k == 0 else -ds[i, k]
-                    dz[i, k] = winv_q[i, k] - inv_eta2[i] * (2.0 * jv[i, k] * proj - j_ds)
+                    dz[i, k] = winv_q[i, k] - w2_ds[k]
                 dzu[i] = t_u[i] - zu[i] / u[i] * du[i]
-                alpha = min(alpha, max_step(z[i], dz[i]), max_step(s[i], ds[i]),
+                alpha = min(alpha, max_step(row(z, i), row(dz, i)),
+                            max_step(row(s, i), row(ds, i)),
                             positive_step(u[i], du[i]), positive_step(zu[i], dzu[i]))
                 if limits[i] < np.inf:
                     dzv[i] = t_v[i] - zv[i] / v[i] * dv[i]
@@ -422,14 +427,12 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, limits: 
                         predicted += (zv[i] + alpha * dzv[i]) * (v[i] + alpha * dv[i])
                 centring = (predicted / gap) ** 3 * mean_gap
                 for i in range(n):
-                    inverse_apply(scalings[i], ds[i], q)
+                    scaling = scaling_of(scalings, i)
+                    second_order = jordan_product(inverse_apply(scaling, row(ds, i)),
+                                                  scaled_apply(scaling, row(dz, i)))
+                    square = jordan_product(row(lam, i), row(lam, i))
                     for k in range(3):
-                        w_dz[k] = (scalings[i, k, 0] * dz[i, 0] + scalings[i, k, 1] * dz[i, 1]
-                                   + scalings[i, k, 2] * dz[i, 2])
-                    jordan_product_into(q, w_dz, second_order)
-                    jordan_product_into(lam[i], lam[i], rhs_c[i])
-                    for k in range(3):
-                        rhs_c[i, k] = -rhs_c[i, k] - second_order[k]
+                        rhs_c[i, k] = -square[k] - second_order[k]
                     rhs_c[i, 0] += centring
                     rc_u[i] = -u[i] * zu[i] - du[i] * dzu[i] + centring
                     if limits[i] < np.inf:
@@ -457,7 +460,7 @@ def _workspace(n_contacts: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.
     """Scratch of :func:`_solve_grasp` for grasps of ``n_contacts`` contacts, reused from
     grasp to grasp: work3, work6, mats, scalings, edges, work_n."""
     return (np.empty((12, n_contacts, 3)), np.empty((9, 6)), np.empty((6, 6, 6)),
-            np.empty((n_contacts, 3, 3)), np.empty((3, n_contacts, 3)),
+            np.empty((n_contacts, 6)), np.empty((3, n_contacts, 3)),
             np.zeros((20, n_contacts)))
 
 

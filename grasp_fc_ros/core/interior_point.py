@@ -45,15 +45,18 @@ from ._kernels.cones import (
     MIN_STEP,
     NO_LIMIT,
     STEP_FRACTION,
-    jordan_divide_into,
-    jordan_product_into,
+    inverse_square_apply,
+    jordan_divide,
+    jordan_product,
     max_step,
     nt_scaling,
+    scaled_apply,
     scaled_inverse_apply,
+    scaling_of,
 )
 from ._kernels.frames import normal_split, tangent_frames, work_at, wrench_rows
 from ._kernels.grasp_map import apply_grasp_map, certified_rank
-from ._kernels.jit import jit, kernel_array
+from ._kernels.jit import jit, kernel_array, row
 from ._kernels.linear_algebra import cholesky, cholesky_solve
 from .tolerances import (
     MARGIN_ACCURACY,
@@ -134,7 +137,7 @@ def _witness(unit: np.ndarray, normals: np.ndarray, tangent: np.ndarray,
     cholesky_solve(gram_factor, check, y, scratch)
     size = 0.0
     for i in range(n):
-        g0, g1, g2 = work_at(y, unit[i])                              # G_i^T y
+        g0, g1, g2 = work_at(y, row(unit, i))                         # G_i^T y
         forces[i, 0] -= g0
         forces[i, 1] -= g1
         forces[i, 2] -= g2
@@ -148,7 +151,7 @@ def _witness(unit: np.ndarray, normals: np.ndarray, tangent: np.ndarray,
     total = 0.0
     worst = np.inf
     for i in range(n):
-        f_n, tangential = normal_split(forces[i, 0], forces[i, 1], forces[i, 2], normals[i])
+        f_n, tangential = normal_split(row(forces, i), row(normals, i))
         worst = min(worst, mu[i] * f_n - tangential - (mu[i] + 1.0) * reach)
         total += f_n
     slack = np.sqrt(n) * reach
@@ -185,8 +188,8 @@ def _bound(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, w: np.ndarray,
     largest = 0.0
     mu_max = 0.0
     for i in range(n):
-        a0, a1, a2 = work_at(w, unit[i])
-        a_n, a_t = normal_split(a0, a1, a2, normals[i])
+        a0, a1, a2 = work_at(w, row(unit, i))
+        a_n, a_t = normal_split((a0, a1, a2), row(normals, i))
         normal_work[i] = a_n
         level = max(level, a_n + mu[i] * a_t)
         largest = max(largest, np.sqrt(a0 * a0 + a1 * a1 + a2 * a2))
@@ -220,7 +223,7 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
 
     The remaining arguments are scratch space of the batch, reused from grasp to grasp
     (allocating it per grasp would cost a large share of the run time): work3 (12, n, 3),
-    work6 (13, 6), rows (3, n, 6), a_mat (n, 6, 3), scalings (n, 3, 3), mats (4, 6, 6),
+    work6 (13, 6), rows (3, n, 6), a_mat (n, 6, 3), scalings (n, 6), mats (4, 6, 6),
     work_n (2, n), a_gram (n, 6, 6).
     """
     n = unit.shape[0]
@@ -233,7 +236,6 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
     b_n, b_t1, b_t2 = rows[0], rows[1], rows[2]
     gram, gram_factor, hessian, factor = mats[0], mats[1], mats[2], mats[3]
     inv_eta2, normal_work = work_n[0], work_n[1]
-    q, w_dz, second_order = y[:3], y[3:], scratch[:3]
 
     sigma_min, grasp_norm = certified_rank(unit, gram, gram_factor, scratch)
     if not sigma_min > 0.0:
@@ -373,13 +375,14 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
         gap = 0.0
         finite = True
         for i in range(n):
-            inv_eta2[i] = nt_scaling(z[i], s[i], scalings[i], jv[i])
+            inv_eta2[i], scaling, inverse_vector = nt_scaling(row(z, i), row(s, i))
             if not np.isfinite(inv_eta2[i]):
                 finite = False
                 break
-            for r in range(3):
-                lam[i, r] = (scalings[i, r, 0] * z[i, 0] + scalings[i, r, 1] * z[i, 1]
-                             + scalings[i, r, 2] * z[i, 2])
+            scalings[i, 0], scalings[i, 1], scalings[i, 2] = scaling[0], scaling[1], scaling[2]
+            scalings[i, 3], scalings[i, 4], scalings[i, 5] = scaling[3], scaling[4], scaling[5]
+            jv[i, 0], jv[i, 1], jv[i, 2] = inverse_vector
+            lam[i, 0], lam[i, 1], lam[i, 2] = scaled_apply(scaling, row(z, i))
             for r in range(6):
                 g[r] = (a_mat[i, r, 0] * jv[i, 0] + a_mat[i, r, 1] * jv[i, 1]
                         + a_mat[i, r, 2] * jv[i, 2])
@@ -417,10 +420,11 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
                 for r in range(6):
                     acc -= a_mat[i, r, k] * dw[r]
                 ds[i, k] = acc
-            scaled_inverse_apply(scalings[i], inv_eta2[i], ds[i], u_aff[i])
-            for k in range(3):
-                w_dz[k] = -lam[i, k] - u_aff[i, k]
-            alpha = min(alpha, max_step(lam[i], u_aff[i]), max_step(lam[i], w_dz))
+            u = scaled_inverse_apply(scaling_of(scalings, i), inv_eta2[i], row(ds, i))
+            u_aff[i, 0], u_aff[i, 1], u_aff[i, 2] = u
+            lam_i = row(lam, i)
+            alpha = min(alpha, max_step(lam_i, u),
+                        max_step(lam_i, (-lam_i[0] - u[0], -lam_i[1] - u[1], -lam_i[2] - u[2])))
         # Mehrotra's centring from the affine step: for feasible iterates dz . ds = 0,
         # so that step would leave the gap (1 - alpha) gap.
         shrink = 1.0 - min(1.0, alpha)
@@ -435,12 +439,14 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
         for r in range(6):
             rhs[r] = -d[r]
         for i in range(n):
-            for k in range(3):
-                w_dz[k] = lam[i, k] + u_aff[i, k]     # -W dz of the predictor
-            jordan_product_into(u_aff[i], w_dz, second_order)
-            second_order[0] += target
-            jordan_divide_into(lam[i], second_order, q)
-            scaled_inverse_apply(scalings[i], inv_eta2[i], q, winv_q[i])
+            lam_i, u = row(lam, i), row(u_aff, i)
+            # -W dz of the predictor is lam + u.
+            second_order = jordan_product(u, (lam_i[0] + u[0], lam_i[1] + u[1],
+                                              lam_i[2] + u[2]))
+            q = jordan_divide(lam_i, (second_order[0] + target, second_order[1],
+                                      second_order[2]))
+            winv_q[i, 0], winv_q[i, 1], winv_q[i, 2] = scaled_inverse_apply(
+                scaling_of(scalings, i), inv_eta2[i], q)
             for r in range(6):
                 rhs[r] -= (a_mat[i, r, 0] * winv_q[i, 0] + a_mat[i, r, 1] * winv_q[i, 1]
                            + a_mat[i, r, 2] * winv_q[i, 2])
@@ -452,12 +458,10 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
                 for r in range(6):
                     acc -= a_mat[i, r, k] * dw[r]
                 ds[i, k] = acc
-            # W^-2 ds = (2 Jv (Jv . ds) - J ds) / eta^2
-            proj = jv[i, 0] * ds[i, 0] + jv[i, 1] * ds[i, 1] + jv[i, 2] * ds[i, 2]
+            w2_ds = inverse_square_apply(row(jv, i), inv_eta2[i], row(ds, i))
             for k in range(3):
-                j_ds = ds[i, k] if k == 0 else -ds[i, k]
-                dz[i, k] = winv_q[i, k] - z[i, k] - inv_eta2[i] * (2.0 * jv[i, k] * proj - j_ds)
-            alpha = min(alpha, max_step(z[i], dz[i]), max_step(s[i], ds[i]))
+                dz[i, k] = winv_q[i, k] - z[i, k] - w2_ds[k]
+            alpha = min(alpha, max_step(row(z, i), row(dz, i)), max_step(row(s, i), row(ds, i)))
         alpha = min(1.0, STEP_FRACTION * alpha)
         if not alpha > MIN_STEP:
             last = True
@@ -500,7 +504,7 @@ def _workspace(n_contacts: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.
     """Scratch of :func:`_solve_grasp` for grasps of ``n_contacts`` contacts: work3,
     work6, rows, a_mat, scalings, mats, work_n, a_gram."""
     return (np.empty((12, n_contacts, 3)), np.empty((13, 6)), np.empty((3, n_contacts, 6)),
-            np.empty((n_contacts, 6, 3)), np.empty((n_contacts, 3, 3)), np.empty((4, 6, 6)),
+            np.empty((n_contacts, 6, 3)), np.empty((n_contacts, 6)), np.empty((4, 6, 6)),
             np.empty((2, n_contacts)), np.empty((n_contacts, 6, 6)))
 
 

@@ -349,7 +349,11 @@ def _certificates(grasps: GraspBatch, survivors: np.ndarray, exact: ExactResult,
 
 def exact_force_closure(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayLike,
                         torsional_friction: npt.ArrayLike | None = 0.0) -> np.ndarray:
-    """The exact force-closure test alone (no filter).
+    """The exact force-closure test alone (no filter), verdicts only.
+
+    The margin is not reported, so the fast stage stops at each verdict instead of
+    narrowing the margin to MARGIN_ACCURACY first (``margin="bound"``; the verdicts are
+    the same, docs/performance.md#exact-stage).
 
     Parameters
     ----------
@@ -370,4 +374,4 @@ def exact_force_closure(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: np
         On bad input, naming the grasp and contact.
     """
     grasps = prepare_grasps(positions, normals, mu, torsional_friction)
-    return grasps.unbatch(solve_exact(grasps).force_closure)
+    return grasps.unbatch(solve_exact(grasps, "bound").force_closure)

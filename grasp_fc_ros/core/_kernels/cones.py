@@ -4,13 +4,23 @@ Jordan algebra of Q^3: x o y = (x . y, x0 y_t + y0 x_t), identity e = (1, 0, 0),
 J = diag(1, -1, -1), det x = x0^2 - |x_t|^2. Nesterov-Todd scaling of an interior pair
 (z, s): the W with W z = W^-1 s, W = eta Wbar, Wbar^2 = 2 v v^T - J, so
 W^-1 = (1/eta) J Wbar J and W^-2 = (1/eta^2) (2 (Jv)(Jv)^T - J).
+
+Every function takes and returns plain floats and tuples of them (a 3-vector as
+:data:`.jit.Vector3`, the symmetric W as :data:`Scaling`), never rows of arrays: a row view
+made in a stage's per-contact loop costs an atomic reference count each way, which
+numba cannot always remove (tuned: docs/performance.md#exact-stage).
 """
 
 from __future__ import annotations
 
+from typing import TypeAlias
+
 import numpy as np
 
-from .jit import jit
+from .jit import Vector3, jit
+
+#: The symmetric 3 x 3 scaling W by its entries (w00, w01, w02, w11, w12, w22).
+Scaling: TypeAlias = tuple[float, float, float, float, float, float]
 
 #: Fraction of the step to the cone boundary taken (the usual 0.99 of interior-point
 #: methods: close enough to converge fast, far enough to keep the scaling well-defined).
@@ -25,124 +35,183 @@ NO_LIMIT = 1e30
 
 
 @jit
-def nt_scaling(z: np.ndarray, s: np.ndarray, scaling: np.ndarray,
-               inverse_vector: np.ndarray) -> float:
+def nt_scaling(z: Vector3, s: Vector3) -> tuple[float, Scaling, Vector3]:
     """Nesterov-Todd scaling of one 3-cone pair, for z, s interior.
 
     Parameters
     ----------
-    z, s : ndarray, shape (3,)
-    scaling : ndarray, shape (3, 3)
-        Output: W = eta Wbar.
-    inverse_vector : ndarray, shape (3,)
-        Output: J v.
+    z, s : Vector3
 
     Returns
     -------
-    float
-        1/eta^2, or NaN if z or s has left the cone interior.
+    inv_eta2 : float
+        1/eta^2, or NaN if z or s has left the cone interior (the rest is then 0).
+    scaling : Scaling
+        W = eta Wbar.
+    inverse_vector : Vector3
+        J v.
     """
-    z_det = z[0] * z[0] - z[1] * z[1] - z[2] * z[2]
-    s_det = s[0] * s[0] - s[1] * s[1] - s[2] * s[2]
-    if not (z_det > 0.0 and s_det > 0.0 and z[0] > 0.0 and s[0] > 0.0):
-        return np.nan
+    z0, z1, z2 = z
+    s0, s1, s2 = s
+    z_det = z0 * z0 - z1 * z1 - z2 * z2
+    s_det = s0 * s0 - s1 * s1 - s2 * s2
+    if not (z_det > 0.0 and s_det > 0.0 and z0 > 0.0 and s0 > 0.0):
+        return np.nan, (0.0, 0.0, 0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
     # Four reciprocals instead of fifteen divisions (the divider bounds this function;
     # tuned: docs/performance.md#exact-stage); rounding of the scaling only, which no
     # certificate uses.
     z_root, s_root = np.sqrt(z_det), np.sqrt(s_det)
     z_inv, s_inv = 1.0 / z_root, 1.0 / s_root
-    gamma = np.sqrt(0.5 * (1.0 + (z[0] * s[0] + z[1] * s[1] + z[2] * s[2]) * (z_inv * s_inv)))
+    gamma = np.sqrt(0.5 * (1.0 + (z0 * s0 + z1 * s1 + z2 * s2) * (z_inv * s_inv)))
     half_inv_gamma = 0.5 / gamma
-    v0 = (s[0] * s_inv + z[0] * z_inv) * half_inv_gamma
-    v1 = (s[1] * s_inv - z[1] * z_inv) * half_inv_gamma
-    v2 = (s[2] * s_inv - z[2] * z_inv) * half_inv_gamma
+    v0 = (s0 * s_inv + z0 * z_inv) * half_inv_gamma
+    v1 = (s1 * s_inv - z1 * z_inv) * half_inv_gamma
+    v2 = (s2 * s_inv - z2 * z_inv) * half_inv_gamma
     eta = np.sqrt(s_root * z_inv)
     off = eta / (1.0 + v0)
-    scaling[0, 0] = eta * v0
-    scaling[0, 1] = scaling[1, 0] = eta * v1
-    scaling[0, 2] = scaling[2, 0] = eta * v2
-    scaling[1, 1] = eta + off * v1 * v1
-    scaling[2, 2] = eta + off * v2 * v2
-    scaling[1, 2] = scaling[2, 1] = off * v1 * v2
-    inverse_vector[0], inverse_vector[1], inverse_vector[2] = v0, -v1, -v2
-    return z_root * s_inv
+    scaling = (eta * v0, eta * v1, eta * v2, eta + off * v1 * v1, off * v1 * v2,
+               eta + off * v2 * v2)
+    return z_root * s_inv, scaling, (v0, -v1, -v2)
 
 
 @jit
-def scaled_inverse_apply(scaling: np.ndarray, inv_eta2: float, x: np.ndarray,
-                         out: np.ndarray) -> None:
-    """out = W^-1 x = J W J x / eta^2.
+def scaling_of(scalings: np.ndarray, i: int) -> Scaling:
+    """Row ``i`` of an (n, 6) array of scalings, as :func:`nt_scaling` gives them.
 
     Parameters
     ----------
-    scaling : ndarray, shape (3, 3)
+    scalings : ndarray, shape (n, 6)
+    i : int
+
+    Returns
+    -------
+    Scaling
+    """
+    return (scalings[i, 0], scalings[i, 1], scalings[i, 2], scalings[i, 3], scalings[i, 4],
+            scalings[i, 5])
+
+
+@jit
+def scaled_apply(scaling: Scaling, x: Vector3) -> Vector3:
+    """W x.
+
+    Parameters
+    ----------
+    scaling : Scaling
+    x : Vector3
+
+    Returns
+    -------
+    Vector3
+    """
+    w00, w01, w02, w11, w12, w22 = scaling
+    x0, x1, x2 = x
+    return (w00 * x0 + w01 * x1 + w02 * x2, w01 * x0 + w11 * x1 + w12 * x2,
+            w02 * x0 + w12 * x1 + w22 * x2)
+
+
+@jit
+def scaled_inverse_apply(scaling: Scaling, inv_eta2: float, x: Vector3) -> Vector3:
+    """W^-1 x = J W J x / eta^2.
+
+    Parameters
+    ----------
+    scaling : Scaling
         W = eta Wbar (from :func:`nt_scaling`).
     inv_eta2 : float
         Its 1/eta^2.
-    x : ndarray, shape (3,)
-    out : ndarray, shape (3,)
-        Output; must not alias ``x``.
+    x : Vector3
+
+    Returns
+    -------
+    Vector3
     """
+    w00, w01, w02, w11, w12, w22 = scaling
     jx0, jx1, jx2 = x[0], -x[1], -x[2]
-    for r in range(3):
-        sign = 1.0 if r == 0 else -1.0
-        out[r] = sign * inv_eta2 * (scaling[r, 0] * jx0 + scaling[r, 1] * jx1 + scaling[r, 2] * jx2)
+    return (inv_eta2 * (w00 * jx0 + w01 * jx1 + w02 * jx2),
+            -inv_eta2 * (w01 * jx0 + w11 * jx1 + w12 * jx2),
+            -inv_eta2 * (w02 * jx0 + w12 * jx1 + w22 * jx2))
 
 
 @jit
-def inverse_apply(scaling: np.ndarray, x: np.ndarray, out: np.ndarray) -> None:
-    """out = W^-1 x from W = eta Wbar alone (1/eta^2 = 1 / det W).
+def inverse_apply(scaling: Scaling, x: Vector3) -> Vector3:
+    """W^-1 x from W = eta Wbar alone (1/eta^2 = 1 / det W).
 
     Parameters
     ----------
-    scaling : ndarray, shape (3, 3)
-    x : ndarray, shape (3,)
-    out : ndarray, shape (3,)
-        Output; must not alias ``x``.
+    scaling : Scaling
+    x : Vector3
+
+    Returns
+    -------
+    Vector3
     """
-    inv_eta2 = 1.0 / (scaling[0, 0] ** 2 - scaling[0, 1] ** 2 - scaling[0, 2] ** 2)
-    scaled_inverse_apply(scaling, inv_eta2, x, out)
+    inv_eta2 = 1.0 / (scaling[0] ** 2 - scaling[1] ** 2 - scaling[2] ** 2)
+    return scaled_inverse_apply(scaling, inv_eta2, x)
 
 
 @jit
-def jordan_product_into(x: np.ndarray, y: np.ndarray, out: np.ndarray) -> None:
-    """out = x o y.
+def inverse_square_apply(inverse_vector: Vector3, inv_eta2: float, x: Vector3) -> Vector3:
+    """W^-2 x = (2 Jv (Jv . x) - J x) / eta^2.
 
     Parameters
     ----------
-    x, y : ndarray, shape (3,)
-    out : ndarray, shape (3,)
-        Output; must not alias ``x`` or ``y``.
+    inverse_vector : Vector3
+        J v (from :func:`nt_scaling`).
+    inv_eta2 : float
+    x : Vector3
+
+    Returns
+    -------
+    Vector3
     """
-    out0 = x[0] * y[0] + x[1] * y[1] + x[2] * y[2]
-    out1 = x[0] * y[1] + y[0] * x[1]
-    out2 = x[0] * y[2] + y[0] * x[2]
-    out[0], out[1], out[2] = out0, out1, out2
+    v0, v1, v2 = inverse_vector
+    x0, x1, x2 = x
+    proj = v0 * x0 + v1 * x1 + v2 * x2
+    return (inv_eta2 * (2.0 * v0 * proj - x0), inv_eta2 * (2.0 * v1 * proj + x1),
+            inv_eta2 * (2.0 * v2 * proj + x2))
 
 
 @jit
-def jordan_divide_into(lam: np.ndarray, r: np.ndarray, out: np.ndarray) -> None:
-    """out with lam o out = r, for lam interior.
+def jordan_product(x: Vector3, y: Vector3) -> Vector3:
+    """x o y.
 
     Parameters
     ----------
-    lam, r : ndarray, shape (3,)
-    out : ndarray, shape (3,)
-        Output; must not alias ``lam`` or ``r``.
+    x, y : Vector3
+
+    Returns
+    -------
+    Vector3
+    """
+    return (x[0] * y[0] + x[1] * y[1] + x[2] * y[2], x[0] * y[1] + y[0] * x[1],
+            x[0] * y[2] + y[0] * x[2])
+
+
+@jit
+def jordan_divide(lam: Vector3, r: Vector3) -> Vector3:
+    """The x with lam o x = r, for lam interior.
+
+    Parameters
+    ----------
+    lam, r : Vector3
+
+    Returns
+    -------
+    Vector3
     """
     det = lam[0] * lam[0] - lam[1] * lam[1] - lam[2] * lam[2]
-    out[0] = (lam[0] * r[0] - lam[1] * r[1] - lam[2] * r[2]) / det
-    out[1] = (r[1] - out[0] * lam[1]) / lam[0]
-    out[2] = (r[2] - out[0] * lam[2]) / lam[0]
+    out0 = (lam[0] * r[0] - lam[1] * r[1] - lam[2] * r[2]) / det
+    return out0, (r[1] - out0 * lam[1]) / lam[0], (r[2] - out0 * lam[2]) / lam[0]
 
 
 @jit
-def max_step(x: np.ndarray, dx: np.ndarray) -> float:
+def max_step(x: Vector3, dx: Vector3) -> float:
     """Largest alpha with x + alpha dx in Q^3, for x interior.
 
     Parameters
     ----------
-    x, dx : ndarray, shape (3,)
+    x, dx : Vector3
 
     Returns
     -------

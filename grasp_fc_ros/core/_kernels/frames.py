@@ -1,14 +1,15 @@
 """Per-contact frames, wrench rows and the work a wrench does at a contact (numba).
 
 Positions are those of a unit-size grasp (centred, largest coordinate 1); a wrench is
-(force, torque about the origin), 6 floats.
+(force, torque about the origin), 6 floats. Per-contact vectors go in and out as tuples
+(:data:`.jit.Vector3`; read a row with :func:`.jit.row`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .jit import jit
+from .jit import Vector3, jit
 
 
 @jit
@@ -56,7 +57,7 @@ def wrench_rows(unit: np.ndarray, direction: np.ndarray, rows: np.ndarray) -> No
 
 
 @jit
-def work_at(w: np.ndarray, point: np.ndarray) -> tuple[float, float, float]:
+def work_at(w: np.ndarray, point: Vector3) -> Vector3:
     """The work vector w_F + w_T x point of a wrench at a point: G_i^T w for the contact
     there (the work a unit force along each axis does on w).
 
@@ -64,11 +65,11 @@ def work_at(w: np.ndarray, point: np.ndarray) -> tuple[float, float, float]:
     ----------
     w : ndarray, shape (6,)
         Wrench (force w_F, torque w_T).
-    point : ndarray, shape (3,)
+    point : Vector3
 
     Returns
     -------
-    tuple of 3 floats
+    Vector3
     """
     return (w[0] + w[4] * point[2] - w[5] * point[1],
             w[1] + w[5] * point[0] - w[3] * point[2],
@@ -76,15 +77,13 @@ def work_at(w: np.ndarray, point: np.ndarray) -> tuple[float, float, float]:
 
 
 @jit
-def normal_split(x0: float, x1: float, x2: float,
-                 normal: np.ndarray) -> tuple[float, float]:
-    """Normal component and tangential length of the vector (x0, x1, x2).
+def normal_split(x: Vector3, normal: Vector3) -> tuple[float, float]:
+    """Normal component and tangential length of a vector.
 
     Parameters
     ----------
-    x0, x1, x2 : float
-        The vector's components.
-    normal : ndarray, shape (3,)
+    x : Vector3
+    normal : Vector3
         Unit normal.
 
     Returns
@@ -92,6 +91,7 @@ def normal_split(x0: float, x1: float, x2: float,
     (float, float)
         n . x and |x - (n . x) n|.
     """
+    x0, x1, x2 = x
     x_n = x0 * normal[0] + x1 * normal[1] + x2 * normal[2]
     x_t = np.sqrt((x0 - x_n * normal[0]) ** 2 + (x1 - x_n * normal[1]) ** 2
                   + (x2 - x_n * normal[2]) ** 2)

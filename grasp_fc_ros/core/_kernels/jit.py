@@ -1,9 +1,9 @@
-"""The JIT decorator of the core's kernels, and the array form they take."""
+"""The JIT decorator of the core's kernels, the array form they take, and row access."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeAlias, TypeVar
 
 import numba
 import numpy as np
@@ -12,6 +12,9 @@ if TYPE_CHECKING:
     from numba.core.dispatcher import Dispatcher
 
 Function = TypeVar("Function", bound=Callable[..., Any])
+
+#: A 3-vector (x0, x1, x2) passed by value between kernels.
+Vector3: TypeAlias = tuple[float, float, float]
 
 
 def jit(function: Function) -> Dispatcher[Function]:
@@ -53,3 +56,21 @@ def kernel_array(values: Any) -> np.ndarray:
     process). Only such arrays are copied.
     """
     return np.require(values, np.float64, ("C", "W"))
+
+
+@jit
+def row(array: np.ndarray, i: int) -> Vector3:
+    """Row ``i`` of an (n, 3) array as a tuple, without the array view ``array[i]``
+    (a view costs an atomic reference count each way, which numba cannot always remove
+    inside a kernel's loops).
+
+    Parameters
+    ----------
+    array : ndarray, shape (n, 3)
+    i : int
+
+    Returns
+    -------
+    Vector3
+    """
+    return array[i, 0], array[i, 1], array[i, 2]
