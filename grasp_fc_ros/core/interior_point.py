@@ -105,6 +105,12 @@ WITNESS_SKIP_SLACK = 1e-9
 #: docs/performance.md#exact-stage).
 CHECK_GAP = 1e-7
 
+#: With the optimum asked for, the affine point's certificates are checked where the
+#: gap it would leave, (1 - alpha_aff) times the iterate's (relative to 1/sigma), is below
+#: this (5 MARGIN_ACCURACY): about where they can close the interval, which is about half
+#: the gap wide. A speed heuristic only (tuned: docs/performance.md#exact-stage).
+AFFINE_CHECK_GAP = 5e-8
+
 #: The signed mode also stops where its gap is this fraction of the margin's distance
 #: from the level searched for: far from mu*, the search's next step and the
 #: certificates need no more.
@@ -118,11 +124,12 @@ TRIVIAL_BOUND_SLACK = 1e-12
 @jit
 def _witness(unit: np.ndarray, normals: np.ndarray, tangent: np.ndarray,
              bitangent: np.ndarray, mu: np.ndarray, z: np.ndarray, sigma: float,
-             gram_factor: np.ndarray, sigma_min: float, grasp_norm: float, out: np.ndarray,
+             gram_factor: np.ndarray, sigma_min: float, grasp_norm: float,
              forces: np.ndarray, y: np.ndarray, check: np.ndarray,
-             scratch: np.ndarray) -> float:
-    """Certified depth of the forces of primal iterate z (n, 3); the projected forces,
-    scaled to total one, go to ``out`` (n, 3). -inf when the total is not positive."""
+             scratch: np.ndarray) -> tuple[float, float]:
+    """Certified depth of the forces of primal iterate z (n, 3), and their total normal
+    force; the projected forces go to ``forces`` (n, 3), to be scaled by the total (only
+    where the depth is kept). Depth -inf when the total is not positive."""
     n = unit.shape[0]
     total_z0 = 0.0
     for i in range(n):
@@ -156,11 +163,22 @@ def _witness(unit: np.ndarray, normals: np.ndarray, tangent: np.ndarray,
         total += f_n
     slack = np.sqrt(n) * reach
     if not total - slack > 0.0:
-        return -np.inf
-    for i in range(n):
-        for k in range(3):
-            out[i, k] = forces[i, k] / total
-    return worst / (total + slack)
+        return -np.inf, total
+    return worst / (total + slack), total
+
+
+@jit
+def _verdict(t_lo: float, t_hi: float, separated: bool, want_optimum: bool,
+             want_wrench: bool) -> int:
+    """FORCE_CLOSURE or NOT_FORCE_CLOSURE where the certified interval [t_lo, t_hi] on
+    t* settles the verdict (and, with ``want_optimum``, is MARGIN_ACCURACY wide, and with
+    ``want_wrench`` a not-force-closure grasp has a separating wrench); else UNDECIDED."""
+    close = t_hi - max(t_lo, 0.0) <= MARGIN_ACCURACY
+    if t_lo >= MARGIN_TOL and (close or not want_optimum):
+        return FORCE_CLOSURE
+    if t_hi < MARGIN_TOL and (separated or not want_wrench) and (close or not want_optimum):
+        return NOT_FORCE_CLOSURE
+    return UNDECIDED
 
 
 @jit
@@ -223,16 +241,16 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
 
     The remaining arguments are scratch space of the batch, reused from grasp to grasp
     (allocating it per grasp would cost a large share of the run time): work3 (12, n, 3),
-    work6 (13, 6), rows (3, n, 6), a_mat (n, 6, 3), scalings (n, 6), mats (4, 6, 6),
+    work6 (14, 6), rows (3, n, 6), a_mat (n, 6, 3), scalings (n, 6), mats (4, 6, 6),
     work_n (2, n), a_gram (n, 6, 6).
     """
     n = unit.shape[0]
-    (tangent, bitangent, z, s, candidate, jv, lam, dz, ds, u_aff, winv_q,
+    (tangent, bitangent, z, s, z_affine, jv, lam, dz, ds, u_aff, winv_q,
      projected) = (work3[0], work3[1], work3[2], work3[3], work3[4], work3[5], work3[6],
                    work3[7], work3[8], work3[9], work3[10], work3[11])
-    d, trial, g_sum, solved, gg_d, y6, w, g, rhs, dw, scratch, check, y = (
+    d, trial, g_sum, solved, gg_d, y6, w, g, rhs, dw, scratch, check, y, w_affine = (
         work6[0], work6[1], work6[2], work6[3], work6[4], work6[5], work6[6], work6[7],
-        work6[8], work6[9], work6[10], work6[11], work6[12])
+        work6[8], work6[9], work6[10], work6[11], work6[12], work6[13])
     b_n, b_t1, b_t2 = rows[0], rows[1], rows[2]
     gram, gram_factor, hessian, factor = mats[0], mats[1], mats[2], mats[3]
     inv_eta2, normal_work = work_n[0], work_n[1]
@@ -338,11 +356,14 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
         if not (wide and t_p < t_hi - CHECK_GAP) and (
                 want_optimum or signed
                 or _unprojected_depth(z, mu, t_p) > max(t_lo, 0.0) - WITNESS_SKIP_SLACK):
-            depth = _witness(unit, normals, tangent, bitangent, mu, z, sigma, gram_factor,
-                             sigma_min, grasp_norm, candidate, projected, y, check, scratch)
+            depth, total = _witness(unit, normals, tangent, bitangent, mu, z, sigma,
+                                    gram_factor, sigma_min, grasp_norm, projected, y, check,
+                                    scratch)
             if depth > t_lo:
                 t_lo = depth
-                forces_out[:] = candidate
+                for i in range(n):
+                    for k in range(3):
+                        forces_out[i, k] = projected[i, k] / total
         if iteration > 0 and not (wide and t_p > 0.0):
             bound, separating = _bound(unit, normals, mu, w, normal_work)
             if (separating and not separated) or (bound < t_hi and not separated):
@@ -358,12 +379,9 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
             if d_w + total_z0 <= max(signed_gap, SIGNED_RELATIVE_GAP * distance):
                 return CONVERGED, t_lo, t_hi, iteration
         else:
-            close = t_hi - max(t_lo, 0.0) <= MARGIN_ACCURACY
-            if t_lo >= MARGIN_TOL and (close or not want_optimum):
-                return FORCE_CLOSURE, t_lo, t_hi, iteration
-            if (t_hi < MARGIN_TOL and (separated or not want_wrench)
-                    and (close or not want_optimum)):
-                return NOT_FORCE_CLOSURE, t_lo, t_hi, iteration
+            code = _verdict(t_lo, t_hi, separated, want_optimum, want_wrench)
+            if code != UNDECIDED:
+                return code, t_lo, t_hi, iteration
         if last or iteration == MAX_ITERATIONS:
             break
 
@@ -399,10 +417,7 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
         if not finite:
             last = True
             continue
-        for r in range(6):
-            for c in range(r):
-                hessian[c, r] = hessian[r, c]
-        if not cholesky(hessian, factor):
+        if not cholesky(hessian, factor):          # (it reads the lower triangle only)
             last = True
             continue
         # Predictor (affine) direction: lam o (W dz + W^-1 ds) = -lam o lam gives
@@ -413,7 +428,7 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
         for r in range(6):
             rhs[r] = -d[r]
         cholesky_solve(factor, rhs, dw, scratch)
-        alpha = NO_LIMIT
+        alpha_dual = alpha_primal = NO_LIMIT
         for i in range(n):
             for k in range(3):
                 acc = 0.0
@@ -423,8 +438,39 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
             u = scaled_inverse_apply(scaling_of(scalings, i), inv_eta2[i], row(ds, i))
             u_aff[i, 0], u_aff[i, 1], u_aff[i, 2] = u
             lam_i = row(lam, i)
-            alpha = min(alpha, max_step(lam_i, u),
-                        max_step(lam_i, (-lam_i[0] - u[0], -lam_i[1] - u[1], -lam_i[2] - u[2])))
+            alpha_dual = min(alpha_dual, max_step(lam_i, u))
+            alpha_primal = min(alpha_primal, max_step(
+                lam_i, (-lam_i[0] - u[0], -lam_i[1] - u[1], -lam_i[2] - u[2])))
+        alpha = min(alpha_dual, alpha_primal)
+        # With the optimum asked for, the affine point (each side's step to its cone
+        # boundary, at most 1) is often near enough to close the interval one corrector
+        # and one iteration earlier: its certificates are checked where the gap it would
+        # leave, (1 - alpha) gap, is small enough for that to be likely.
+        if (want_optimum and not signed
+                and (1.0 - min(1.0, alpha)) * gap / sigma < AFFINE_CHECK_GAP):
+            alpha_primal, alpha_dual = min(1.0, alpha_primal), min(1.0, alpha_dual)
+            for i in range(n):
+                w2_ds = inverse_square_apply(row(jv, i), inv_eta2[i], row(ds, i))
+                for k in range(3):     # dz of the affine step: -z - W^-2 ds
+                    z_affine[i, k] = z[i, k] + alpha_primal * (-z[i, k] - w2_ds[k])
+            for r in range(6):
+                w_affine[r] = w[r] + alpha_dual * dw[r]
+            depth, total = _witness(unit, normals, tangent, bitangent, mu, z_affine, sigma,
+                                    gram_factor, sigma_min, grasp_norm, projected, y, check,
+                                    scratch)
+            if depth > t_lo:
+                t_lo = depth
+                for i in range(n):
+                    for k in range(3):
+                        forces_out[i, k] = projected[i, k] / total
+            bound, separating = _bound(unit, normals, mu, w_affine, normal_work)
+            if (separating and not separated) or (bound < t_hi and not separated):
+                wrench_out[:] = w_affine
+                separated = separating
+            t_hi = min(t_hi, bound)
+            code = _verdict(t_lo, t_hi, separated, want_optimum, want_wrench)
+            if code != UNDECIDED:
+                return code, t_lo, t_hi, iteration + 1
         # Mehrotra's centring from the affine step: for feasible iterates dz . ds = 0,
         # so that step would leave the gap (1 - alpha) gap.
         shrink = 1.0 - min(1.0, alpha)
@@ -503,7 +549,7 @@ def _workspace(n_contacts: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.
                                          np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Scratch of :func:`_solve_grasp` for grasps of ``n_contacts`` contacts: work3,
     work6, rows, a_mat, scalings, mats, work_n, a_gram."""
-    return (np.empty((12, n_contacts, 3)), np.empty((13, 6)), np.empty((3, n_contacts, 6)),
+    return (np.empty((12, n_contacts, 3)), np.empty((14, 6)), np.empty((3, n_contacts, 6)),
             np.empty((n_contacts, 6, 3)), np.empty((n_contacts, 6)), np.empty((4, 6, 6)),
             np.empty((2, n_contacts)), np.empty((n_contacts, 6, 6)))
 

@@ -1,7 +1,11 @@
 """The 6 x 6 Cholesky factor, its solves and the norm of its inverse (numba).
 
 Every loop runs over the literal size 6, which lets the compiler unroll it (faster than
-loops over ``shape[0]``; tuned: docs/performance.md#exact-stage).
+loops over ``shape[0]``), and each divides by a diagonal entry once, multiplying by its
+reciprocal after: the substitutions are chains of dependent operations, where a division
+costs several multiplications (tuned: docs/performance.md#exact-stage). Results differ
+from divisions by at most an ulp per step; every caller checks what it uses (a projection
+by its residual, a rank bound with its own margin).
 """
 
 from __future__ import annotations
@@ -38,7 +42,8 @@ def cholesky(matrix: np.ndarray, factor: np.ndarray) -> bool:
                     return False
                 factor[r, r] = np.sqrt(acc)
             else:
-                factor[r, c] = acc / factor[c, c]
+                # (one reciprocal per column: the unrolled loops share it)
+                factor[r, c] = acc * (1.0 / factor[c, c])
     return True
 
 
@@ -57,16 +62,19 @@ def cholesky_solve(factor: np.ndarray, rhs: np.ndarray, x: np.ndarray,
     y : ndarray, shape (6,)
         Scratch.
     """
+    i0, i1, i2 = 1.0 / factor[0, 0], 1.0 / factor[1, 1], 1.0 / factor[2, 2]
+    i3, i4, i5 = 1.0 / factor[3, 3], 1.0 / factor[4, 4], 1.0 / factor[5, 5]
+    inverse = (i0, i1, i2, i3, i4, i5)
     for r in range(6):
         acc = rhs[r]
         for c in range(r):
             acc -= factor[r, c] * y[c]
-        y[r] = acc / factor[r, r]
+        y[r] = acc * inverse[r]
     for r in range(5, -1, -1):
         acc = y[r]
         for c in range(r + 1, 6):
             acc -= factor[c, r] * x[c]
-        x[r] = acc / factor[r, r]
+        x[r] = acc * inverse[r]
 
 
 @jit
@@ -84,6 +92,9 @@ def triangular_inverse_norm2(factor: np.ndarray, column: np.ndarray) -> float:
     -------
     float
     """
+    i0, i1, i2 = 1.0 / factor[0, 0], 1.0 / factor[1, 1], 1.0 / factor[2, 2]
+    i3, i4, i5 = 1.0 / factor[3, 3], 1.0 / factor[4, 4], 1.0 / factor[5, 5]
+    inverse = (i0, i1, i2, i3, i4, i5)
     total = 0.0
     for k in range(6):
         for r in range(6):
@@ -93,6 +104,6 @@ def triangular_inverse_norm2(factor: np.ndarray, column: np.ndarray) -> float:
             acc = 1.0 if r == k else 0.0
             for c in range(k, r):
                 acc -= factor[r, c] * column[c]
-            column[r] = acc / factor[r, r]
+            column[r] = acc * inverse[r]
             total += column[r] * column[r]
     return total
