@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from ._kernels.jit import jit
+from ._kernels.jit import Vector3, jit, row
 from .positive_span import SPANS, pair_test_problem
 from .tolerances import FAN_WIDEN_RAD, HALF_PLANE_MARGIN_RAD, PARALLEL_TOL, SPAN_TOL
 from .torque_sets import TorqueSetKind
@@ -89,27 +89,28 @@ def seed_origins(points: np.ndarray) -> tuple[int, int]:
 
 
 @jit
-def torque_set(lever: np.ndarray, normal: np.ndarray, sin_half_angle: float,
-               out: np.ndarray) -> int:
+def torque_set(lever: Vector3, normal: Vector3,
+               sin_half_angle: float) -> tuple[int, Vector3, Vector3, Vector3]:
     """The torque set of one friction cone about an origin, as
     :func:`.torque_sets.cone_torque_sets` computes it.
 
     Parameters
     ----------
-    lever : ndarray, shape (3,)
+    lever : Vector3
         Lever arm r = p - o.
-    normal : ndarray, shape (3,)
+    normal : Vector3
         Unit inward normal.
     sin_half_angle : float
         sin(atan(mu)).
-    out : ndarray, shape (3, 3)
-        Output rows: first and second boundary torques (0 for planes and null sets),
-        and the axis r / |r| (0 for a null set).
 
     Returns
     -------
-    int
-        The set's kind (TorqueSetKind NULL, FAN or PLANE).
+    kind : int
+        TorqueSetKind NULL, FAN or PLANE.
+    first, second : Vector3
+        The boundary torques (0 for planes and null sets).
+    axis : Vector3
+        r / |r| (0 for a null set).
     """
     scale = max(max(abs(lever[0]), abs(lever[1])), abs(lever[2]))
     null = scale == 0.0
@@ -132,15 +133,11 @@ def torque_set(lever: np.ndarray, normal: np.ndarray, sin_half_angle: float,
     a2 = h0 * c1 - h1 * c0
     cos_b = np.cos(half_angle) if fan else 0.0
     sin_b = np.sin(half_angle) if fan else 0.0
-    out[0, 0], out[0, 1], out[0, 2] = (cos_b * c0 + sin_b * a0, cos_b * c1 + sin_b * a1,
-                                       cos_b * c2 + sin_b * a2)
-    out[1, 0], out[1, 1], out[1, 2] = (cos_b * c0 - sin_b * a0, cos_b * c1 - sin_b * a1,
-                                       cos_b * c2 - sin_b * a2)
+    first = (cos_b * c0 + sin_b * a0, cos_b * c1 + sin_b * a1, cos_b * c2 + sin_b * a2)
+    second = (cos_b * c0 - sin_b * a0, cos_b * c1 - sin_b * a1, cos_b * c2 - sin_b * a2)
     if null:
-        out[2, 0] = out[2, 1] = out[2, 2] = 0.0
-        return _NULL
-    out[2, 0], out[2, 1], out[2, 2] = h0, h1, h2
-    return _PLANE if plane else _FAN
+        return _NULL, first, second, (0.0, 0.0, 0.0)
+    return (_PLANE if plane else _FAN), first, second, (h0, h1, h2)
 
 
 @jit
@@ -240,14 +237,13 @@ def passes_filter(points: np.ndarray, directions: np.ndarray, sin_half_angle: np
     m = n - 1
     pairs = m * (2 * m - 1)
     # One allocation for all the scratch (a noticeable part of the call on small grasps).
-    scratch = np.empty(15 * m + 5 * pairs + 6)
+    scratch = np.empty(15 * m + 5 * pairs + 3)
     sets = scratch[:9 * m].reshape((m, 3, 3))
     vectors = scratch[9 * m:15 * m].reshape((3, 2 * m))
     normals = scratch[15 * m:15 * m + 3 * pairs].reshape((pairs, 3))
     lowest = scratch[15 * m + 3 * pairs:15 * m + 4 * pairs]
     highest = scratch[15 * m + 4 * pairs:15 * m + 5 * pairs]
-    found = scratch[15 * m + 5 * pairs:15 * m + 5 * pairs + 3]
-    lever = scratch[15 * m + 5 * pairs + 3:]
+    found = scratch[15 * m + 5 * pairs:]
     kinds = np.empty(m, dtype=np.int64)
     seed = seed_origins(points) if not all_origins else (0, 0)
     for index in range(n if all_origins else 2):
@@ -255,10 +251,14 @@ def passes_filter(points: np.ndarray, directions: np.ndarray, sin_half_angle: np
         has_plane = False
         for j in range(m):
             other = j + 1 if j >= origin else j
+            lever = (points[other, 0] - points[origin, 0], points[other, 1] - points[origin, 1],
+                     points[other, 2] - points[origin, 2])
+            kind, first, second, axis = torque_set(lever, row(directions, other),
+                                                   sin_half_angle[other])
+            kinds[j] = kind
             for c in range(3):
-                lever[c] = points[other, c] - points[origin, c]
-            kinds[j] = torque_set(lever, directions[other], sin_half_angle[other], sets[j])
-            has_plane = has_plane or kinds[j] == _PLANE
+                sets[j, 0, c], sets[j, 1, c], sets[j, 2, c] = first[c], second[c], axis[c]
+            has_plane = has_plane or kind == _PLANE
         if has_plane:
             spans = spans_with_plane(kinds, sets, m)
         else:

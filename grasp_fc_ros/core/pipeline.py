@@ -75,6 +75,10 @@ _STATUS = {FORCE_CLOSURE: np.uint8(_FORCE_CLOSURE), NOT_FORCE_CLOSURE: np.uint8(
 _NAN = np.float64(np.nan)
 _FLOAT64 = np.dtype(np.float64)
 _FLOATS, _INTEGERS = (float, np.floating), (int, np.integer)
+# The one-grasp path's names, bound once: each global and attribute lookup is a
+# noticeable part of its call (docs/performance.md#one-grasp).
+_NDARRAY, _FLOAT, _TRUE, _FALSE = np.ndarray, np.float64, np.True_, np.False_
+_clock = time.perf_counter
 
 
 @dataclass(frozen=True)
@@ -152,6 +156,9 @@ class ForceClosureResult:
         return result
 
 
+_of_one = ForceClosureResult.of_one
+
+
 def check_force_closure(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayLike,
                         use_filter: bool | str = "auto", origins: str = "seed",
                         margin: str = "optimum", certificates: bool = False,
@@ -218,7 +225,7 @@ def _one_grasp(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayLi
     rejects, under "exact_s" otherwise (the filter's part of it is not measured apart).
     Every step here is on the per-call budget (docs/performance.md#one-grasp).
     """
-    if not (type(positions) is np.ndarray and type(normals) is np.ndarray
+    if not (type(positions) is _NDARRAY and type(normals) is _NDARRAY
             and (isinstance(mu, _FLOATS)
                  # (a huge int would make float() raise: the general path words it)
                  or (isinstance(mu, _INTEGERS) and abs(int(mu)) <= 2 ** 53))
@@ -245,7 +252,7 @@ def _one_grasp(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayLi
     flags = normals.flags
     if not (flags.c_contiguous and flags.writeable):
         normals = kernel_array(normals)
-    start = time.perf_counter()
+    start = _clock()
     if filtered:
         decided = decide_one(positions, normals, float(mu),
                              ALL_ORIGINS if origins == "all" else SEED_ORIGINS,
@@ -257,14 +264,14 @@ def _one_grasp(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayLi
         if found is None:
             return None
         decided = found
-    elapsed = time.perf_counter() - start
+    elapsed = _clock() - start
     code, t_lo, t_hi = decided
     if code == FILTERED_OUT:
-        return ForceClosureResult.of_one(np.False_, np.True_, _NAN, _STATUS[code], _NAN,
-                                         {"filter_s": elapsed, "exact_s": 0.0})
-    return ForceClosureResult.of_one(np.bool_(code == FORCE_CLOSURE), np.False_,
-                                     np.float64(t_lo if t_lo > 0.0 else 0.0), _STATUS[code],
-                                     np.float64(t_hi), {"filter_s": 0.0, "exact_s": elapsed})
+        return _of_one(_FALSE, _TRUE, _NAN, _STATUS[code], _NAN,
+                       {"filter_s": elapsed, "exact_s": 0.0})
+    return _of_one(_TRUE if code == FORCE_CLOSURE else _FALSE, _FALSE,
+                   _FLOAT(t_lo if t_lo > 0.0 else 0.0), _STATUS[code], _FLOAT(t_hi),
+                   {"filter_s": 0.0, "exact_s": elapsed})
 
 
 def run_pipeline(grasps: GraspBatch, use_filter: bool | str = True, origins: str = "seed",
