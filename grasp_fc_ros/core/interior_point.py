@@ -27,6 +27,11 @@ to matter, ``WITNESS_SKIP_SLACK``) it checks
 * not force closure: the iterate's wrench bounds t* below ``MARGIN_TOL``, with rounding
   (the bound of :func:`.certificates.wrench_bound`).
 
+With the optimum asked for, the same certificates are also taken at the affine
+(predictor) point where it is likely to close the interval (``AFFINE_CHECK_GAP``): each
+side's Newton step to its cone boundary, which near the optimum is far closer to it than
+the damped, centred iterate that follows.
+
 It returns a grasp as undecided (for the Clarabel path) when the grasp map's rank is not
 clearly 6, when equilibrium forces with a positive total normal force are nearly absent
 (contacts that nearly share one normal), on any numerical breakdown, and at the
