@@ -6,6 +6,11 @@ grasp (unfiltered) and of the filtered pipeline; per-query costs and their ratio
 paper: 0.05 ms vs 2.62 ms); and the filter's share of the pipeline's time.
 Figures are medians over ``--repeats`` runs in this one process.
 
+Then one grasp per call: ``check_force_closure`` with default settings on one (n, 3)
+grasp at a time against the same call on the whole batch, per n (``--one-grasp-fingers``),
+CPU time, the two alternating ``--repeats`` times: grasps/s of each, their ratio (the
+target is >= 0.25), and how many lone verdicts and statuses differ from the batch's.
+
     python benchmarks/bench_core.py                # full: 100,000 six-finger grasps
     python benchmarks/bench_core.py --quick        # a few seconds
     python benchmarks/bench_core.py --peer 200     # also the 8-sided-pyramid Qhull peer
@@ -19,6 +24,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import statistics  # noqa: E402
+import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -73,6 +79,51 @@ def peer_ratio(surface, n_grasps, peer_grasps, repeats, rng):
     return (1e3 * peer_s / peer_grasps, 1e3 * filtered_s / n_grasps, 1e3 * exact_s / n_grasps)
 
 
+def one_grasp_per_call(surface, n_fingers, n_grasps, calls, repeats, rng):
+    """``check_force_closure`` (default settings) on ``calls`` grasps one at a time
+    against the same call on all ``n_grasps`` of the batch, CPU time, alternating,
+    medians of ``repeats``; grasps/s of each, and the lone results that differ from the
+    batch's (force closure, status), compared outside the timed loops."""
+    positions, normals = sample_grasps(surface, n_grasps, n_fingers, rng)
+    lone = [(positions[g], normals[g]) for g in range(calls)]
+    batch = check_force_closure(positions, normals, MU)
+    results = [check_force_closure(p, n, MU) for p, n in lone]
+
+    def one_at_a_time():
+        for p, n in lone:            # as a planner would: each result used, then dropped
+            check_force_closure(p, n, MU)
+
+    one_s, batch_s = [], []
+    for _ in range(repeats):
+        start = time.process_time()
+        one_at_a_time()
+        one_s.append((time.process_time() - start) / calls)
+        start = time.process_time()
+        check_force_closure(positions, normals, MU)
+        batch_s.append((time.process_time() - start) / n_grasps)
+    one_per_s = 1.0 / statistics.median(one_s)
+    batch_per_s = 1.0 / statistics.median(batch_s)
+    return {"n": n_fingers, "one_per_s": one_per_s, "batch_per_s": batch_per_s,
+            "ratio": one_per_s / batch_per_s, "calls": calls, "grasps": n_grasps,
+            "verdicts_differ": sum(bool(r.force_closure != batch.force_closure[g])
+                                   for g, r in enumerate(results)),
+            "statuses_differ": sum(bool(r.status != batch.status[g])
+                                   for g, r in enumerate(results))}
+
+
+def print_one_grasp_table(rows, repeats):
+    print(f"\none grasp per check_force_closure call (default settings) vs the batched call; "
+          f"CPU time, alternating, medians of {repeats}; target ratio >= 0.25")
+    header = (f"{'n':>3} {'one/s':>9} {'batched/s':>10} {'ratio':>6} {'calls':>6} "
+              f"{'batch':>7} {'verdicts differ':>16} {'statuses differ':>16}")
+    print(header)
+    print("-" * len(header))
+    for r in rows:
+        print(f"{r['n']:>3} {r['one_per_s']:>9.0f} {r['batch_per_s']:>10.0f} "
+              f"{r['ratio']:>6.3f} {r['calls']:>6d} {r['grasps']:>7d} "
+              f"{r['verdicts_differ']:>16d} {r['statuses_differ']:>16d}")
+
+
 def print_table(rows, object_name, six_finger_grasps, sweep_grasps):
     print(f"\nobject {object_name!r}, mu = tan(10 deg) = {MU:.4f}; {six_finger_grasps} "
           f"six-finger grasps, {sweep_grasps} for other n; medians, one core")
@@ -98,6 +149,11 @@ def main(argv=None):
     parser.add_argument("--fingers", type=int, nargs="+", default=[6, 3, 4, 8, 12])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--one-grasp-fingers", type=int, nargs="*", default=[3, 4, 6, 8],
+                        help="finger counts of the one-grasp-per-call table (none: skip it)")
+    parser.add_argument("--one-grasp-calls", type=int, default=5_000,
+                        help="lone calls per repeat of that table (default 5000); the "
+                             "batch is --sweep-grasps grasps")
     parser.add_argument("--quick", action="store_true", help="small sizes, one repeat")
     parser.add_argument("--peer", type=int, default=0, metavar="GRASPS",
                         help="also time the linearized Qhull peer on this many six-finger "
@@ -105,6 +161,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     if args.quick:
         args.grasps, args.sweep_grasps, args.repeats = 5_000, 1_000, 1
+        args.one_grasp_calls = 500
 
     warm_up()
     rng = np.random.default_rng(args.seed)
@@ -127,6 +184,12 @@ def main(argv=None):
               f"per query {six['filter_ms']:.4f} ms vs {six['exact_ms']:.3f} ms "
               f"(ratio {six['exact_ms'] / six['filter_ms']:.0f}; paper 0.05 vs 2.62 ms, 52), "
               f"filter share of pipeline time {100 * six['filter_share']:.1f}% (target < 5%)")
+    if args.one_grasp_fingers:
+        one = [one_grasp_per_call(surface, n, args.sweep_grasps,
+                                  min(args.one_grasp_calls, args.sweep_grasps),
+                                  max(args.repeats, 3), rng)
+               for n in args.one_grasp_fingers]
+        print_one_grasp_table(one, max(args.repeats, 3))
 
 
 if __name__ == "__main__":

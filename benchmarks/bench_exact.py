@@ -10,6 +10,15 @@ of one grasp through ``check_force_closure``. Figures are medians over ``--repea
 
     python benchmarks/bench_exact.py            # 4,000 grasps per cell
     python benchmarks/bench_exact.py --quick    # 500 grasps per cell
+
+With ``--against COMMIT`` (e.g. e89657b) it instead times this core's exact stage
+(``exact_force_closure``: verdicts, the fast stage then Clarabel for what it leaves; and
+with the margin certified to 1e-8, as ``check_force_closure`` asks by default) against
+``exact_force_closure`` of that commit's ``grasp_fc_ros/core``, taken from the git
+history into a temporary directory and imported under another name in this process:
+the same grasps, CPU time, the two alternating, medians of ``--repeats``; ratios per
+cell and the verdicts that differ from the old test's. Without the git history (no git,
+not a checkout, unknown commit) it says so and exits 0.
 """
 
 import os
@@ -19,12 +28,19 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMB
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import importlib.util  # noqa: E402
+import io  # noqa: E402
 import statistics  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tarfile  # noqa: E402
+import tempfile  # noqa: E402
 import time  # noqa: E402
+from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from grasp_fc_ros.core import check_force_closure, warm_up  # noqa: E402
+from grasp_fc_ros.core import check_force_closure, exact_force_closure, warm_up  # noqa: E402
 from grasp_fc_ros.core.certificates import normalise_positions  # noqa: E402
 from grasp_fc_ros.core.exact_test import solve_exact  # noqa: E402
 from grasp_fc_ros.core.grasp_input import prepare_grasps  # noqa: E402
@@ -65,6 +81,82 @@ def one_grasp_latency(surface, rng, calls, **options):
     return statistics.median(times)
 
 
+def old_core(commit, where):
+    """``grasp_fc_ros/core`` of ``commit`` from the git history of this checkout,
+    unpacked under ``where`` and imported as the package ``core_<commit>``; or the reason
+    it is not available (a str)."""
+    root = Path(__file__).resolve().parents[1]
+    try:
+        archive = subprocess.run(["git", "-C", str(root), "archive", "--format=tar", commit,
+                                  "grasp_fc_ros/core"], capture_output=True, check=True,
+                                 timeout=120).stdout
+    except (OSError, subprocess.SubprocessError) as error:
+        detail = getattr(error, "stderr", b"") or b""
+        return f"git history not available ({error}; {detail.decode(errors='replace').strip()})"
+    with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
+        tar.extractall(where, filter="data")
+    name = f"core_{commit}"
+    package = Path(where) / "grasp_fc_ros" / "core"
+    spec = importlib.util.spec_from_file_location(
+        name, package / "__init__.py", submodule_search_locations=[str(package)])
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def cpu_seconds(function):
+    start = time.process_time()
+    function()
+    return time.process_time() - start
+
+
+def against_cell(old, surface, n_fingers, mu, n_grasps, repeats, rng):
+    """This core's exact stage against the old commit's exact_force_closure on the same
+    grasps, alternating, grasps/s (CPU): ``exact_force_closure`` (verdicts) and the exact
+    stage with the margin certified to 1e-8 (``check_force_closure``'s default)."""
+    positions, normals = sample_grasps(surface, n_grasps, n_fingers, rng)
+    old_verdicts = old.exact_force_closure(positions, normals, mu)
+    new_verdicts = exact_force_closure(positions, normals, mu)
+    margin_verdicts = solve_exact(prepare_grasps(positions, normals, mu)).force_closure
+    times = {"old": [], "new": [], "margin": []}
+    for _ in range(repeats):
+        times["old"].append(cpu_seconds(lambda: old.exact_force_closure(positions, normals, mu)))
+        times["new"].append(cpu_seconds(lambda: exact_force_closure(positions, normals, mu)))
+        times["margin"].append(cpu_seconds(
+            lambda: solve_exact(prepare_grasps(positions, normals, mu), "optimum")))
+    rate = {key: n_grasps / statistics.median(value) for key, value in times.items()}
+    return {"n": n_fingers, "mu": mu, **rate,
+            "disagree": int(np.count_nonzero(new_verdicts != old_verdicts)
+                            + np.count_nonzero(margin_verdicts != old_verdicts)),
+            "fc_share": float(np.mean(old_verdicts))}
+
+
+def run_against(commit, n_grasps, repeats, seed):
+    with tempfile.TemporaryDirectory() as where:
+        old = old_core(commit, where)
+        if isinstance(old, str):
+            print(f"--against {commit}: {old}; nothing measured")
+            return
+        warm_up()
+        rng = np.random.default_rng(seed)
+        surface = make_object("box")
+        print(f"exact_force_closure against that of {commit} (Clarabel, 64 grasps per "
+              f"solve), and this core's exact stage with the margin certified to 1e-8 "
+              f"(check_force_closure's default); {n_grasps} box grasps per cell; CPU time, "
+              f"one core, alternating, medians of {repeats}; grasps/s; target >= 30x")
+        print(f"{'n':>2} {'mu':>6} {'FC%':>5} {commit:>9} {'verdicts':>9} {'ratio':>6} "
+              f"{'+margin':>9} {'ratio':>6} {'disagree':>8}")
+        for n_fingers in (4, 6, 8):
+            for mu in MUS:
+                cell = against_cell(old, surface, n_fingers, mu, n_grasps, repeats, rng)
+                print(f"{cell['n']:>2} {cell['mu']:>6.3f} {100 * cell['fc_share']:>5.1f} "
+                      f"{cell['old']:>9.0f} {cell['new']:>9.0f} "
+                      f"{cell['new'] / cell['old']:>5.1f}x {cell['margin']:>9.0f} "
+                      f"{cell['margin'] / cell['old']:>5.1f}x {cell['disagree']:>8d}",
+                      flush=True)
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="500 grasps per cell")
@@ -73,8 +165,13 @@ def main(argv=None):
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--calls", type=int, default=0,
                         help="one-grasp latency calls (default 2000, --quick 200)")
+    parser.add_argument("--against", metavar="COMMIT",
+                        help="time the exact stage against this commit's exact_force_closure")
     args = parser.parse_args(argv)
     n_grasps = 500 if args.quick else args.grasps
+    if args.against:
+        run_against(args.against, n_grasps, args.repeats, args.seed)
+        return
     start = time.perf_counter()
     warm_up()
     print(f"warm_up (compile or cache load): {time.perf_counter() - start:.2f} s")

@@ -71,7 +71,7 @@ def measure_paths(surface, contacts, mu, scale, repeats, rng):
         cost = {}
         for name, hull_from in (("pair", 10**9), ("hull", 0)):
             positive_span.HULL_MIN_VECTORS = hull_from
-            cost[name] = 1e3 * median_seconds(lambda: passes_torque_filter(grasps),
+            cost[name] = 1e3 * median_seconds(lambda grasps=grasps: passes_torque_filter(grasps),
                                               repeats) / filter_grasps
         rows.append((n_contacts, cost["pair"], cost["hull"]))
     return rows
@@ -83,8 +83,8 @@ def measure_large(surface, contacts, rng):
     for n_contacts in contacts:
         positions, normals = sample_grasps(surface, 1, n_contacts, rng)
         grasps = prepare_grasps(positions, normals, 0.01)
-        filter_s = median_seconds(lambda: passes_torque_filter(grasps), 1)
-        exact_s = median_seconds(lambda: run_pipeline(grasps, use_filter=False), 1)
+        filter_s = median_seconds(lambda grasps=grasps: passes_torque_filter(grasps), 1)
+        exact_s = median_seconds(lambda grasps=grasps: run_pipeline(grasps, use_filter=False), 1)
         rows.append((n_contacts, filter_s, exact_s))
     return rows
 

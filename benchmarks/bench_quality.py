@@ -1,13 +1,15 @@
 """Benchmark of grasp quality on one CPU core: minimum friction mu* and contact forces s*.
 
 For random n-finger grasps on a built-in object it measures, in this one process:
-the exact force-closure test (the unit of cost), ``minimum_friction`` (margin 0 and
+the exact force-closure test with its margin certified to 1e-8, as ``check_force_closure``
+runs it by default (the unit of cost), ``minimum_friction`` (margin 0 and
 margin MARGIN_TOL) with its SOCP solves per grasp, and ``optimal_contact_forces`` for a
 random unit wrench per grasp (mu = 0.5); grasps per second and cost ratios to one exact
 test; how many s* grasps the fast stage decided and how many went on to Clarabel, and
-s* on the Clarabel stage alone for comparison. Figures are medians over ``--repeats`` runs after one warm-up, in CPU seconds of
-this process (single-threaded: BLAS and numba on one thread), so that other processes
-on a shared machine do not inflate them; on an idle core wall time is the same.
+s* on the Clarabel stage alone for comparison. Figures are medians over ``--repeats``
+runs after one warm-up, in CPU seconds of this process (single-threaded: BLAS and numba
+on one thread), so that other processes on a shared machine do not inflate them; on an
+idle core wall time is the same.
 
     python benchmarks/bench_quality.py             # 2000 six-finger box grasps
     python benchmarks/bench_quality.py --quick     # a few seconds
@@ -25,8 +27,10 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from grasp_fc_ros.core import exact_force_closure, grasp_forces  # noqa: E402
+from grasp_fc_ros.core import grasp_forces  # noqa: E402
+from grasp_fc_ros.core.exact_test import solve_exact  # noqa: E402
 from grasp_fc_ros.core.grasp_forces import optimal_contact_forces  # noqa: E402
+from grasp_fc_ros.core.grasp_input import prepare_grasps  # noqa: E402
 from grasp_fc_ros.core.minimum_friction import minimum_friction_bounds  # noqa: E402
 from grasp_fc_ros.core.tolerances import MARGIN_TOL  # noqa: E402
 from grasp_fc_ros.objects import OBJECT_NAMES, make_object, sample_grasps  # noqa: E402
@@ -77,7 +81,8 @@ def measure(surface, n_fingers, n_grasps, repeats, rng):
     positions, normals = sample_grasps(surface, n_grasps, n_fingers, rng)
     wrench = rng.normal(size=(n_grasps, 6))
     wrench /= np.linalg.norm(wrench, axis=1, keepdims=True)
-    exact_s, fc = median_seconds(lambda: exact_force_closure(positions, normals, MU), repeats)
+    exact_s, fc = median_seconds(
+        lambda: solve_exact(prepare_grasps(positions, normals, MU)).force_closure, repeats)
     mu_s, bounds = median_seconds(lambda: minimum_friction_bounds(positions, normals), repeats)
     tol_s, tol_bounds = median_seconds(
         lambda: minimum_friction_bounds(positions, normals, margin=MARGIN_TOL), repeats)

@@ -15,11 +15,14 @@ Closure Grasp":
 * :mod:`.certificates` -- internal forces and bounding wrenches, checked in numpy;
 * :mod:`.pipeline` -- the filter, then the exact test on the survivors;
 * :mod:`.one_grasp` -- the compiled fast path of one grasp through the pipeline;
+* :mod:`.one_grasp_filter` -- the torque filter of that path, compiled;
 * :mod:`.minimum_friction` -- the least friction coefficient that makes a grasp force
   closure (certified bounds);
 * :mod:`.grasp_forces` -- the least largest normal force that holds a given load;
 * :mod:`.force_interior_point` -- its fast stage for hard contacts: a compiled
   interior-point method, every answer checked in numpy;
+* :mod:`._kernels` -- the compiled building blocks of the three interior-point stages
+  (JIT decorator, contact frames, grasp maps, 6 x 6 Cholesky, second-order cone steps);
 * :mod:`.stacked_socp` -- many same-shape SOCPs in one Clarabel solve (for the two above);
 * :mod:`.contact_model` -- hard contacts and soft fingers (torsional friction): cones,
   wrench columns, depths and work, in one place;
@@ -37,16 +40,17 @@ True
 """
 
 from .certificates import verify_certificates
-from .grasp_forces import optimal_contact_forces
+from .grasp_forces import GraspForces, optimal_contact_forces
 from .grasp_input import GraspValidation, validate_grasps
-from .one_grasp import warm_up
 from .minimum_friction import MinimumFriction, minimum_friction, minimum_friction_bounds
+from .one_grasp import warm_up
 from .pipeline import ForceClosureResult, Status, check_force_closure, exact_force_closure
 from .torque_space_filter import ORIGIN_CHOICES, torque_filter
 
 __all__ = [
     "ORIGIN_CHOICES",
     "ForceClosureResult",
+    "GraspForces",
     "GraspValidation",
     "MinimumFriction",
     "Status",

@@ -10,9 +10,9 @@ bounds the margin from above:
 
 (A force f_i with normal part c_i and |f_t,i| <= mu_i c_i - t does work
 f_i . a_i <= c_i n_i.a_i + (mu_i c_i - t)(L - n_i.a_i)/mu_i = c_i L - t (L - n_i.a_i)/mu_i;
-an equilibrium does no work on any wrench, so with sum_i c_i = 1: 0 <= L - t S.) L <= 0 makes w a *separating wrench*: no contact
-force can do positive work against it, so no equilibrium force is strictly inside the
-cones.
+an equilibrium does no work on any wrench, so with sum_i c_i = 1: 0 <= L - t S.)
+L <= 0 makes w a *separating wrench*: no contact force can do positive work against it,
+so no equilibrium force is strictly inside the cones.
 
 Internally both are computed on the grasp centred at its centroid and scaled to unit
 size (``unit`` positions); :func:`verify_certificates` checks them again in the caller's
@@ -36,6 +36,7 @@ force) can therefore never pass on rounding noise.
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from .contact_model import HARD, ContactModel, cone_depth, depth_reach_factor, largest_work
 from .tolerances import CERTIFICATE_TOL, EQUILIBRIUM_TOL, ROUNDING_SLACK
@@ -43,7 +44,7 @@ from .tolerances import CERTIFICATE_TOL, EQUILIBRIUM_TOL, ROUNDING_SLACK
 _EPS = np.finfo(np.float64).eps
 
 
-def normalise_positions(positions: np.ndarray):
+def normalise_positions(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Centre each grasp at its centroid and scale it to unit size.
 
     Parameters
@@ -88,7 +89,8 @@ def grasp_maps(unit: np.ndarray) -> np.ndarray:
 def certified_internal_force(forces: np.ndarray, grasp_map: np.ndarray,
                              row_space: np.ndarray, sigma_min: np.ndarray,
                              normals: np.ndarray, mu: np.ndarray, model: ContactModel = HARD,
-                             weight: np.ndarray | None = None):
+                             weight: np.ndarray | None = None
+                             ) -> tuple[np.ndarray, np.ndarray]:
     """Project candidate forces onto equilibrium and certify how deep they are.
 
     Parameters
@@ -144,7 +146,8 @@ def certified_internal_force(forces: np.ndarray, grasp_map: np.ndarray,
 
 
 def wrench_bound(wrench: np.ndarray, unit: np.ndarray, normals: np.ndarray,
-                 mu: np.ndarray, torsional_unit: np.ndarray | None = None):
+                 mu: np.ndarray, torsional_unit: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """Upper bounds on the margin t* from trial wrenches, valid despite rounding.
 
     Parameters
@@ -211,9 +214,12 @@ def to_caller_wrench(wrench: np.ndarray, centre: np.ndarray, size: np.ndarray) -
         return caller / np.linalg.norm(caller, axis=1, keepdims=True)
 
 
-def verify_certificates(positions, normals, mu, contact_forces=None,
-                        separating_wrench=None, torsional_friction=None,
-                        contact_torques=None):
+def verify_certificates(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayLike,
+                        contact_forces: npt.ArrayLike | None = None,
+                        separating_wrench: npt.ArrayLike | None = None,
+                        torsional_friction: npt.ArrayLike | None = None,
+                        contact_torques: npt.ArrayLike | None = None
+                        ) -> tuple[np.ndarray, np.ndarray]:
     """Check certificates in the caller's frame, independently of how they were found.
 
     Parameters
@@ -233,7 +239,7 @@ def verify_certificates(positions, normals, mu, contact_forces=None,
 
     Returns
     -------
-    forces_ok, wrench_ok : ndarray of bool, shape () or (N,)
+    forces_ok, wrench_ok : numpy bool for one grasp, ndarray of bool, shape (N,)
         ``forces_ok``: normal components sum to one (within EQUILIBRIUM_TOL), net force
         and net torque (sum p_i x f_i + tau_i n_i) about the origin vanish (relative to
         EQUILIBRIUM_TOL), every contact strictly inside its cone (mu f_n > |f_t| hard;
@@ -244,8 +250,22 @@ def verify_certificates(positions, normals, mu, contact_forces=None,
         where there is no claim (NaN) or it fails.
     """
     p = np.asarray(positions, dtype=np.float64)
-    single = p.ndim == 2
-    p = p.reshape((-1,) + p.shape[-2:])
+    forces_ok, wrench_ok = verify_batch(p.reshape((-1,) + p.shape[-2:]), normals, mu,
+                                        contact_forces, separating_wrench,
+                                        torsional_friction, contact_torques)
+    if p.ndim == 2:
+        return forces_ok[0], wrench_ok[0]
+    return forces_ok, wrench_ok
+
+
+def verify_batch(p: np.ndarray, normals: npt.ArrayLike, mu: npt.ArrayLike,
+                 contact_forces: npt.ArrayLike | None = None,
+                 separating_wrench: npt.ArrayLike | None = None,
+                 torsional_friction: npt.ArrayLike | None = None,
+                 contact_torques: npt.ArrayLike | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`verify_certificates` on a batch: positions ``p`` (N, n, 3), the other
+    arguments as there (reshaped to the batch); both results of shape (N,)."""
     n = np.asarray(normals, dtype=np.float64).reshape(p.shape)
     n = n / np.linalg.norm(n, axis=-1, keepdims=True)
     friction = np.broadcast_to(np.asarray(mu, dtype=np.float64), p.shape[:2])
@@ -287,6 +307,4 @@ def verify_certificates(positions, normals, mu, contact_forces=None,
                     else largest_work(work, n, friction, w[:, 3:], gamma))
             wrench_ok = (np.all(most <= CERTIFICATE_TOL * largest[:, None], axis=1)
                          & (np.abs(np.linalg.norm(w, axis=1) - 1.0) <= EQUILIBRIUM_TOL))
-    if single:
-        return forces_ok[0], wrench_ok[0]
     return forces_ok, wrench_ok

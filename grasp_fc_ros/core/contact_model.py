@@ -159,7 +159,7 @@ def wrench_columns(grasp_map: np.ndarray, normals: np.ndarray,
 
 
 def cone_depth(generalised: np.ndarray, normals: np.ndarray, mu: np.ndarray,
-               weight: np.ndarray | None = None):
+               weight: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """How deep generalised forces are in their cones, and their normal parts.
 
     Parameters
@@ -220,5 +220,7 @@ def largest_work(a: np.ndarray, normals: np.ndarray, mu: np.ndarray,
     tangential = mu * np.linalg.norm(a - a_n[..., None] * normals, axis=-1)
     if torsional is None:
         return a_n + tangential
+    if torque is None:
+        raise ValueError("largest_work: soft contacts (torsional) need the wrench's torque")
     twist = torsional * (normals * torque[..., None, :]).sum(axis=-1)
     return a_n + np.hypot(tangential, twist)

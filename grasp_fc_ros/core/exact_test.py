@@ -45,15 +45,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any, TypeAlias
 
 import clarabel
 import numpy as np
 from scipy import sparse  # clarabel's Python API takes scipy CSC matrices
 
-from .certificates import (certified_internal_force, grasp_maps, normalise_positions,
-                           wrench_bound)
-from .contact_model import (HARD, ContactModel, cone_rows, model_of, torsion_scales,
-                            wrench_columns)
+from .certificates import certified_internal_force, grasp_maps, normalise_positions, wrench_bound
+from .contact_model import HARD, ContactModel, cone_rows, model_of, torsion_scales, wrench_columns
 from .grasp_input import GraspBatch
 from .interior_point import FORCE_CLOSURE, UNDECIDED, solve_fast
 from .stacked_socp import tangent_bases
@@ -62,10 +61,15 @@ from .tolerances import MARGIN_TOL, RANK_TOL
 #: What ``margin`` asks for (see :func:`solve_exact`).
 MARGIN_CHOICES = ("optimum", "bound")
 
-#: Grasps per Clarabel solve. Measured on 6-finger grasps (CPU time per grasp): flat
-#: from 16 to 64, then slower as the slowest grasp of a batch sets its iteration count
-#: (256: -20%, 1024: -45%).
+#: Grasps per Clarabel solve: CPU time per grasp is flat up to about this size and grows
+#: beyond it, as the slowest grasp of a batch sets its iteration count (tuned:
+#: docs/performance.md#exact-stage).
 SOLVE_BATCH = 64
+
+#: Per-grasp answers of the Clarabel path: force_closure, t_lo, t_hi, failure (or
+#: undecided), forces, wrench.
+BatchAnswers: TypeAlias = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                np.ndarray]
 
 _ACCEPTED = (clarabel.SolverStatus.Solved, clarabel.SolverStatus.AlmostSolved)
 
@@ -87,9 +91,10 @@ def _settings(tight: bool) -> clarabel.DefaultSettings:
         settings.tol_gap_abs = settings.tol_gap_rel = RETRY_TOL
         settings.tol_feas = RETRY_TOL
     else:
-        # Iterative refinement of each KKT solve cost ~45% of the batch solve time here,
-        # and its accuracy is not needed: force closure needs a witness verified in
-        # numpy, and grasps the batch cannot settle are retried alone, refined.
+        # Iterative refinement of each KKT solve costs much of the batch solve time here
+        # (docs/performance.md#exact-stage), and its accuracy is not needed: force closure
+        # needs a witness verified in numpy, and grasps the batch cannot settle are
+        # retried alone, refined.
         settings.iterative_refinement_enable = False
     return settings
 
@@ -179,7 +184,7 @@ def solve_exact(grasps: GraspBatch, margin: str = "optimum", certificates: bool 
     forces[~force_closure] = np.nan
     wrench[force_closure] = np.nan
     torques = None
-    if model is not HARD:
+    if torsional_unit is not None:                       # soft
         # tau = c rho in the unit grasp, times its size in the caller's unit.
         column_scale = torsion_scales(torsional_unit)[0]
         forces, torques = forces[..., :3], column_scale * forces[..., 3] * size[:, None]
@@ -188,7 +193,8 @@ def solve_exact(grasps: GraspBatch, margin: str = "optimum", certificates: bool 
 
 
 def _solve_clarabel(grasps: GraspBatch, unit: np.ndarray, subset: np.ndarray,
-                    model: ContactModel = HARD, torsional_unit: np.ndarray | None = None):
+                    model: ContactModel = HARD, torsional_unit: np.ndarray | None = None
+                    ) -> BatchAnswers:
     """The Clarabel path on the grasps ``subset``: batched solves, lone retries.
 
     ``torsional_unit`` (N, n): gamma in the unit grasp's length, for a soft ``model``.
@@ -221,7 +227,7 @@ def _solve_clarabel(grasps: GraspBatch, unit: np.ndarray, subset: np.ndarray,
             lone = chunk[position:position + 1]
             again = _solve_batch(grasps, unit, grasp_map, row_space, sigma_min, subset, lone,
                                  tight=True, model=model, torsional_unit=torsional_unit)
-            for values, value in zip(decided, again):
+            for values, value in zip(decided, again, strict=True):
                 values[position] = value[0]
         (force_closure[chunk], t_lo[chunk], t_hi[chunk], failure[chunk], forces[chunk],
          wrench[chunk]) = decided
@@ -229,7 +235,9 @@ def _solve_clarabel(grasps: GraspBatch, unit: np.ndarray, subset: np.ndarray,
 
 
 @lru_cache(maxsize=32)
-def _socp_pattern(n_grasps: int, n_contacts: int, components: int = 3):
+def _socp_pattern(n_grasps: int, n_contacts: int, components: int = 3
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int], list[Any],
+                             sparse.csc_matrix]:
     """Sparsity pattern of the stacked constraint matrix A, fixed for (N, n, d).
 
     Rows: 6N equilibrium rows, then N force-bound rows, then d rows per contact for its
@@ -245,7 +253,8 @@ def _socp_pattern(n_grasps: int, n_contacts: int, components: int = 3):
     force_cols = grasp * n_vars + np.arange(d * n_contacts)[None, None, :]   # (N,1,dn)
     margin_col = grasp[:, :, 0] * n_vars + d * n_contacts                     # (N,1)
 
-    eq_rows = np.broadcast_to(grasp * 6 + np.arange(6)[None, :, None], (n_grasps, 6, d * n_contacts))
+    eq_rows = np.broadcast_to(grasp * 6 + np.arange(6)[None, :, None],
+                              (n_grasps, 6, d * n_contacts))
     eq_cols = np.broadcast_to(force_cols, eq_rows.shape)
     bound_rows = np.broadcast_to(6 * n_grasps + grasp[:, :, 0], (n_grasps, d * n_contacts))
     bound_cols = force_cols[:, 0]
@@ -273,7 +282,7 @@ def _socp_pattern(n_grasps: int, n_contacts: int, components: int = 3):
 def _solve_batch(grasps: GraspBatch, unit: np.ndarray, grasp_map: np.ndarray,
                  row_space: np.ndarray, sigma_min: np.ndarray, subset: np.ndarray,
                  chunk: np.ndarray, tight: bool, model: ContactModel = HARD,
-                 torsional_unit: np.ndarray | None = None):
+                 torsional_unit: np.ndarray | None = None) -> BatchAnswers:
     """Solve the SOCP of the grasps ``subset[chunk]`` together and decide each one.
 
     ``grasp_map``, ``row_space`` and ``sigma_min`` are indexed like ``subset``;

@@ -14,8 +14,8 @@ wrench side: c_n,i = z0_i, c_t,i = -mu_i z_t,i, and beta = -y for the multiplier
 its equality. The wrench side starts strictly feasible (w = -W scaled) and stays so;
 the force side may have no interior point (a load that can only just be held, or not
 at all), so it starts infeasible and its residual shrinks with the steps. Nesterov-Todd
-scaling and Mehrotra's predictor-corrector, as in :mod:`.interior_point` (whose cone
-helpers this uses). Each Newton step eliminates (u_i, v_i) contact by contact (a 2 x 2
+scaling and Mehrotra's predictor-corrector, as in :mod:`.interior_point` (both are built
+from :mod:`._kernels`). Each Newton step eliminates (u_i, v_i) contact by contact (a 2 x 2
 block), leaving the 6 x 6 system in w bordered by the one equality: one 6 x 6 Cholesky
 factor per iteration, used by both the predictor and the corrector. The 6 x 6 matrix is
 summed from semidefinite per-contact terms (subtracting the eliminated blocks instead
@@ -31,21 +31,43 @@ test only says when to stop. A contact limited to 0 carries no force and would l
 force side no interior point: it is dropped (force 0). It returns a grasp as undecided
 (for the Clarabel path) when the grasp map's rank (of the other contacts) is not clearly
 6, when every contact is limited to 0, on a numerical breakdown, and at the iteration
-limit. On the
-box benchmark (mu = 0.5, random unit wrenches, 4 or 6 fingers, with or without limits)
-a held load took 8-9 iterations on average (at most 15), a load no forces hold 1.6-2.9,
-and none of 8,000 grasps was left undecided.
+limit (iteration counts: docs/performance.md#contact-forces).
 """
 
 from __future__ import annotations
 
+from typing import TypeAlias
+
 import numpy as np
 
-from . import interior_point as ip
+from ._kernels.cones import (
+    MIN_STEP,
+    NO_LIMIT,
+    STEP_FRACTION,
+    inverse_apply,
+    inverse_square_apply,
+    jordan_divide,
+    jordan_product,
+    max_step,
+    nt_scaling,
+    positive_step,
+    scaled_apply,
+    scaling_of,
+)
+from ._kernels.frames import normal_split, tangent_frames, work_at
+from ._kernels.grasp_map import add_congruence, add_wrench, apply_grasp_map, certified_rank
+from ._kernels.jit import jit, kernel_array, row
+from ._kernels.linear_algebra import cholesky, cholesky_solve
+
+#: Index into a :data:`._kernels.cones.Scaling` of the entry (r, c) of the symmetric W.
+_SYMMETRIC = ((0, 1, 2), (1, 3, 4), (2, 4, 5))
 
 #: Result codes of the kernel: forces and a wrench that meet the stop rule; a wrench
 #: proving s* = inf; neither (for the Clarabel path).
 SOLVED, INFEASIBLE, UNDECIDED = 0, 1, 2
+
+#: What :func:`solve_fast_forces` returns: codes, beta, iterations, forces, wrench.
+ForcesResult: TypeAlias = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 #: Iterations before a grasp is handed to the Clarabel path.
 MAX_ITERATIONS = 50
@@ -64,7 +86,9 @@ REGULARISATION = 1e-13
 START_GAP = 1.0
 
 
-def _lower_bound(unit, normals, mu, limits, direction, w, excess):
+@jit
+def _lower_bound(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, limits: np.ndarray,
+                 direction: np.ndarray, w: np.ndarray, excess: np.ndarray) -> float:
     """The dual bound of :func:`.grasp_forces.lower_bound` for wrench w (6,) (this sign,
     without rounding slack): 0 where w proves nothing, inf where no forces hold W.
     ``excess`` (n,) is scratch."""
@@ -75,8 +99,7 @@ def _lower_bound(unit, normals, mu, limits, direction, w, excess):
     if not along > 0.0:
         return 0.0
     for i in range(n):
-        a0, a1, a2 = ip._work_at(w, unit[i])
-        a_n, a_t = ip._normal_split(a0, a1, a2, normals[i])
+        a_n, a_t = normal_split(work_at(w, row(unit, i)), row(normals, i))
         excess[i] = max(a_n + mu[i] * a_t, 0.0)
     # g(beta) = sum_i excess_i min(1, beta L_i) - beta along is concave, linear between
     # the breakpoints 1 / L_i: the root lies past the last breakpoint where g >= 0.
@@ -103,8 +126,12 @@ def _lower_bound(unit, normals, mu, limits, direction, w, excess):
     return 1.0 / root if root > 0.0 else np.inf
 
 
-def _upper_bound(unit, normals, tangent, bitangent, mu, limits, direction, z, beta,
-                 gram_factor, forces, check, y, scratch):
+@jit
+def _upper_bound(unit: np.ndarray, normals: np.ndarray, tangent: np.ndarray,
+                 bitangent: np.ndarray, mu: np.ndarray, limits: np.ndarray,
+                 direction: np.ndarray, z: np.ndarray, beta: float, gram_factor: np.ndarray,
+                 forces: np.ndarray, check: np.ndarray, y: np.ndarray,
+                 scratch: np.ndarray) -> tuple[float, float]:
     """(s, violation) of the force iterate z (n, 3): forces c_i / beta into ``forces``
     (n, 3, world frame), then their projection onto G f + W = 0; s its largest normal
     force, violation the largest excess over a cone or a limit."""
@@ -113,73 +140,45 @@ def _upper_bound(unit, normals, tangent, bitangent, mu, limits, direction, z, be
         for k in range(3):
             forces[i, k] = (z[i, 0] * normals[i, k] - mu[i] * (z[i, 1] * tangent[i, k]
                                                                + z[i, 2] * bitangent[i, k])) / beta
-    ip._apply_grasp_map(unit, forces, check)
+    apply_grasp_map(unit, forces, check)
     for r in range(6):
         check[r] += direction[r]
-    ip._cholesky_solve(gram_factor, check, y, scratch)
+    cholesky_solve(gram_factor, check, y, scratch)
     largest = -np.inf
     violation = 0.0
     for i in range(n):
-        g0, g1, g2 = ip._work_at(y, unit[i])                           # G_i^T y
-        f_n, f_t = ip._normal_split(forces[i, 0] - g0, forces[i, 1] - g1, forces[i, 2] - g2,
-                                    normals[i])
+        g0, g1, g2 = work_at(y, row(unit, i))                          # G_i^T y
+        f_n, f_t = normal_split((forces[i, 0] - g0, forces[i, 1] - g1, forces[i, 2] - g2),
+                                row(normals, i))
         largest = max(largest, f_n)
         violation = max(violation, f_t - mu[i] * f_n, f_n - limits[i])
     return largest, violation
 
 
-def _add_wrench(force, point, scale, out):
-    """out (6,) += scale (force, point x force) (G_i f)."""
-    out[0] += scale * force[0]
-    out[1] += scale * force[1]
-    out[2] += scale * force[2]
-    out[3] += scale * (point[1] * force[2] - point[2] * force[1])
-    out[4] += scale * (point[2] * force[0] - point[0] * force[2])
-    out[5] += scale * (point[0] * force[1] - point[1] * force[0])
-
-
-def _add_congruence(q, point, out, t):
-    """out (6, 6) += G q G^T for a symmetric q (3, 3) and G = [I; [point]x];
-    t (3, 3) is scratch: t = [point]x q, so the blocks are q, t^T, t, [point]x t^T."""
-    for col in range(3):
-        t[0, col] = point[1] * q[2, col] - point[2] * q[1, col]
-        t[1, col] = point[2] * q[0, col] - point[0] * q[2, col]
-        t[2, col] = point[0] * q[1, col] - point[1] * q[0, col]
-    for r in range(3):
-        for col in range(3):
-            out[r, col] += q[r, col]
-            out[3 + r, col] += t[r, col]
-            out[col, 3 + r] += t[r, col]
-    for col in range(3):
-        out[3, 3 + col] += point[1] * t[col, 2] - point[2] * t[col, 1]
-        out[4, 3 + col] += point[2] * t[col, 0] - point[0] * t[col, 2]
-        out[5, 3 + col] += point[0] * t[col, 1] - point[1] * t[col, 0]
-
-
-def _slacks(unit, edges, w, u, v, s, work):
+@jit
+def _slacks(unit: np.ndarray, edges: np.ndarray, w: np.ndarray, u: np.ndarray, v: np.ndarray,
+            s: np.ndarray, work: np.ndarray) -> None:
     """The wrench side's cone slacks s_i = (u_i + v_i, 0, 0) + R_i^T G_i^T w into s
     (n, 3), R_i's columns ``edges[:, i]`` (-n_i, mu_i t1_i, mu_i t2_i); ``work`` (3,)
     is scratch."""
     for i in range(unit.shape[0]):
-        work[0], work[1], work[2] = ip._work_at(w, unit[i])
+        work[0], work[1], work[2] = work_at(w, row(unit, i))
         for k in range(3):
             s[i, k] = edges[k, i, 0] * work[0] + edges[k, i, 1] * work[1] + edges[k, i, 2] * work[2]
         s[i, 0] += u[i] + v[i]
 
 
-def _positive_step(x, dx):
-    """Largest alpha (capped at 1e30) with x + alpha dx >= 0, for x > 0."""
-    return -x / dx if dx < 0.0 else 1e30
-
-
-def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol,
-                 infeasible_bound, forces_out, wrench_out, work3, work6, mats, scalings,
-                 edges, work_n):
+@jit
+def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, limits: np.ndarray,
+                 direction: np.ndarray, force_tol: float, optimality_tol: float,
+                 infeasible_bound: float, forces_out: np.ndarray, wrench_out: np.ndarray,
+                 work3: np.ndarray, work6: np.ndarray, mats: np.ndarray, scalings: np.ndarray,
+                 edges: np.ndarray, work_n: np.ndarray) -> tuple[int, float, int]:
     """Solve one unit-size grasp. Returns (code, beta, iterations).
 
     ``forces_out`` (n, 3) gets the forces c_i / beta (world frame, before the
     projection), ``wrench_out`` (6,) the wrench w. The other arguments are scratch of
-    the batch: work3 (12, n, 3), work6 (9, 6), mats (6, 6, 6), scalings (n, 3, 3),
+    the batch: work3 (12, n, 3), work6 (9, 6), mats (6, 6, 6), scalings (n, 6),
     edges (3, n, 3), work_n (20, n).
     """
     n = unit.shape[0]
@@ -191,16 +190,15 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
         work6[8])
     gram, gram_factor, schur, factor = mats[0], mats[1], mats[2], mats[3]
     winv, vy, q_mat, t_mat = mats[4, :3, :3], mats[4, 3:, :3], mats[4, :3, 3:], mats[4, 3:, 3:]
-    a, gvec, p_row, q, w_dz, second_order, vec, pe = (
-        mats[5, 0, :3], mats[5, 0, 3:], mats[5, 1, :3], mats[5, 1, 3:], mats[5, 2, :3],
-        mats[5, 2, 3:], mats[5, 3, :3], mats[5, 3, 3:])
+    a, gvec, p_row, vec, pe = (mats[5, 0, :3], mats[5, 0, 3:], mats[5, 1, :3],
+                               mats[5, 3, :3], mats[5, 3, 3:])
     (u, v, zu, zv, du, dv, dzu, dzv, rc_u, rc_v, inv_eta2, e_sum, e_cross, e_vv, r_u, r_v,
      t_u, t_v, excess, rhs_uv) = (
         work_n[0], work_n[1], work_n[2], work_n[3], work_n[4], work_n[5], work_n[6],
         work_n[7], work_n[8], work_n[9], work_n[10], work_n[11], work_n[12], work_n[13],
         work_n[14], work_n[15], work_n[16], work_n[17], work_n[18], work_n[19])
 
-    sigma_min, _ = ip._certified_rank(unit, gram, gram_factor, scratch)
+    sigma_min, _ = certified_rank(unit, gram, gram_factor, scratch)
     if not sigma_min > 0.0:
         return UNDECIDED, np.nan, 0
     n_cones = 2 * n
@@ -209,7 +207,7 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
             return UNDECIDED, np.nan, 0
         if limits[i] < np.inf:
             n_cones += 1
-    ip._frames(normals, tangent, bitangent)
+    tangent_frames(normals, tangent, bitangent)
     for i in range(n):
         for k in range(3):
             edges[0, i, k] = -normals[i, k]
@@ -265,7 +263,7 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
             for k in range(3):   # the force of z_i: -R_i z_i
                 vec[k] = -(edges[0, i, k] * z[i, 0] + edges[1, i, k] * z[i, 1]
                            + edges[2, i, k] * z[i, 2])
-            _add_wrench(vec, unit[i], 1.0, r_w)
+            add_wrench(vec, unit[i], 1.0, r_w)
             r_u[i] = 1.0 - z[i, 0] - zu[i]
             if limits[i] < np.inf:
                 r_v[i] = -z[i, 0] - zv[i] - limits[i] * y
@@ -279,13 +277,14 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
         gap = 0.0
         finite = True
         for i in range(n):
-            inv_eta2[i] = ip._nt_scaling(z[i], s[i], scalings[i], jv[i])
+            inv_eta2[i], scaling, inverse_vector = nt_scaling(row(z, i), row(s, i))
             if not np.isfinite(inv_eta2[i]):
                 finite = False
                 break
-            for k in range(3):
-                lam[i, k] = (scalings[i, k, 0] * z[i, 0] + scalings[i, k, 1] * z[i, 1]
-                             + scalings[i, k, 2] * z[i, 2])
+            for k in range(6):
+                scalings[i, k] = scaling[k]
+            jv[i, 0], jv[i, 1], jv[i, 2] = inverse_vector
+            lam[i, 0], lam[i, 1], lam[i, 2] = scaled_apply(scaling, row(z, i))
             # h_i = G_i R_i W^-2 e0, W^-2 = (2 Jv Jv^T - J) / eta^2.
             pe[0] = inv_eta2[i] * (2.0 * jv[i, 0] * jv[i, 0] - 1.0)
             pe[1] = inv_eta2[i] * 2.0 * jv[i, 0] * jv[i, 1]
@@ -304,7 +303,7 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
             for r in range(3):      # W^-1 = J W J / eta^2
                 for col in range(3):
                     sign = 1.0 if (r == 0) == (col == 0) else -1.0
-                    winv[r, col] = sign * inv_eta2[i] * scalings[i, r, col]
+                    winv[r, col] = sign * inv_eta2[i] * scaling[_SYMMETRIC[r][col]]
             g_norm = np.sqrt(winv[0, 0] ** 2 + winv[1, 0] ** 2 + winv[2, 0] ** 2)
             kappa = 1.0 / (1.0 + compliance * g_norm * g_norm)
             for k in range(3):
@@ -322,7 +321,7 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
                 for col in range(3):
                     q_mat[m, col] = (vy[0, m] * vy[0, col] + vy[1, m] * vy[1, col]
                                      + vy[2, m] * vy[2, col] + kappa * p_row[m] * p_row[col])
-            _add_congruence(q_mat, unit[i], schur, t_mat)
+            add_congruence(q_mat, unit[i], schur, t_mat)
             p00 = pe[0]
             if limits[i] < np.inf:
                 d_v = zv[i] / v[i]
@@ -332,33 +331,33 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
                 e_sum[i] = (d_u + d_v) / det
                 e_cross[i] = d_u / det
                 e_vv[i] = (p00 + d_u) / det
-                _add_wrench(h3[i], unit[i], -limits[i] * e_cross[i], b)
+                add_wrench(h3[i], unit[i], -limits[i] * e_cross[i], b)
                 c += limits[i] * limits[i] * e_vv[i]
             else:
                 e_sum[i] = 1.0 / (p00 + d_u)
         if not finite:
             break
-        if not ip._cholesky(schur, factor):
+        if not cholesky(schur, factor):
             # S lost definiteness to rounding (its condition nears 1/eps as beta -> 0 on
             # a load that can just not be held): a shift of REGULARISATION of its
             # trace keeps the step a descent direction; the checks judge the iterate.
             shift = REGULARISATION * np.trace(schur)
             for r in range(6):
                 schur[r, r] += shift
-            if not ip._cholesky(schur, factor):
+            if not cholesky(schur, factor):
                 break
-        ip._cholesky_solve(factor, b, sb, scratch)
+        cholesky_solve(factor, b, sb, scratch)
         border = np.dot(b, sb) + c
         if not border > 0.0:
             break
         mean_gap = gap / n_cones
         for i in range(n):
-            ip._jordan_product_into(lam[i], lam[i], rhs_c[i])
+            square = jordan_product(row(lam, i), row(lam, i))
             for k in range(3):
-                rhs_c[i, k] = -rhs_c[i, k]
+                rhs_c[i, k] = -square[k]
             rc_u[i] = -u[i] * zu[i]
             rc_v[i] = -v[i] * zv[i]
-        alpha = 1e30
+        alpha = NO_LIMIT
         dy = 0.0
         for corrector in range(2):
             # Right-hand side M W^-1 q - r_d; then (u_i, v_i) eliminated.
@@ -366,8 +365,8 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
                 rhs[r] = -r_w[r]
             r2 = r_p
             for i in range(n):
-                ip._jordan_divide_into(lam[i], rhs_c[i], q)
-                ip._inverse_apply(scalings[i], q, winv_q[i])
+                winv_q[i, 0], winv_q[i, 1], winv_q[i, 2] = inverse_apply(
+                    scaling_of(scalings, i), jordan_divide(row(lam, i), row(rhs_c, i)))
                 t_u[i] = rc_u[i] / u[i]
                 ru = winv_q[i, 0] + t_u[i] - r_u[i]
                 if limits[i] < np.inf:
@@ -383,14 +382,14 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
                 for k in range(3):   # R_i W^-1 q_i - h_i (1'E r'_i), mapped by G_i
                     vec[k] = (winv_q[i, 0] * edges[0, i, k] + winv_q[i, 1] * edges[1, i, k]
                               + winv_q[i, 2] * edges[2, i, k] - rhs_uv[i] * h3[i, k])
-                _add_wrench(vec, unit[i], 1.0, rhs)
-            ip._cholesky_solve(factor, rhs, dw, scratch)
+                add_wrench(vec, unit[i], 1.0, rhs)
+            cholesky_solve(factor, rhs, dw, scratch)
             dy = (r2 - np.dot(b, dw)) / border
             for r in range(6):
                 dw[r] += sb[r] * dy
-            alpha = 1e30
+            alpha = NO_LIMIT
             for i in range(n):
-                a[0], a[1], a[2] = ip._work_at(dw, unit[i])
+                a[0], a[1], a[2] = work_at(dw, row(unit, i))
                 along_h = h3[i, 0] * a[0] + h3[i, 1] * a[1] + h3[i, 2] * a[2]
                 ru = du[i] - along_h
                 if limits[i] < np.inf:
@@ -405,18 +404,18 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
                 for k in range(3):
                     ds[i, k] = edges[k, i, 0] * a[0] + edges[k, i, 1] * a[1] + edges[k, i, 2] * a[2]
                 ds[i, 0] += du[i] + dv[i]
-                # dz = W^-1 q - W^-2 ds, W^-2 ds = (2 Jv (Jv . ds) - J ds) / eta^2
-                proj = jv[i, 0] * ds[i, 0] + jv[i, 1] * ds[i, 1] + jv[i, 2] * ds[i, 2]
+                # dz = W^-1 q - W^-2 ds
+                w2_ds = inverse_square_apply(row(jv, i), inv_eta2[i], row(ds, i))
                 for k in range(3):
-                    j_ds = ds[i, k] if k == 0 else -ds[i, k]
-                    dz[i, k] = winv_q[i, k] - inv_eta2[i] * (2.0 * jv[i, k] * proj - j_ds)
+                    dz[i, k] = winv_q[i, k] - w2_ds[k]
                 dzu[i] = t_u[i] - zu[i] / u[i] * du[i]
-                alpha = min(alpha, ip._max_step(z[i], dz[i]), ip._max_step(s[i], ds[i]),
-                            _positive_step(u[i], du[i]), _positive_step(zu[i], dzu[i]))
+                alpha = min(alpha, max_step(row(z, i), row(dz, i)),
+                            max_step(row(s, i), row(ds, i)),
+                            positive_step(u[i], du[i]), positive_step(zu[i], dzu[i]))
                 if limits[i] < np.inf:
                     dzv[i] = t_v[i] - zv[i] / v[i] * dv[i]
-                    alpha = min(alpha, _positive_step(v[i], dv[i]),
-                                _positive_step(zv[i], dzv[i]))
+                    alpha = min(alpha, positive_step(v[i], dv[i]),
+                                positive_step(zv[i], dzv[i]))
             if corrector == 0:
                 alpha = min(1.0, alpha)
                 predicted = 0.0
@@ -428,20 +427,18 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
                         predicted += (zv[i] + alpha * dzv[i]) * (v[i] + alpha * dv[i])
                 centring = (predicted / gap) ** 3 * mean_gap
                 for i in range(n):
-                    ip._inverse_apply(scalings[i], ds[i], q)
+                    scaling = scaling_of(scalings, i)
+                    second_order = jordan_product(inverse_apply(scaling, row(ds, i)),
+                                                  scaled_apply(scaling, row(dz, i)))
+                    square = jordan_product(row(lam, i), row(lam, i))
                     for k in range(3):
-                        w_dz[k] = (scalings[i, k, 0] * dz[i, 0] + scalings[i, k, 1] * dz[i, 1]
-                                   + scalings[i, k, 2] * dz[i, 2])
-                    ip._jordan_product_into(q, w_dz, second_order)
-                    ip._jordan_product_into(lam[i], lam[i], rhs_c[i])
-                    for k in range(3):
-                        rhs_c[i, k] = -rhs_c[i, k] - second_order[k]
+                        rhs_c[i, k] = -square[k] - second_order[k]
                     rhs_c[i, 0] += centring
                     rc_u[i] = -u[i] * zu[i] - du[i] * dzu[i] + centring
                     if limits[i] < np.inf:
                         rc_v[i] = -v[i] * zv[i] - dv[i] * dzv[i] + centring
-        alpha = min(1.0, ip.STEP_FRACTION * alpha)
-        if not alpha > ip.MIN_STEP:
+        alpha = min(1.0, STEP_FRACTION * alpha)
+        if not alpha > MIN_STEP:
             break
         for r in range(6):
             w[r] += alpha * dw[r]
@@ -457,16 +454,22 @@ def _solve_grasp(unit, normals, mu, limits, direction, force_tol, optimality_tol
     return UNDECIDED, -y, iteration
 
 
-def _workspace(n_contacts):
+@jit
+def _workspace(n_contacts: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                         np.ndarray, np.ndarray]:
     """Scratch of :func:`_solve_grasp` for grasps of ``n_contacts`` contacts, reused from
     grasp to grasp: work3, work6, mats, scalings, edges, work_n."""
     return (np.empty((12, n_contacts, 3)), np.empty((9, 6)), np.empty((6, 6, 6)),
-            np.empty((n_contacts, 3, 3)), np.empty((3, n_contacts, 3)),
+            np.empty((n_contacts, 6)), np.empty((3, n_contacts, 3)),
             np.zeros((20, n_contacts)))
 
 
-def _solve_without_idle(unit, normals, mu, limits, direction, force_tol, optimality_tol,
-                        infeasible_bound, forces_out, wrench_out, active):
+@jit
+def _solve_without_idle(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray,
+                        limits: np.ndarray, direction: np.ndarray, force_tol: float,
+                        optimality_tol: float, infeasible_bound: float,
+                        forces_out: np.ndarray, wrench_out: np.ndarray,
+                        active: int) -> tuple[int, float, int]:
     """:func:`_solve_grasp` on the ``active`` contacts with a limit > 0 only: a contact
     limited to 0 carries no force (and leaves the force side no interior point), so it
     is dropped and gets force 0. Rare: the copies and scratch are allocated here."""
@@ -484,8 +487,11 @@ def _solve_without_idle(unit, normals, mu, limits, direction, force_tol, optimal
     return code, beta, iterations
 
 
-def _solve_all(unit, normals, mu, limits, direction, force_tol, optimality_tol,
-               infeasible_bound):
+@jit
+def _solve_all(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, limits: np.ndarray,
+               direction: np.ndarray, force_tol: float, optimality_tol: float,
+               infeasible_bound: float) -> ForcesResult:
+    """:func:`solve_fast_forces` on kernel arrays, with the stop tolerances applied."""
     n_grasps, n_contacts = mu.shape
     codes = np.full(n_grasps, UNDECIDED, dtype=np.int8)
     beta = np.full(n_grasps, np.nan)
@@ -510,15 +516,10 @@ def _solve_all(unit, normals, mu, limits, direction, force_tol, optimality_tol,
     return codes, beta, iterations, forces, wrench
 
 
-for _name in ("_lower_bound", "_upper_bound", "_add_wrench", "_add_congruence",
-              "_slacks", "_positive_step", "_solve_grasp", "_workspace", "_solve_without_idle",
-              "_solve_all"):
-    globals()[_name] = ip._jit(globals()[_name])
-
 
 def solve_fast_forces(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray,
                       limits: np.ndarray, direction: np.ndarray, force_tol: float,
-                      optimality_tol: float, infeasible_bound: float):
+                      optimality_tol: float, infeasible_bound: float) -> ForcesResult:
     """Run the fast s* stage on unit-size hard grasps and unit wrenches.
 
     Parameters
@@ -551,9 +552,9 @@ def solve_fast_forces(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray,
     wrench : ndarray, shape (N, 6)
         The dual wrench w (SOLVED and INFEASIBLE), NaN elsewhere.
     """
-    return _solve_all(ip.kernel_array(unit), ip.kernel_array(normals),
-                      ip.kernel_array(mu), ip.kernel_array(limits),
-                      ip.kernel_array(direction), STOP_FRACTION * float(force_tol),
+    return _solve_all(kernel_array(unit), kernel_array(normals),
+                      kernel_array(mu), kernel_array(limits),
+                      kernel_array(direction), STOP_FRACTION * float(force_tol),
                       STOP_FRACTION * float(optimality_tol), 2.0 * float(infeasible_bound))
 
 

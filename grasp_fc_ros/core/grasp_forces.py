@@ -37,11 +37,13 @@ has a 4-D cone per contact and the dual bound the soft work term.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
+import numpy.typing as npt
 
 from .certificates import grasp_maps, normalise_positions
-from .contact_model import (HARD, ContactModel, cone_rows, model_of, torsion_scales,
-                            wrench_columns)
+from .contact_model import HARD, ContactModel, cone_rows, model_of, torsion_scales, wrench_columns
 from .force_interior_point import UNDECIDED, solve_fast_forces
 from .grasp_input import GraspBatch, prepare_grasps
 from .stacked_socp import SOLVE_BATCH, BlockShape, solve_stacked, split_normal, tangent_bases
@@ -82,8 +84,32 @@ ROOT_BISECTIONS = 45
 RETRY_TOL = 1e-11
 
 
-def optimal_contact_forces(positions, normals, mu, wrench, max_normal_force=None,
-                           torsional_friction=None):
+class GraspForces(NamedTuple):
+    """What :func:`optimal_contact_forces` returns, one shape whatever the contacts.
+
+    Attributes
+    ----------
+    max_normal_force : ndarray of float, shape () or (N,)
+        s* = min over equilibrating forces of max_i n_i . f_i (force unit of the wrench);
+        0 for a zero wrench; inf where no forces within the cones (and limits) can hold
+        the wrench; NaN where the solver could not decide.
+    forces : ndarray of float, shape (n, 3) or (N, n, 3)
+        Optimal contact forces (world frame); NaN where s* is inf or NaN.
+    torques : ndarray of float, shape (n,) or (N, n)
+        The torsional moment of each contact about its normal (force unit x length
+        unit): 0 at hard contacts, NaN where ``forces`` is.
+    """
+
+    max_normal_force: np.ndarray
+    forces: np.ndarray
+    torques: np.ndarray
+
+
+def optimal_contact_forces(positions: npt.ArrayLike, normals: npt.ArrayLike,
+                           mu: npt.ArrayLike, wrench: npt.ArrayLike,
+                           max_normal_force: npt.ArrayLike | None = None,
+                           torsional_friction: npt.ArrayLike | None = None
+                           ) -> GraspForces:
     """The least largest normal force that holds a wrench, and the contact forces.
 
     Parameters
@@ -100,21 +126,13 @@ def optimal_contact_forces(positions, normals, mu, wrench, max_normal_force=None
     max_normal_force : None, float or array_like broadcastable to (N, n)
         Limit on each contact's normal force, >= 0 (inf: none); None for no limits.
     torsional_friction : None, float or array_like broadcastable to (N, n)
-        gamma of soft contacts (>= 0, the positions' length unit; 0: hard). None
-        (default): all hard, and two arrays are returned; given (even 0): a third,
-        ``torques``.
+        gamma of soft contacts (>= 0, the positions' length unit; 0 or None: hard).
 
     Returns
     -------
-    s_star : ndarray of float, shape () or (N,)
-        min over equilibrating forces of max_i n_i . f_i (force unit of ``wrench``);
-        0 for a zero wrench; inf where no forces within the cones (and limits) can hold
-        the wrench; NaN where the solver could not decide.
-    forces : ndarray of float, shape (n, 3) or (N, n, 3)
-        Optimal contact forces (world frame); NaN where s_star is inf or NaN.
-    torques : ndarray of float, shape (n,) or (N, n), only with ``torsional_friction``
-        The torsional moment of each contact about its normal (force unit x length
-        unit), with ``forces``; 0 at hard contacts, NaN where ``forces`` is.
+    GraspForces
+        ``(max_normal_force, forces, torques)``, a named tuple: s*, the optimal contact
+        forces and their torsional moments (0 at hard contacts).
 
     Raises
     ------
@@ -125,15 +143,16 @@ def optimal_contact_forces(positions, normals, mu, wrench, max_normal_force=None
     grasps = prepare_grasps(positions, normals, mu, torsional_friction)
     limits = _limits(max_normal_force, grasps.mu.shape)
     s_star, forces, torques = solve_contact_forces(grasps, wrench, limits)
-    result = (s_star, forces)
-    if torsional_friction is not None:
-        result += (np.zeros(s_star.shape + forces.shape[1:2]) if torques is None
-                   else torques,)
-        result[2][np.isnan(forces[..., 0])] = np.nan
-    return tuple(r[0] for r in result) if single else result
+    if torques is None:                                  # a hard batch
+        torques = np.zeros(s_star.shape + forces.shape[1:2])
+    torques[np.isnan(forces[..., 0])] = np.nan
+    if single:
+        return GraspForces(s_star[0], forces[0], torques[0])
+    return GraspForces(s_star, forces, torques)
 
 
-def _broadcast_wrench(positions, normals, wrench):
+def _broadcast_wrench(positions: npt.ArrayLike, normals: npt.ArrayLike, wrench: npt.ArrayLike
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
     """Shapes: positions (N, n, 3), wrench (N, 6), and whether the caller gave one grasp."""
     p = np.asarray(positions, dtype=np.float64)
     nrm = np.asarray(normals, dtype=np.float64)
@@ -158,7 +177,7 @@ def _broadcast_wrench(positions, normals, wrench):
     return p, nrm, w, single
 
 
-def _limits(max_normal_force, shape):
+def _limits(max_normal_force: npt.ArrayLike | None, shape: tuple[int, ...]) -> np.ndarray:
     """Per-contact limits (N, n), inf where unlimited; validated."""
     if max_normal_force is None:
         return np.full(shape, np.inf)
@@ -176,7 +195,8 @@ def _limits(max_normal_force, shape):
     return limits
 
 
-def solve_contact_forces(grasps: GraspBatch, wrench: np.ndarray, limits: np.ndarray):
+def solve_contact_forces(grasps: GraspBatch, wrench: np.ndarray, limits: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """:func:`optimal_contact_forces` on validated input.
 
     Parameters
@@ -203,9 +223,10 @@ def solve_contact_forces(grasps: GraspBatch, wrench: np.ndarray, limits: np.ndar
     direction = scaled / np.where(magnitude > 0, magnitude, 1.0)[:, None]
     relative_limits = limits / np.where(magnitude > 0, magnitude, 1.0)[:, None]
 
-    torsional_unit = None if model is HARD else grasps.torsional / size[:, None]
+    torsional_unit = None if grasps.torsional is None else grasps.torsional / size[:, None]
     gmap = wrench_columns(grasp_maps(unit), grasps.normals, torsional_unit)
-    column_scale, weight = (None, None) if model is HARD else torsion_scales(torsional_unit)
+    column_scale, weight = ((None, None) if torsional_unit is None
+                            else torsion_scales(torsional_unit))
     s_star = np.zeros(n_grasps)
     forces = np.zeros((n_grasps, n_contacts, model.components))
     loaded = np.flatnonzero(magnitude > 0)
@@ -225,7 +246,7 @@ def solve_contact_forces(grasps: GraspBatch, wrench: np.ndarray, limits: np.ndar
                                None if weight is None else weight[chunk])
         s_star[chunk] = s * magnitude[chunk]
         forces[chunk] = f * magnitude[chunk, None, None]
-    if model is HARD:
+    if column_scale is None:                             # hard
         return s_star, forces, None
     # tau = c rho in the unit grasp, times its size in the caller's unit.
     return s_star, forces[..., :3], column_scale * forces[..., 3] * size[:, None]
@@ -248,7 +269,9 @@ def _block_shape(n_contacts: int, limited: bool, d: int = 3) -> BlockShape:
     return BlockShape(pattern, zero_rows=6, nonneg_rows=n_nonneg, soc_sizes=(d,) * n_contacts)
 
 
-def _fast_stage(unit, gmap, normals, mu, direction, limits):
+def _fast_stage(unit: np.ndarray, gmap: np.ndarray, normals: np.ndarray, mu: np.ndarray,
+                direction: np.ndarray, limits: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The compiled stage (:mod:`.force_interior_point`) on K hard grasps, its answers
     checked by :func:`_check_answers`.
 
@@ -268,22 +291,27 @@ def _fast_stage(unit, gmap, normals, mu, direction, limits):
     return s_star, forces, ok & (codes != UNDECIDED)
 
 
-def _clarabel_stage(gmap, normals, mu, direction, limits, limited,
-                    model: ContactModel = HARD, weight=None):
+def _clarabel_stage(gmap: np.ndarray, normals: np.ndarray, mu: np.ndarray,
+                    direction: np.ndarray, limits: np.ndarray, limited: bool,
+                    model: ContactModel = HARD, weight: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """K grasps in one Clarabel solve, each failed one again alone with RETRY_TOL; NaN
     where that fails too. Returns (s_star (K,), forces (K, n, d)) for the unit wrench."""
-    args = (gmap, normals, mu, direction, limits, limited, model, weight)
-    s, f, ok = _solve_and_check(*args, tol=None)
+    s, f, ok = _solve_and_check(gmap, normals, mu, direction, limits, limited, model, weight)
     for k in np.flatnonzero(~ok):
-        lone = tuple(a[k:k + 1] if isinstance(a, np.ndarray) else a for a in args)
-        s[k], f[k], ok[k] = (v[0] for v in _solve_and_check(*lone, tol=RETRY_TOL))
+        lone = slice(k, k + 1)
+        s[k], f[k], ok[k] = (v[0] for v in _solve_and_check(
+            gmap[lone], normals[lone], mu[lone], direction[lone], limits[lone], limited, model,
+            None if weight is None else weight[lone], tol=RETRY_TOL))
     s[~ok] = np.nan
     f[~ok] = np.nan
     return s, f
 
 
-def _solve_and_check(gmap, normals, mu, direction, limits, limited,
-                     model: ContactModel = HARD, weight=None, tol=None):
+def _solve_and_check(gmap: np.ndarray, normals: np.ndarray, mu: np.ndarray,
+                     direction: np.ndarray, limits: np.ndarray, limited: bool,
+                     model: ContactModel = HARD, weight: np.ndarray | None = None,
+                     tol: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Solve the homogenised problem for K grasps in one Clarabel solve and check each
     answer (:func:`_check_answers`)."""
     n_grasps, n_contacts = mu.shape
@@ -317,7 +345,10 @@ def _solve_and_check(gmap, normals, mu, direction, limits, limited,
                           limits, weight)
 
 
-def _check_answers(beta, forces, wrench, gmap, normals, mu, direction, limits, weight=None):
+def _check_answers(beta: np.ndarray, forces: np.ndarray, wrench: np.ndarray, gmap: np.ndarray,
+                   normals: np.ndarray, mu: np.ndarray, direction: np.ndarray,
+                   limits: np.ndarray, weight: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Check K solver answers of the homogenised problem (either stage's).
 
     Parameters
@@ -362,7 +393,9 @@ def _check_answers(beta, forces, wrench, gmap, normals, mu, direction, limits, w
     return s_star, forces, ok
 
 
-def lower_bound(wrench, gmap, normals, mu, direction, limits, weight=None):
+def lower_bound(wrench: np.ndarray, gmap: np.ndarray, normals: np.ndarray, mu: np.ndarray,
+                direction: np.ndarray, limits: np.ndarray,
+                weight: np.ndarray | None = None) -> np.ndarray:
     """Lower bound on s* (unit wrench, normalised grasp) proved by a dual wrench w.
 
     For any feasible (f, beta) of the homogenised problem, 0 = w . (G f + beta W) =
@@ -419,14 +452,16 @@ def lower_bound(wrench, gmap, normals, mu, direction, limits, weight=None):
     return best
 
 
-def _dual_room(beta, excess, limits, along):
+def _dual_room(beta: np.ndarray, excess: np.ndarray, limits: np.ndarray,
+               along: np.ndarray) -> np.ndarray:
     """g(beta) of :func:`lower_bound`, shape (K,): its bound on the work, less beta (-w . W)."""
     finite = np.isfinite(limits)
     share = np.where(finite, np.minimum(1.0, beta[:, None] * np.where(finite, limits, 0.0)), 1.0)
     return (excess * share).sum(axis=1) - beta * along
 
 
-def _project_to_equilibrium(forces, gmap, direction):
+def _project_to_equilibrium(forces: np.ndarray, gmap: np.ndarray,
+                            direction: np.ndarray) -> np.ndarray:
     """The nearest forces (K, d n) with G f + W = 0 exactly (up to rounding).
 
     The correction G^T (G G^T)^-1 r of the residual r; where that leaves more than

@@ -11,13 +11,19 @@ coefficient mu. Public functions accept one grasp (arrays (n, 3)) or a batch (ar
 * 0 < mu <= ``MAX_FRICTION_COEFFICIENT`` (1e3);
 * torsional friction 0 <= gamma <= ``MAX_ABS_COORDINATE`` (a length, optional,
   broadcastable like mu; 0 is a hard contact, see :mod:`.contact_model`).
+
+Results of one grasp are those of a batch of one, unbatched (:meth:`GraspBatch.unbatch`):
+a per-grasp (N,) array becomes its element, a numpy scalar. Signatures annotate the
+batch form (``np.ndarray``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from .contact_model import torsional_all_valid, torsional_checks, torsional_or_none
 from .tolerances import MAX_ABS_COORDINATE, MAX_FRICTION_COEFFICIENT, MIN_NORMAL_COMPONENT
@@ -50,8 +56,10 @@ class GraspBatch:
     single: bool
     torsional: np.ndarray | None = None
 
-    def unbatch(self, values: np.ndarray) -> np.ndarray:
-        """Return per-grasp ``values`` (N,) as the caller expects: 0-d for one grasp."""
+    def unbatch(self, values: np.ndarray) -> Any:
+        """Per-grasp ``values`` (N, ...) as the caller expects: ``values[0]`` for one
+        grasp (a numpy scalar where ``values`` is (N,), an array otherwise), else
+        ``values``."""
         return values[0] if self.single else values
 
 
@@ -71,7 +79,8 @@ class GraspValidation:
     reasons: list[str]
 
 
-def _as_batch_arrays(positions, normals, mu):
+def _as_batch_arrays(positions: npt.ArrayLike, normals: npt.ArrayLike,
+                     mu: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
     """Coerce inputs to float arrays of shape (N, n, 3), (N, n, 3), (N, n).
 
     Raises
@@ -95,7 +104,8 @@ def _as_batch_arrays(positions, normals, mu):
     return p, nrm, _per_contact(mu, "mu", single, (n_grasps, n_contacts)), single
 
 
-def _per_contact(values, name: str, single: bool, shape: tuple) -> np.ndarray:
+def _per_contact(values: npt.ArrayLike, name: str, single: bool,
+                 shape: tuple[int, int]) -> np.ndarray:
     """A per-contact coefficient (mu, gamma) broadcast to ``shape`` (N, n).
 
     Raises
@@ -115,7 +125,7 @@ def _per_contact(values, name: str, single: bool, shape: tuple) -> np.ndarray:
             f"{shape}{hint}") from None
 
 
-def _real_array(values, name: str) -> np.ndarray:
+def _real_array(values: npt.ArrayLike, name: str) -> np.ndarray:
     """``values`` as a float64 array; refuses complex and non-numeric input by ``name``.
 
     A plain float conversion would drop imaginary parts silently.
@@ -133,8 +143,8 @@ def _largest_component(vectors: np.ndarray) -> np.ndarray:
     """max |component| of vectors (..., 3): shape (...); NaN where a component is NaN.
 
     Two elementwise maxima (exact, and propagating NaN as ``max`` does): numpy's reduction
-    over a last axis of length 3 took 44 ns per vector against 5 ns, 0.3 us per 6-finger
-    grasp in every validation and normalisation of the normals.
+    over a last axis of length 3 is several times slower, in every validation and
+    normalisation of the normals (tuned: docs/performance.md#one-grasp).
     """
     size = np.abs(vectors)
     return np.maximum(np.maximum(size[..., 0], size[..., 1]), size[..., 2])
@@ -153,10 +163,11 @@ def unit_vectors(vectors: np.ndarray) -> np.ndarray:
 
 def _first_per_grasp(bad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """For a mask (N, n): which grasps have a True, and the first such contact."""
-    return bad.any(axis=1), bad.argmax(axis=1)
+    return np.any(bad, axis=1), bad.argmax(axis=1)
 
 
-def validate_grasps(positions, normals, mu, torsional_friction=0.0) -> GraspValidation:
+def validate_grasps(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayLike,
+                    torsional_friction: npt.ArrayLike = 0.0) -> GraspValidation:
     """Check every grasp of a batch and say what is wrong with the bad ones.
 
     Parameters
@@ -180,8 +191,7 @@ def validate_grasps(positions, normals, mu, torsional_friction=0.0) -> GraspVali
         bad values are reported per grasp.
     """
     p, nrm, m, single = _as_batch_arrays(positions, normals, mu)
-    gamma = (None if _all_hard(torsional_friction) else
-             _per_contact(torsional_friction, "torsional_friction", single, m.shape))
+    gamma = _torsional(torsional_friction, single, m.shape)
     if _all_valid(p, nrm, m) and (gamma is None or torsional_all_valid(gamma)):
         # the common case, without the per-check bookkeeping
         return GraspValidation(np.ones(p.shape[0], dtype=bool), [""] * p.shape[0])
@@ -241,14 +251,19 @@ def _all_valid(p: np.ndarray, nrm: np.ndarray, m: np.ndarray) -> bool:
                     and ((m > 0) & (m <= MAX_FRICTION_COEFFICIENT)).all())
 
 
-def _all_hard(torsional_friction) -> bool:
-    """None or a plain zero: every contact hard, known without building an array (the
-    default of every entry point, so a one-grasp call pays nothing for soft contacts)."""
-    return torsional_friction is None or (
-        isinstance(torsional_friction, (int, float)) and torsional_friction == 0)
+def _torsional(torsional_friction: npt.ArrayLike | None, single: bool,
+               shape: tuple[int, int]) -> np.ndarray | None:
+    """gamma broadcast to ``shape`` (N, n), unvalidated; None for None or a plain zero:
+    every contact hard, known without building an array (the default of every entry
+    point, so a one-grasp call pays nothing for soft contacts)."""
+    if torsional_friction is None or (
+            isinstance(torsional_friction, (int, float)) and torsional_friction == 0):
+        return None
+    return _per_contact(torsional_friction, "torsional_friction", single, shape)
 
 
-def prepare_grasps(positions, normals, mu, torsional_friction=None) -> GraspBatch:
+def prepare_grasps(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayLike,
+                   torsional_friction: npt.ArrayLike | None = None) -> GraspBatch:
     """Validate input and return it as a normalised batch.
 
     ``torsional_friction`` (gamma, broadcastable to (N, n)) is optional; None or all
@@ -260,8 +275,7 @@ def prepare_grasps(positions, normals, mu, torsional_friction=None) -> GraspBatc
         On wrong shapes or any bad value, naming the first bad grasps and contacts.
     """
     p, nrm, m, single = _as_batch_arrays(positions, normals, mu)
-    gamma = (None if _all_hard(torsional_friction) else
-             _per_contact(torsional_friction, "torsional_friction", single, m.shape))
+    gamma = _torsional(torsional_friction, single, m.shape)
     good = _all_valid(p, nrm, m) and (gamma is None or torsional_all_valid(gamma))
     validation = None if good else _validate(p, nrm, m, gamma)
     if validation is not None and not validation.valid.all():

@@ -50,9 +50,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from .certificates import grasp_maps, normalise_positions
-from .contact_model import HARD, SOFT, model_of, torsion_scales, wrench_columns
+from .contact_model import HARD, SOFT, ContactModel, model_of, torsion_scales, wrench_columns
 from .grasp_input import GraspBatch, prepare_grasps
 from .interior_point import CONVERGED, solve_fast
 from .stacked_socp import SOLVE_BATCH, BlockShape, solve_stacked, split_normal, tangent_bases
@@ -67,7 +68,8 @@ ABS_TOL = 1e-9
 #: the largest friction coefficient the core accepts (MAX_FRICTION_COEFFICIENT, 1e3; no
 #: physical contact comes near it), so that inf means exactly "not force closure at any
 #: friction check_force_closure can be asked about" (with ratios 1), and the search never
-#: solves at frictions the solvers are not measured at (Clarabel fails from ~3e4).
+#: solves at frictions beyond those the solvers are known to handle (see
+#: MAX_FRICTION_COEFFICIENT).
 MU_CAP = MAX_FRICTION_COEFFICIENT
 
 #: First friction tried when no closed-form upper bound is at hand, and the factor by
@@ -75,14 +77,15 @@ MU_CAP = MAX_FRICTION_COEFFICIENT
 MU_START = 10.0
 ESCALATE = 100.0
 
-#: SOCP solves allowed per grasp. Measured: mean 5-8, at most ~20 on random grasps; the
-#: limit only ends a grasp whose certificates stall (it is then reported NaN, not guessed).
+#: SOCP solves allowed per grasp, well above what random grasps need
+#: (docs/performance.md#minimum-friction): the limit only ends a grasp whose certificates
+#: stall (it is then reported NaN, not guessed).
 MAX_SOLVES = 40
 
 #: A grasp whose solves improved neither bound this many times in a row (each after the
 #: first alone, at a new lam) is given up: reported NaN with its certified bounds. Seen
-#: on ~0.1% of 4-finger box grasps (a lone side contact that only friction balances),
-#: where Clarabel cannot resolve the margin (~1e-9) near mu* to the needed accuracy.
+#: on rare 4-finger box grasps (a lone side contact that only friction balances), where
+#: Clarabel cannot resolve the margin (~1e-9) near mu* to the needed accuracy.
 MAX_STALLS = 3
 
 #: Relative rounding slack of the lower certificate: the work a = G^T w is computed to
@@ -124,11 +127,11 @@ FAST_GAP = SOLVER_TOL
 
 #: A fast solve that broke down before FAST_GAP is used all the same where its dual
 #: objective and certified witness depth are this close (relative to 1/sigma). Near
-#: mu* the kernel breaks down at gaps of 1e-9 to 1e-7 on ~4% of the solves (6-finger
-#: box grasps); their certificates are checked like any other, the search only steps
-#: from a slightly rougher margin, and a solve that then improves neither bound is redone
-#: by Clarabel alone. Measured: 1e-9 sent ~540 of ~14,600 solves to Clarabel, 1e-6 sent
-#: 8, with the same solves per grasp (7.3) and 1.25x the throughput.
+#: mu* the kernel breaks down on some solves at gaps of up to ~1e-7; their certificates
+#: are checked like any other, the search only steps from a slightly rougher margin, and
+#: a solve that then improves neither bound is redone by Clarabel alone. Far fewer solves
+#: go to Clarabel than with a tighter value, for the same solves per grasp (tuned:
+#: docs/performance.md#minimum-friction).
 FAST_ACCEPT = 1e-6
 
 #: Bisection steps for the largest L a wrench certifies: 2^-32 (~2e-10) of the bracket,
@@ -138,7 +141,7 @@ LOWER_BISECTIONS = 32
 
 @dataclass(frozen=True)
 class MinimumFriction:
-    """Certified bounds on mu* for N grasps (0-d arrays for one grasp).
+    """Certified bounds on mu* for N grasps, (N,) arrays (numpy scalars for one grasp).
 
     Attributes
     ----------
@@ -161,8 +164,9 @@ class MinimumFriction:
     solves: np.ndarray
 
 
-def minimum_friction(positions, normals, ratios=1.0, margin=0.0,
-                     torsional_friction=0.0) -> np.ndarray:
+def minimum_friction(positions: npt.ArrayLike, normals: npt.ArrayLike,
+                     ratios: npt.ArrayLike = 1.0, margin: float = 0.0,
+                     torsional_friction: npt.ArrayLike | None = 0.0) -> np.ndarray:
     """The least friction coefficient at which a grasp is force closure.
 
     Parameters
@@ -188,9 +192,8 @@ def minimum_friction(positions, normals, ratios=1.0, margin=0.0,
         force closure (margin above ``margin``) for every mu > mu*, and for no
         mu < mu* (margin at most max(margin, CERT_MARGIN)). 0: force closure for every
         positive friction; inf: for none up to MU_CAP; NaN: not certified to the
-        tolerance (given up after MAX_STALLS fruitless solves, or MAX_SOLVES; ~0.1% of
-        4-finger box grasps, none in the tests; :func:`minimum_friction_bounds` still
-        gives valid bounds).
+        tolerance (given up after MAX_STALLS fruitless solves, or MAX_SOLVES; rare,
+        none in the tests; :func:`minimum_friction_bounds` still gives valid bounds).
 
     Raises
     ------
@@ -201,8 +204,9 @@ def minimum_friction(positions, normals, ratios=1.0, margin=0.0,
                                    torsional_friction).value
 
 
-def minimum_friction_bounds(positions, normals, ratios=1.0, margin=0.0,
-                            torsional_friction=0.0) -> MinimumFriction:
+def minimum_friction_bounds(positions: npt.ArrayLike, normals: npt.ArrayLike,
+                            ratios: npt.ArrayLike = 1.0, margin: float = 0.0,
+                            torsional_friction: npt.ArrayLike | None = 0.0) -> MinimumFriction:
     """:func:`minimum_friction` with its certified bounds and solve counts."""
     if not 0.0 <= margin < 1.0:
         raise ValueError(f"margin must be in [0, 1), got {margin}")
@@ -220,7 +224,8 @@ def minimum_friction_bounds(positions, normals, ratios=1.0, margin=0.0,
     return MinimumFriction(*(grasps.unbatch(a) for a in (value, lower, upper, solves)))
 
 
-def solve_minimum_friction(grasps: GraspBatch, margin: float = 0.0):
+def solve_minimum_friction(grasps: GraspBatch, margin: float = 0.0
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Certified bounds on mu* for every grasp of a validated batch (``mu`` = ratios).
 
     ``margin``: see :func:`minimum_friction`.
@@ -233,9 +238,9 @@ def solve_minimum_friction(grasps: GraspBatch, margin: float = 0.0):
     n_grasps = grasps.mu.shape[0]
     model = model_of(grasps.torsional)
     unit, _, size = normalise_positions(grasps.positions)
-    torsional_unit = None if model is HARD else grasps.torsional / size[:, None]
+    torsional_unit = None if grasps.torsional is None else grasps.torsional / size[:, None]
     gmap = wrench_columns(grasp_maps(unit), grasps.normals, torsional_unit)   # (N, 6, d n)
-    weight = None if model is HARD else torsion_scales(torsional_unit)[1]
+    weight = None if torsional_unit is None else torsion_scales(torsional_unit)[1]
     singular = np.linalg.svd(gmap, compute_uv=False)
     full_rank = singular[:, -1] > RANK_TOL * singular[:, 0]
     state = _RootState.start(n_grasps, full_rank)
@@ -266,7 +271,8 @@ def solve_minimum_friction(grasps: GraspBatch, margin: float = 0.0):
     return state.lower, state.upper, state.solves
 
 
-def _step(chunk, state, gmap, grasps, margin, weight=None):
+def _step(chunk: np.ndarray, state: _RootState, gmap: np.ndarray, grasps: GraspBatch,
+          margin: float, weight: np.ndarray | None = None) -> None:
     """One stacked solve for the grasps ``chunk``: certificates, then the next lam.
 
     ``weight`` (N, n): soft batches' cone weights of rho (:mod:`.contact_model`)."""
@@ -280,19 +286,20 @@ def _step(chunk, state, gmap, grasps, margin, weight=None):
     state.update(chunk, lam, depth - margin, slope, lower, upper)
 
 
-def _generalised(vectors, model):
+def _generalised(vectors: np.ndarray, model: ContactModel) -> np.ndarray:
     """Per-contact 3-vectors (K, n, 3) as generalised forces (K, n, d): rho = 0."""
     if model is HARD:
         return vectors
     return np.concatenate([vectors, np.zeros(vectors.shape[:2] + (1,))], axis=2)
 
 
-def _components(gmap, normals):
+def _components(gmap: np.ndarray, normals: np.ndarray) -> int:
     """Generalised components per contact of a (generalised) grasp map: 3 or 4."""
     return gmap.shape[2] // normals.shape[1]
 
 
-def _step_fast(chunk, state, unit, gmap, grasps, margin):
+def _step_fast(chunk: np.ndarray, state: _RootState, unit: np.ndarray, gmap: np.ndarray,
+               grasps: GraspBatch, margin: float) -> np.ndarray:
     """One fast-stage solve for the grasps ``chunk`` (as :func:`_step`); returns those
     (a subset of ``chunk``) it did not solve accurately enough, for Clarabel, their
     state untouched."""
@@ -320,7 +327,9 @@ def _step_fast(chunk, state, unit, gmap, grasps, margin):
     return slow
 
 
-def _fast_slope_and_gap(forces, wrench, gmap, normals, friction, ratios, depth):
+def _fast_slope_and_gap(forces: np.ndarray, wrench: np.ndarray, gmap: np.ndarray,
+                        normals: np.ndarray, friction: np.ndarray, ratios: np.ndarray,
+                        depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """dt/dlam (K,) at the fast stage's optimum, by the envelope theorem, and the gap
     (K,) between the wrench's dual objective and the witness depth, times sigma.
 
@@ -339,7 +348,8 @@ def _fast_slope_and_gap(forces, wrench, gmap, normals, friction, ratios, depth):
     return slope, 1.0 + d_w[:, 0] - sigma[:, 0] * depth
 
 
-def _lifts_off(gmap, normals, ratios, full_rank, weight=None):
+def _lifts_off(gmap: np.ndarray, normals: np.ndarray, ratios: np.ndarray,
+               full_rank: np.ndarray, weight: np.ndarray | None = None) -> np.ndarray:
     """Grasps (N,) certified not force closure up to MU_CAP without a solve.
 
     Where the normals' work is a combination of the rows of G (G^T w = the normals: the
@@ -359,7 +369,7 @@ def _lifts_off(gmap, normals, ratios, full_rank, weight=None):
                         >= MU_CAP)
 
 
-def _resolved(lower, upper):
+def _resolved(lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
     """Where the bounds (same shape) are tight enough, or certify no friction up to MU_CAP."""
     with np.errstate(invalid="ignore"):
         close = upper - lower <= np.maximum(REL_TOL * upper, ABS_TOL)
@@ -392,7 +402,8 @@ class _RootState:
     stalls: np.ndarray        # (N,) int: solves in a row that improved neither
 
     @classmethod
-    def start(cls, n_grasps, full_rank):
+    def start(cls, n_grasps: int, full_rank: np.ndarray) -> _RootState:
+        """The state before any solve: L = 0 (inf where G has rank < 6), U = inf."""
         none = np.full((n_grasps, 2), np.nan)
         return cls(lower=np.where(full_rank, 0.0, np.inf), upper=np.full(n_grasps, np.inf),
                    lam=np.full(n_grasps, MU_START), solves=np.zeros(n_grasps, dtype=np.int64),
@@ -400,7 +411,8 @@ class _RootState:
                    stalled=np.zeros(n_grasps, dtype=bool),
                    stalls=np.zeros(n_grasps, dtype=np.int64))
 
-    def update(self, chunk, lam, margin, slope, lower, upper):
+    def update(self, chunk: np.ndarray, lam: np.ndarray, margin: np.ndarray,
+               slope: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> None:
         """Take one solve's certificates and margins; choose the next lam of each grasp."""
         self.solves[chunk] += 1
         stalled = (lower <= self.lower[chunk]) & (upper >= self.upper[chunk])
@@ -416,7 +428,7 @@ class _RootState:
         self.latest[chunk] = np.stack([lam, quotient], axis=1)
         self.lam[chunk] = self._next(chunk)
 
-    def _next(self, chunk):
+    def _next(self, chunk: np.ndarray) -> np.ndarray:
         """The next lam (len(chunk),) of each grasp, by the rules of the class docstring."""
         lower, upper = self.lower[chunk], self.upper[chunk]
         (lam1, q1), (lam0, q0) = self.latest[chunk].T, self.previous[chunk].T
@@ -459,7 +471,9 @@ def _block_shape(n_contacts: int, d: int = 3) -> BlockShape:
     return BlockShape(pattern, zero_rows=7, nonneg_rows=0, soc_sizes=(d,) * n_contacts)
 
 
-def _solve_chunk(gmap, normals, ratios, lam, weight=None):
+def _solve_chunk(gmap: np.ndarray, normals: np.ndarray, ratios: np.ndarray, lam: np.ndarray,
+                 weight: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The signed-margin SOCP at friction lam * ratios for each grasp of a chunk (K).
 
         maximise t  s.t.  G f = 0,  sum_i f_n,i = 1,  (lam r_i f_n,i - t, f_t,i) in Q^3
@@ -493,7 +507,7 @@ def _solve_chunk(gmap, normals, ratios, lam, weight=None):
                      axis=2)                                           # (K, n, 3, 3)
     for i in range(n_contacts):
         a[:, 7 + d * i:10 + d * i, d * i:d * i + 3] = cone[:, i]
-        if d == 4:
+        if weight is not None:                           # soft: d = 4
             a[:, 10 + d * i, d * i + 3] = -(lam / scale) * ratios[:, i] * weight[:, i]
         a[:, 7 + d * i, -1] = 1.0
     b = np.zeros((n_grasps, shape.pattern.shape[0]))
@@ -520,7 +534,9 @@ def _solve_chunk(gmap, normals, ratios, lam, weight=None):
     return x[:, :-1], z[:, :6], x[:, -1] * scale, slope
 
 
-def upper_certificate(forces, gmap, normals, ratios, margin=0.0, cone_weight=None):
+def upper_certificate(forces: np.ndarray, gmap: np.ndarray, normals: np.ndarray,
+                      ratios: np.ndarray, margin: float = 0.0,
+                      cone_weight: np.ndarray | None = None) -> np.ndarray:
     """The friction above which the given forces prove force closure with ``margin``.
 
     The forces are moved onto null(G) by a weighted least-norm correction that loads it
@@ -598,7 +614,8 @@ def upper_certificate(forces, gmap, normals, ratios, margin=0.0, cone_weight=Non
         return np.where(valid, ratio.max(axis=1), np.inf)
 
 
-def margin_bound(mu, work_normal, work_tangential, ratios, work_twist=None):
+def margin_bound(mu: np.ndarray, work_normal: np.ndarray, work_tangential: np.ndarray,
+                 ratios: np.ndarray, work_twist: np.ndarray | None = None) -> np.ndarray:
     """Upper bound on the exact test's margin t*(mu) proved by one wrench.
 
     If a wrench w does work a_i = B_i w on unit forces at contact i, with
@@ -634,7 +651,9 @@ def margin_bound(mu, work_normal, work_tangential, ratios, work_twist=None):
     return np.where(total > 0, bound, np.inf)
 
 
-def lower_certificate(wrench, gmap, normals, ratios, ceiling, margin=0.0, weight=None):
+def lower_certificate(wrench: np.ndarray, gmap: np.ndarray, normals: np.ndarray,
+                      ratios: np.ndarray, ceiling: np.ndarray, margin: float = 0.0,
+                      weight: np.ndarray | None = None) -> np.ndarray:
     """The largest friction at which a wrench proves the margin at most ``margin``.
 
     Parameters

@@ -1,12 +1,15 @@
 """The fast path of :func:`.pipeline.check_force_closure` for one grasp (numba).
 
-A call with one grasp spent ~0.1-0.2 ms in numpy overhead (validation, normalisation,
-batching, dispatch) around a ~10 us exact test. Here one compiled call validates the
-grasp, normalises it with the same floating-point operations as
+Through the general path, a call with one grasp spends many times longer in numpy
+overhead (validation, normalisation, batching, dispatch) than in its filter and exact
+test (docs/performance.md#one-grasp). Here one compiled call validates the grasp,
+normalises it with the same floating-point operations as
 :func:`.grasp_input.unit_vectors` and :func:`.certificates.normalise_positions` (so the
-fast stage sees bit-identical input and the verdict cannot depend on the path), and runs
-the fast exact stage. Anything it does not settle (invalid input, whose error message the
-general path words; a grasp the fast stage leaves undecided) returns to the general path.
+fast stage sees bit-identical input and the verdict cannot depend on the path), runs the
+torque filter where the batched pipeline would (:mod:`.one_grasp_filter`), and the fast
+exact stage on what passes. Anything it does not settle (invalid input, whose error
+message the general path words; a grasp the fast stage leaves undecided) returns to the
+general path.
 """
 
 from __future__ import annotations
@@ -14,35 +17,59 @@ from __future__ import annotations
 import numpy as np
 
 from . import force_interior_point, interior_point, positive_span
-from .interior_point import _jit
+from ._kernels.jit import jit
+from .interior_point import UNDECIDED, solve_one
+from .one_grasp_filter import passes_filter
 from .tolerances import MAX_ABS_COORDINATE, MAX_FRICTION_COEFFICIENT, MIN_NORMAL_COMPONENT
 
 #: Largest contact count the fast path takes: a one-grasp query of more contacts is
 #: dominated by the exact test itself, not by the overhead this path saves.
 MAX_FAST_CONTACTS = 64
 
+#: Codes of :func:`decide_one` beyond the exact stage's (FORCE_CLOSURE,
+#: NOT_FORCE_CLOSURE): rejected by the filter; or for the general path (invalid input,
+#: or undecided by the fast stage).
+FILTERED_OUT, GENERAL_PATH = 4, 5
 
-def _prepare_one(positions, normals, mu, unit, directions, friction):
+#: ``filter_origins`` of :func:`decide_one`: no filter, the seed's origins, every contact.
+NO_FILTER, SEED_ORIGINS, ALL_ORIGINS = 0, 1, 2
+
+
+@jit
+def _prepare_one(positions: np.ndarray, normals: np.ndarray, mu: float, unit: np.ndarray,
+                 directions: np.ndarray, friction: np.ndarray) -> bool:
     """Validate one grasp (n, 3), (n, 3), scalar mu like :func:`.grasp_input._all_valid`
     and normalise it into ``unit``, ``directions`` (n, 3) and ``friction`` (n,).
     False (outputs undefined) where the input is not valid."""
+    peak = _validate_one(positions, normals, mu, directions, friction)
+    if not peak >= 0.0:
+        return False
+    _normalise_positions(positions, peak, unit)
+    return True
+
+
+@jit
+def _validate_one(positions: np.ndarray, normals: np.ndarray, mu: float,
+                  directions: np.ndarray, friction: np.ndarray) -> float:
+    """The validation and normal directions of :func:`_prepare_one`: the largest
+    |coordinate|, or -1 (outputs undefined) where the input is not valid."""
     n = positions.shape[0]
     if not (mu > 0.0 and mu <= MAX_FRICTION_COEFFICIENT):
-        return False
+        return -1.0
     peak = 0.0
     for i in range(n):
         largest = 0.0
         for k in range(3):
             coordinate = abs(positions[i, k])
             if not coordinate <= MAX_ABS_COORDINATE:
-                return False
+                return -1.0
             peak = max(peak, coordinate)
             component = normals[i, k]
             if not np.isfinite(component):
-                return False
+                return -1.0
             largest = max(largest, abs(component))
         if not largest >= MIN_NORMAL_COMPONENT:
-            return False
+            return -1.0
         # unit_vectors: divide by the largest |component|, then by the length.
         square = 0.0
         for k in range(3):
@@ -52,7 +79,15 @@ def _prepare_one(positions, normals, mu, unit, directions, friction):
         for k in range(3):
             directions[i, k] = directions[i, k] / length
         friction[i] = mu
-    # normalise_positions: scale by the peak, centre at the mean, scale to unit size.
+    return peak
+
+
+@jit
+def _normalise_positions(positions: np.ndarray, peak: float, unit: np.ndarray) -> None:
+    """:func:`.certificates.normalise_positions` of one grasp (n, 3) into ``unit``, given
+    its largest |coordinate| ``peak``: scale by the peak, centre at the mean, scale to
+    unit size."""
+    n = positions.shape[0]
     if not peak > 0.0:
         peak = 1.0
     size = 0.0
@@ -69,39 +104,72 @@ def _prepare_one(positions, normals, mu, unit, directions, friction):
     for i in range(n):
         for k in range(3):
             unit[i, k] = unit[i, k] / size
-    return True
 
 
-_prepare_one = _jit(_prepare_one)
-
-
-def check_one(positions, normals, mu: float, want_optimum: bool):
-    """Decide one valid grasp on the fast stage, or say it must take the general path.
+@jit
+def decide_one(positions: np.ndarray, normals: np.ndarray, mu: float, filter_origins: int,
+               want_optimum: bool) -> tuple[int, float, float]:
+    """Validate, normalise, filter and decide one grasp.
 
     Parameters
     ----------
     positions, normals : ndarray of float64, shape (n, 3), C-contiguous and writable
-        (:func:`~.interior_point.kernel_array`)
+        (:func:`~._kernels.jit.kernel_array`); the filter takes at most
+        :data:`.one_grasp_filter.MAX_FILTER_CONTACTS` contacts.
     mu : float
+    filter_origins : int
+        NO_FILTER, SEED_ORIGINS or ALL_ORIGINS.
     want_optimum : bool
         As ``margin="optimum"``.
 
     Returns
     -------
-    tuple (force_closure, t_lo, t_hi) or None
-        None where the input is not valid or the fast stage did not decide the grasp.
+    (int, float, float)
+        code and the certified bounds t_lo, t_hi on t*: FORCE_CLOSURE or
+        NOT_FORCE_CLOSURE (:mod:`.interior_point`), FILTERED_OUT (bounds NaN), or
+        GENERAL_PATH (invalid input, or undecided by the fast stage; bounds NaN).
     """
     n = positions.shape[0]
-    unit, directions, friction = np.empty((1, n, 3)), np.empty((1, n, 3)), np.empty((1, n))
-    if not _prepare_one(positions, normals, mu, unit[0], directions[0], friction[0]):
-        return None
-    # A second compiled call rather than one kernel calling the other: numba would
-    # compile the whole exact stage again into that kernel (~40 s cold).
-    codes, t_lo, t_hi, _, _, _ = interior_point._solve_all(unit, directions, friction,
-                                                           want_optimum, False, 0.0, 0.0)
-    if codes[0] == interior_point.UNDECIDED:
-        return None
-    return codes[0] == interior_point.FORCE_CLOSURE, t_lo[0], t_hi[0]
+    # One allocation (a noticeable part of a call on few contacts): unit, directions,
+    # friction and, for the filter, sin(atan(mu)).
+    scratch = np.empty(8 * n)
+    unit, directions = scratch[:3 * n].reshape((n, 3)), scratch[3 * n:6 * n].reshape((n, 3))
+    friction, sin_half_angle = scratch[6 * n:7 * n], scratch[7 * n:]
+    peak = _validate_one(positions, normals, mu, directions, friction)
+    if not peak >= 0.0:
+        return GENERAL_PATH, np.nan, np.nan
+    if filter_origins != NO_FILTER:
+        # friction_half_angle_sine, per contact as the batched filter computes it.
+        for i in range(n):
+            sin_half_angle[i] = friction[i] / np.sqrt(1.0 + friction[i] * friction[i])
+        if not passes_filter(positions, directions, sin_half_angle,
+                             filter_origins == ALL_ORIGINS):
+            return FILTERED_OUT, np.nan, np.nan
+    _normalise_positions(positions, peak, unit)
+    code, t_lo, t_hi = solve_one(unit, directions, friction, want_optimum)
+    if code == UNDECIDED:
+        return GENERAL_PATH, np.nan, np.nan
+    return code, t_lo, t_hi
+
+
+def check_one(positions: np.ndarray, normals: np.ndarray, mu: float,
+              want_optimum: bool) -> tuple[int, float, float] | None:
+    """Decide one valid grasp on the fast stage (no filter), or say it must take the
+    general path.
+
+    Parameters
+    ----------
+    positions, normals, mu, want_optimum
+        As :func:`decide_one`.
+
+    Returns
+    -------
+    tuple (code, t_lo, t_hi) or None
+        As :func:`decide_one` (FORCE_CLOSURE or NOT_FORCE_CLOSURE); None for its
+        GENERAL_PATH.
+    """
+    decided = decide_one(positions, normals, mu, NO_FILTER, want_optimum)
+    return None if decided[0] == GENERAL_PATH else decided
 
 
 def warm_up() -> None:
@@ -113,4 +181,5 @@ def warm_up() -> None:
     force_interior_point.warm_up()
     corners = np.array([[1.0, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]])
     for optimum in (False, True):
-        check_one(corners, -corners, 0.5, optimum)
+        for origins in (NO_FILTER, SEED_ORIGINS, ALL_ORIGINS):
+            decide_one(corners, -corners, 0.5, origins, optimum)

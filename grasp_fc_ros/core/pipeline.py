@@ -8,8 +8,9 @@ equilibrating internal force can be (mu f_n - |f_t|, normal forces summing to on
 for a grasp map of rank < 6). Both ends reported are certified:
 ``margin <= t* <= margin_upper``. ``margin="optimum"`` (default) narrows the interval to
 MARGIN_ACCURACY (1e-8) where the fast stage decides (Clarabel's ~1e-8 accuracy on its
-fallback grasps); ``margin="bound"`` stops at the verdict, which is about twice as
-fast, and reports whatever interval was certified by then (often wide).
+fallback grasps); ``margin="bound"`` stops at the verdict, which is faster
+(docs/performance.md#exact-stage), and reports whatever interval was certified by then
+(often wide).
 
 Soft contacts
 -------------
@@ -26,13 +27,29 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 
 import numpy as np
+import numpy.typing as npt
 
-from .certificates import normalise_positions, to_caller_wrench, verify_certificates
-from .exact_test import MARGIN_CHOICES, solve_exact
+from ._kernels.jit import kernel_array
+from .certificates import normalise_positions, to_caller_wrench, verify_batch
+from .exact_test import MARGIN_CHOICES, ExactResult, solve_exact
 from .grasp_input import MIN_CONTACTS, GraspBatch, prepare_grasps
-from .interior_point import kernel_array
-from .one_grasp import MAX_FAST_CONTACTS, check_one
-from .torque_space_filter import passes_torque_filter, resolve_use_filter
+from .interior_point import FORCE_CLOSURE, NOT_FORCE_CLOSURE
+from .one_grasp import (
+    ALL_ORIGINS,
+    FILTERED_OUT,
+    GENERAL_PATH,
+    MAX_FAST_CONTACTS,
+    SEED_ORIGINS,
+    check_one,
+    decide_one,
+)
+from .one_grasp_filter import MAX_FILTER_CONTACTS
+from .torque_space_filter import (
+    FILTER_PAYS_UP_TO_CONTACTS,
+    ORIGIN_CHOICES,
+    passes_torque_filter,
+    resolve_use_filter,
+)
 
 
 class Status(IntEnum):
@@ -45,16 +62,29 @@ class Status(IntEnum):
     SOLVER_FAILURE = 4     #: the solver could not decide, even after a retry
 
 
-# Plain integers for the per-call path: each IntEnum attribute lookup costs a few
-# microseconds, a measurable part of a one-grasp call.
+# Plain integers for the per-call path: an IntEnum attribute lookup is a noticeable part
+# of a one-grasp call (docs/performance.md#one-grasp).
 _FORCE_CLOSURE, _NOT_FORCE_CLOSURE, _FILTERED_OUT, _SOLVER_FAILURE = (
     int(Status.FORCE_CLOSURE), int(Status.NOT_FORCE_CLOSURE), int(Status.FILTERED_OUT),
     int(Status.SOLVER_FAILURE))
 
+#: The one-grasp path's status scalars (numpy scalars are immutable: shared), by the
+#: code of :mod:`.one_grasp`; and its NaN margin.
+_STATUS = {FORCE_CLOSURE: np.uint8(_FORCE_CLOSURE), NOT_FORCE_CLOSURE: np.uint8(_NOT_FORCE_CLOSURE),
+           FILTERED_OUT: np.uint8(_FILTERED_OUT)}
+_NAN = np.float64(np.nan)
+_FLOAT64 = np.dtype(np.float64)
+_FLOATS, _INTEGERS = (float, np.floating), (int, np.integer)
+# The one-grasp path's names, bound once: each global and attribute lookup is a
+# noticeable part of its call (docs/performance.md#one-grasp).
+_NDARRAY, _FLOAT, _TRUE, _FALSE = np.ndarray, np.float64, np.True_, np.False_
+_clock = time.perf_counter
+
 
 @dataclass(frozen=True)
 class ForceClosureResult:
-    """Verdicts of :func:`check_force_closure`: 0-d arrays for one grasp, (N,) for a batch.
+    """Verdicts of :func:`check_force_closure`: (N,) arrays for a batch, their elements
+    (numpy scalars) for one grasp (annotated in the batch form, see :mod:`.grasp_input`).
 
     Attributes
     ----------
@@ -99,18 +129,40 @@ class ForceClosureResult:
     filtered_out: np.ndarray
     margin: np.ndarray
     status: np.ndarray
-    timing: dict = field(default_factory=dict)
+    timing: dict[str, float] = field(default_factory=dict)
     margin_upper: np.ndarray | None = None
     contact_forces: np.ndarray | None = None
     separating_wrench: np.ndarray | None = None
     marginal: np.ndarray | None = None
     contact_torques: np.ndarray | None = None
 
+    @classmethod
+    def of_one(cls, force_closure: np.generic, filtered_out: np.generic, margin: np.generic,
+               status: np.generic, margin_upper: np.generic,
+               timing: dict[str, float]) -> ForceClosureResult:
+        """The result of one grasp without certificates, from the numpy scalars a batch
+        of one unbatches to (:meth:`.grasp_input.GraspBatch.unbatch`).
 
-def check_force_closure(positions, normals, mu, use_filter: bool | str = "auto",
-                        origins: str = "seed", margin: str = "optimum",
-                        certificates: bool = False,
-                        torsional_friction=0.0) -> ForceClosureResult:
+        Its fields are set in one step: the frozen ``__init__`` sets each of the ten
+        through ``object.__setattr__``, a large part of a one-grasp call
+        (docs/performance.md#one-grasp).
+        """
+        result = object.__new__(cls)
+        object.__setattr__(result, "__dict__", {
+            "force_closure": force_closure, "filtered_out": filtered_out, "margin": margin,
+            "status": status, "timing": timing, "margin_upper": margin_upper,
+            "contact_forces": None, "separating_wrench": None, "marginal": None,
+            "contact_torques": None})
+        return result
+
+
+_of_one = ForceClosureResult.of_one
+
+
+def check_force_closure(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayLike,
+                        use_filter: bool | str = "auto", origins: str = "seed",
+                        margin: str = "optimum", certificates: bool = False,
+                        torsional_friction: npt.ArrayLike | None = 0.0) -> ForceClosureResult:
     """Decide force closure of one grasp or a batch: the filter, then the exact test.
 
     Parameters
@@ -145,6 +197,13 @@ def check_force_closure(positions, normals, mu, use_filter: bool | str = "auto",
     ------
     ValueError
         On bad input, naming the grasp and contact.
+
+    Notes
+    -----
+    One grasp of float64 arrays (n, 3) with a scalar ``mu``, hard contacts and no
+    certificates is decided by one compiled call (:mod:`.one_grasp`), the filter
+    included where it is to run: the results a batch gives that grasp, without numpy's
+    per-call overhead (docs/performance.md#one-grasp).
     """
     hard = torsional_friction is None or (type(torsional_friction) in (int, float)
                                           and torsional_friction == 0)
@@ -156,32 +215,63 @@ def check_force_closure(positions, normals, mu, use_filter: bool | str = "auto",
                         origins, margin, certificates)
 
 
-def _one_grasp(positions, normals, mu, use_filter, origins, margin):
+def _one_grasp(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayLike,
+               use_filter: bool | str, origins: str, margin: str) -> ForceClosureResult | None:
     """The result for one grasp of float64 arrays (n, 3) and a scalar mu, decided on the
-    fast path of :mod:`.one_grasp` where the filter is not to run; else None."""
-    if not (type(positions) is np.ndarray and type(normals) is np.ndarray
-            and (isinstance(mu, (float, np.floating))
+    compiled path of :mod:`.one_grasp` (the filter too, where it is to run and that path
+    takes it); else None.
+
+    ``timing`` puts the compiled call's time under "filter_s" for a grasp the filter
+    rejects, under "exact_s" otherwise (the filter's part of it is not measured apart).
+    Every step here is on the per-call budget (docs/performance.md#one-grasp).
+    """
+    if not (type(positions) is _NDARRAY and type(normals) is _NDARRAY
+            and (isinstance(mu, _FLOATS)
                  # (a huge int would make float() raise: the general path words it)
-                 or (isinstance(mu, (int, np.integer)) and abs(mu) <= 2 ** 53))
-            and positions.dtype == np.float64 and normals.dtype == np.float64
-            and positions.ndim == 2 and positions.shape == normals.shape
-            and positions.shape[1] == 3
-            and MIN_CONTACTS <= positions.shape[0] <= MAX_FAST_CONTACTS
-            and margin in MARGIN_CHOICES
-            and not resolve_use_filter(use_filter, positions.shape[0], origins)):
+                 or (isinstance(mu, _INTEGERS) and abs(int(mu)) <= 2 ** 53))
+            # (native float64 arrays share this dtype object; others take the general path)
+            and positions.dtype is _FLOAT64 and normals.dtype is _FLOAT64
+            and margin in MARGIN_CHOICES):
         return None
-    start = time.perf_counter()
-    decided = check_one(kernel_array(positions), kernel_array(normals), float(mu),
-                        margin == "optimum")
-    if decided is None:
+    shape = positions.shape
+    if not (len(shape) == 2 and shape[1] == 3 and normals.shape == shape
+            and MIN_CONTACTS <= shape[0] <= MAX_FAST_CONTACTS):
         return None
-    force_closure, t_lo, t_hi = decided
-    return ForceClosureResult(
-        force_closure=np.bool_(force_closure), filtered_out=np.False_,
-        margin=np.float64(max(t_lo, 0.0)),
-        status=np.uint8(_FORCE_CLOSURE if force_closure else _NOT_FORCE_CLOSURE),
-        timing={"filter_s": 0.0, "exact_s": time.perf_counter() - start},
-        margin_upper=np.float64(t_hi))
+    if use_filter == "auto":           # resolve_use_filter's answer, without its checks
+        limit = FILTER_PAYS_UP_TO_CONTACTS.get(origins)
+        if limit is None:                  # an unknown origins: the general path says so
+            return None
+        filtered = shape[0] <= limit
+    else:
+        filtered = resolve_use_filter(use_filter, shape[0], origins)
+    if filtered and (shape[0] > MAX_FILTER_CONTACTS or origins not in ORIGIN_CHOICES):
+        return None
+    flags = positions.flags
+    if not (flags.c_contiguous and flags.writeable):
+        positions = kernel_array(positions)
+    flags = normals.flags
+    if not (flags.c_contiguous and flags.writeable):
+        normals = kernel_array(normals)
+    start = _clock()
+    if filtered:
+        decided = decide_one(positions, normals, float(mu),
+                             ALL_ORIGINS if origins == "all" else SEED_ORIGINS,
+                             margin == "optimum")
+        if decided[0] == GENERAL_PATH:
+            return None
+    else:
+        found = check_one(positions, normals, float(mu), margin == "optimum")
+        if found is None:
+            return None
+        decided = found
+    elapsed = _clock() - start
+    code, t_lo, t_hi = decided
+    if code == FILTERED_OUT:
+        return _of_one(_FALSE, _TRUE, _NAN, _STATUS[code], _NAN,
+                       {"filter_s": elapsed, "exact_s": 0.0})
+    return _of_one(_TRUE if code == FORCE_CLOSURE else _FALSE, _FALSE,
+                   _FLOAT(t_lo if t_lo > 0.0 else 0.0), _STATUS[code], _FLOAT(t_hi),
+                   {"filter_s": 0.0, "exact_s": elapsed})
 
 
 def run_pipeline(grasps: GraspBatch, use_filter: bool | str = True, origins: str = "seed",
@@ -231,8 +321,8 @@ def _subset(grasps: GraspBatch, indices: np.ndarray) -> GraspBatch:
                       single=False, torsional=torsional)
 
 
-def _certificates(grasps: GraspBatch, survivors: np.ndarray, exact,
-                  filter_wrench: np.ndarray | None, status: np.ndarray) -> dict:
+def _certificates(grasps: GraspBatch, survivors: np.ndarray, exact: ExactResult,
+                  filter_wrench: np.ndarray | None, status: np.ndarray) -> dict[str, np.ndarray]:
     """Contact forces, separating wrenches and marginal flags, each verified in the
     caller's frame (a certificate that fails its check is replaced by NaN).
 
@@ -252,8 +342,8 @@ def _certificates(grasps: GraspBatch, survivors: np.ndarray, exact,
     if grasps.torsional is not None:
         torques = np.full((n_grasps, n_contacts), np.nan)
         torques[survivors] = exact.torques
-    forces_ok, wrench_ok = verify_certificates(grasps.positions, grasps.normals, grasps.mu,
-                                               forces, wrench, grasps.torsional, torques)
+    forces_ok, wrench_ok = verify_batch(grasps.positions, grasps.normals, grasps.mu, forces,
+                                        wrench, grasps.torsional, torques)
     forces[~forces_ok] = np.nan
     wrench[~wrench_ok] = np.nan
     extra = {"contact_forces": forces, "separating_wrench": wrench,
@@ -264,8 +354,13 @@ def _certificates(grasps: GraspBatch, survivors: np.ndarray, exact,
     return extra
 
 
-def exact_force_closure(positions, normals, mu, torsional_friction=0.0) -> np.ndarray:
-    """The exact force-closure test alone (no filter).
+def exact_force_closure(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayLike,
+                        torsional_friction: npt.ArrayLike | None = 0.0) -> np.ndarray:
+    """The exact force-closure test alone (no filter), verdicts only.
+
+    The margin is not reported, so the fast stage stops at each verdict instead of
+    narrowing the margin to MARGIN_ACCURACY first (``margin="bound"``; the verdicts are
+    the same, docs/performance.md#exact-stage).
 
     Parameters
     ----------
@@ -277,7 +372,7 @@ def exact_force_closure(positions, normals, mu, torsional_friction=0.0) -> np.nd
 
     Returns
     -------
-    ndarray of bool, shape () for one grasp or (N,)
+    numpy bool for one grasp, ndarray of bool, shape (N,), for a batch
         True where the grasp is force closure (with a verified witness).
 
     Raises
@@ -286,4 +381,4 @@ def exact_force_closure(positions, normals, mu, torsional_friction=0.0) -> np.nd
         On bad input, naming the grasp and contact.
     """
     grasps = prepare_grasps(positions, normals, mu, torsional_friction)
-    return grasps.unbatch(solve_exact(grasps).force_closure)
+    return grasps.unbatch(solve_exact(grasps, "bound").force_closure)

@@ -14,13 +14,13 @@ has c . v >= 0 for every v in every set (all sets lie in one closed half-space).
   boundary torques on one closed side. If no pair is non-parallel the torques span a
   line at most and cannot span R^3.
   That pair test costs O(K^3) for K boundary torques (compiled with numba: a loop
-  over problems, no large intermediates). Two things bound it for many torques. First, a subset that spans proves
-  that the whole set spans, and the torques extreme along 14 fixed directions usually
-  do (a pair test on 14 vectors, whatever K). Second, what that leaves undecided from
-  ``HULL_MIN_VECTORS`` torques on goes to the convex hull of the torques (Qhull,
-  O(K log K) per problem) instead: they fail to span iff the origin is not strictly
-  inside the hull, and then a facet the origin is not strictly behind gives a
-  separating direction (its outward normal, negated).
+  over problems, no large intermediates). Two things bound it for many torques.
+  First, a subset that spans proves that the whole set spans, and the torques extreme
+  along 14 fixed directions usually do (a pair test on 14 vectors, whatever K).
+  Second, what that leaves undecided from ``HULL_MIN_VECTORS`` torques on goes to the
+  convex hull of the torques (Qhull, O(K log K) per problem) instead: they fail to span
+  iff the origin is not strictly inside the hull, and then a facet the origin is not
+  strictly behind gives a separating direction (its outward normal, negated).
 
 Every separating direction is checked against every torque before a problem is called
 non-spanning, so rounding (or a hull computed imprecisely) can only make a problem
@@ -31,10 +31,12 @@ more than the loop.
 
 from __future__ import annotations
 
+from typing import Literal, overload
+
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-from .interior_point import _jit, kernel_array
+from ._kernels.jit import jit, kernel_array
 from .tolerances import PARALLEL_TOL, SPAN_TOL
 from .torque_sets import TorqueSetKind, TorqueSets, cross, dot
 
@@ -43,10 +45,9 @@ _FAN = int(TorqueSetKind.FAN)
 _PLANE = int(TorqueSetKind.PLANE)
 
 #: From this many boundary torques per problem (fans-only case, after the extreme-subset
-#: proof) the convex-hull test replaces the pair test. Measured (benchmarks/
-#: bench_filter.py --paths, box grasps, mu = 0.01, a loaded machine): the pair test's
-#: cost grows as K^3, the hull's (about 0.1 ms per call) as K log K; they cross between
-#: K = 26 and 38 (14 to 20 contacts).
+#: proof) the convex-hull test replaces the pair test: the pair test's cost grows as K^3,
+#: the hull's as K log K from a higher start; this is where they cross (tuned:
+#: docs/performance.md#filter, from benchmarks/bench_filter.py --paths).
 HULL_MIN_VECTORS = 36
 
 #: Probe directions of :func:`_extremes_span`: the 6 axes and the 8 diagonals.
@@ -54,7 +55,18 @@ _PROBES = np.array([[x, y, z] for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (
                     if abs(x) + abs(y) + abs(z) in (1, 3)], dtype=float)
 
 
-def positively_spans(sets: TorqueSets, directions: bool = False):
+@overload
+def positively_spans(sets: TorqueSets, directions: Literal[False] = False) -> np.ndarray: ...
+@overload
+def positively_spans(sets: TorqueSets,
+                     directions: Literal[True]) -> tuple[np.ndarray, np.ndarray]: ...
+@overload
+def positively_spans(sets: TorqueSets,
+                     directions: bool) -> np.ndarray | tuple[np.ndarray, np.ndarray]: ...
+
+
+def positively_spans(sets: TorqueSets,
+                     directions: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Whether the torque sets of each problem positively span R^3.
 
     Parameters
@@ -80,20 +92,19 @@ def positively_spans(sets: TorqueSets, directions: bool = False):
     direction = np.full((3, spans.size), np.nan) if directions else None
     for part, test in ((has_plane, _spans_with_plane), (~has_plane, _fans_span)):
         if part.any():
-            found = test(sets.subset((slice(None), part)), directions)
-            if directions:
-                spans[part], direction[:, part] = found
-            else:
-                spans[part] = found
-    return (spans, direction) if directions else spans
+            spans[part], found = test(sets.subset((slice(None), part)), directions)
+            if direction is not None and found is not None:
+                direction[:, part] = found
+    return spans if direction is None else (spans, direction)
 
 
-def _spans_with_plane(sets: TorqueSets, directions: bool = False):
+def _spans_with_plane(sets: TorqueSets,
+                      directions: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
     """Positive span for problems that contain at least one plane. Shapes (m, B).
 
-    Returns spans (B,), and with ``directions`` also the separating direction (3, B):
+    Returns spans (B,) and, with ``directions``, the separating direction (3, B):
     minus (plus) the pivot plane's normal where nothing reaches its positive (negative)
-    side.
+    side (None without ``directions``).
     """
     is_plane = sets.kind == _PLANE
     pivot = is_plane.argmax(axis=0)
@@ -111,18 +122,20 @@ def _spans_with_plane(sets: TorqueSets, directions: bool = False):
     has_neg = (reaches_neg | crossing_plane).any(axis=0)
     spans = has_pos & has_neg
     if not directions:
-        return spans
+        return spans, None
     sign = np.where(has_pos, 1.0, -1.0)
     return spans, np.where(spans, np.nan, sign * normal[:, 0])
 
 
-def _fans_span(sets: TorqueSets, directions: bool = False):
+def _fans_span(sets: TorqueSets,
+               directions: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
     """Positive span for problems whose sets are fans or null sets. Shapes (m, B).
 
     Null sets contribute zero vectors, which lie on every side of every plane and
     make no pair non-parallel, so they need no special case.
 
-    Returns spans (B,), and with ``directions`` also the separating directions (3, B).
+    Returns spans (B,) and, with ``directions``, the separating directions (3, B)
+    (None without).
     """
     vectors = np.concatenate((sets.first, sets.second), axis=1)        # (3, K, B)
     found = _direction_at_mean(vectors)
@@ -136,14 +149,14 @@ def _fans_span(sets: TorqueSets, directions: bool = False):
     elif undecided.size:
         found[:, undecided] = _pair_test(vectors[:, :, undecided])
     spans = np.isnan(found[0])
-    return (spans, found) if directions else spans
+    return spans, (found if directions else None)
 
 
 def _direction_at_mean(vectors: np.ndarray) -> np.ndarray:
     """Cheap first try: does the mean of the vectors itself separate them?
 
-    When all vectors lie in a half-space their mean often does (about one problem in
-    ten on random six-finger grasps), and checking one direction costs K dot products
+    When all vectors lie in a half-space their mean often does (on random six-finger
+    grasps, for a fair share of the problems), and checking one direction costs K dot products
     instead of the pair test's K (K - 1) / 2 cross and K (K - 1) (K - 2) / 6 triple
     products.
 
@@ -212,7 +225,12 @@ def _pair_test(vectors: np.ndarray) -> np.ndarray:
     return found
 
 
-def _pair_test_kernel(vectors):
+#: Outcomes of :func:`pair_test_problem`.
+SPANS, SEPARATED, ON_A_LINE = 0, 1, 2
+
+
+@jit
+def _pair_test_kernel(vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Compiled core of :func:`_pair_test`: directions (3, B) (NaN where none, and where
     the problem's vectors are on a line) and the on-a-line flags (B,)."""
     n_vectors, n_problems = vectors.shape[1], vectors.shape[2]
@@ -223,50 +241,71 @@ def _pair_test_kernel(vectors):
     found = np.full((3, n_problems), np.nan)
     on_a_line = np.zeros(n_problems, dtype=np.bool_)
     for problem in range(n_problems):
-        v = vectors[:, :, problem]
-        pair = 0
-        for a in range(n_vectors):
-            for b in range(a + 1, n_vectors):
-                # The same operations as torque_sets.cross.
-                normals[pair, 0] = v[1, a] * v[2, b] - v[2, a] * v[1, b]
-                normals[pair, 1] = v[2, a] * v[0, b] - v[0, a] * v[2, b]
-                normals[pair, 2] = v[0, a] * v[1, b] - v[1, a] * v[0, b]
-                lowest[pair] = 0.0
-                highest[pair] = 0.0
-                pair += 1
-        for a in range(n_vectors):
-            for b in range(a + 1, n_vectors):
-                ab = a * n_vectors - a * (a + 1) // 2 + b - a - 1
-                for c in range(b + 1, n_vectors):
-                    ac = a * n_vectors - a * (a + 1) // 2 + c - a - 1
-                    bc = b * n_vectors - b * (b + 1) // 2 + c - b - 1
-                    det = (normals[ab, 0] * v[0, c] + normals[ab, 1] * v[1, c]
-                           + normals[ab, 2] * v[2, c])
-                    lowest[ab] = min(lowest[ab], det)
-                    highest[ab] = max(highest[ab], det)
-                    lowest[bc] = min(lowest[bc], det)
-                    highest[bc] = max(highest[bc], det)
-                    lowest[ac] = min(lowest[ac], -det)
-                    highest[ac] = max(highest[ac], -det)
-        any_pair = False
-        for pair in range(n_pairs):
-            n0, n1, n2 = normals[pair, 0], normals[pair, 1], normals[pair, 2]
-            length = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-            if not length > PARALLEL_TOL:
-                continue
-            any_pair = True
-            slack = SPAN_TOL * length
-            if lowest[pair] >= -slack or highest[pair] <= slack:
-                sign = 1.0 if lowest[pair] >= -slack else -1.0
-                found[0, problem] = sign * n0 / length
-                found[1, problem] = sign * n1 / length
-                found[2, problem] = sign * n2 / length
-                break
-        on_a_line[problem] = not any_pair
+        on_a_line[problem] = pair_test_problem(vectors[:, :, problem], normals, lowest,
+                                               highest, found[:, problem]) == ON_A_LINE
     return found, on_a_line
 
 
-_pair_test_kernel = _jit(_pair_test_kernel)
+@jit
+def pair_test_problem(v: np.ndarray, normals: np.ndarray, lowest: np.ndarray,
+                      highest: np.ndarray, found: np.ndarray) -> int:
+    """The pair test of :func:`_pair_test` on one problem.
+
+    Parameters
+    ----------
+    v : ndarray, shape (3, K)
+        The problem's unit (or zero) vectors, component-first.
+    normals, lowest, highest : ndarray, shapes (P, 3), (P,), (P,), P >= K (K - 1) / 2
+        Scratch.
+    found : ndarray, shape (3,)
+        Output where SEPARATED: the unit separating direction; untouched otherwise.
+
+    Returns
+    -------
+    int
+        SPANS, SEPARATED, or ON_A_LINE (no pair is non-parallel: any direction
+        perpendicular to the line separates).
+    """
+    n_vectors = v.shape[1]
+    pair = 0
+    for a in range(n_vectors):
+        for b in range(a + 1, n_vectors):
+            # The same operations as torque_sets.cross.
+            normals[pair, 0] = v[1, a] * v[2, b] - v[2, a] * v[1, b]
+            normals[pair, 1] = v[2, a] * v[0, b] - v[0, a] * v[2, b]
+            normals[pair, 2] = v[0, a] * v[1, b] - v[1, a] * v[0, b]
+            lowest[pair] = 0.0
+            highest[pair] = 0.0
+            pair += 1
+    for a in range(n_vectors):
+        for b in range(a + 1, n_vectors):
+            ab = a * n_vectors - a * (a + 1) // 2 + b - a - 1
+            for c in range(b + 1, n_vectors):
+                ac = a * n_vectors - a * (a + 1) // 2 + c - a - 1
+                bc = b * n_vectors - b * (b + 1) // 2 + c - b - 1
+                det = (normals[ab, 0] * v[0, c] + normals[ab, 1] * v[1, c]
+                       + normals[ab, 2] * v[2, c])
+                lowest[ab] = min(lowest[ab], det)
+                highest[ab] = max(highest[ab], det)
+                lowest[bc] = min(lowest[bc], det)
+                highest[bc] = max(highest[bc], det)
+                lowest[ac] = min(lowest[ac], -det)
+                highest[ac] = max(highest[ac], -det)
+    any_pair = False
+    for pair in range(n_vectors * (n_vectors - 1) // 2):
+        n0, n1, n2 = normals[pair, 0], normals[pair, 1], normals[pair, 2]
+        length = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        if not length > PARALLEL_TOL:
+            continue
+        any_pair = True
+        slack = SPAN_TOL * length
+        if lowest[pair] >= -slack or highest[pair] <= slack:
+            sign = 1.0 if lowest[pair] >= -slack else -1.0
+            found[0] = sign * n0 / length
+            found[1] = sign * n1 / length
+            found[2] = sign * n2 / length
+            return SEPARATED
+    return SPANS if any_pair else ON_A_LINE
 
 
 def warm_up() -> None:

@@ -11,18 +11,24 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any, TypeAlias
 
 import clarabel
 import numpy as np
 from scipy import sparse  # clarabel's Python API takes scipy CSC matrices
 
-#: Grasps per Clarabel solve: the exact test's measured sweet spot (see exact_test.py).
+#: Grasps per Clarabel solve: the exact test's (see exact_test.py).
 SOLVE_BATCH = 64
 
 #: Interior-point iterations allowed per solve; an unconverged batch is retried alone.
 MAX_ITERATIONS = 200
 
 ACCEPTED = (clarabel.SolverStatus.Solved, clarabel.SolverStatus.AlmostSolved)
+
+
+#: :meth:`BlockShape.key`: pattern bytes, pattern shape, zero rows, non-negative rows,
+#: cone sizes.
+StructureKey: TypeAlias = tuple[bytes, tuple[int, ...], int, int, tuple[int, ...]]
 
 
 @dataclass(frozen=True)
@@ -44,9 +50,10 @@ class BlockShape:
     pattern: np.ndarray
     zero_rows: int
     nonneg_rows: int
-    soc_sizes: tuple
+    soc_sizes: tuple[int, ...]
 
-    def key(self):
+    def key(self) -> StructureKey:
+        """A hashable summary of the shape (for the cache of stacked structures)."""
         return (self.pattern.tobytes(), self.pattern.shape, self.zero_rows,
                 self.nonneg_rows, self.soc_sizes)
 
@@ -72,7 +79,9 @@ class StackedSolution:
 
 
 @lru_cache(maxsize=64)
-def _stacked_structure(n_blocks: int, key):
+def _stacked_structure(n_blocks: int, key: StructureKey
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int],
+                                  list[Any], sparse.csc_matrix]:
     """CSC structure of N stacked blocks, and the order that maps values into it."""
     pattern_bytes, shape, zero_rows, nonneg_rows, soc_sizes = key
     pattern = np.frombuffer(pattern_bytes, dtype=bool).reshape(shape)
@@ -83,7 +92,7 @@ def _stacked_structure(n_blocks: int, key):
     cols = (block * v + local_cols).ravel()
     order = sparse.csc_matrix((np.arange(1, rows.size + 1, dtype=np.float64), (rows, cols)),
                               shape=(n_blocks * m, n_blocks * v))
-    cones = []
+    cones: list[Any] = []   # clarabel's cone objects
     for _ in range(n_blocks):
         if zero_rows:
             cones.append(clarabel.ZeroConeT(zero_rows))
@@ -100,8 +109,8 @@ def settings(tol: float | None) -> clarabel.DefaultSettings:
     result = clarabel.DefaultSettings()
     result.verbose = False
     result.max_iter = MAX_ITERATIONS
-    # Iterative refinement of each KKT solve cost ~30% of the time of these solves
-    # (measured on 6-finger minimum-friction batches), and every answer is checked in
+    # Iterative refinement of each KKT solve costs a good part of the time of these
+    # solves (docs/performance.md#minimum-friction), and every answer is checked in
     # numpy anyway (as in the exact test).
     result.iterative_refinement_enable = False
     if tol is not None:

@@ -23,9 +23,8 @@ MAX_ABS_COORDINATE = 2.0 ** 1000
 #: mu is "as good as infinite" for every grasp, so larger values cannot be clamped and
 #: are refused. At mu = 1e3 the cone's half-angle is within 0.06 degrees of 90, far past
 #: any physical contact (rubber on rough surfaces: about 1 to 2). The exact test's conic
-#: program scales its rows by mu; measured on random ellipsoid grasps (2,000 each, n = 2
-#: to 4): no solver failure up to mu = 1e4, the first ones at 3e4, a quarter of them at
-#: 1e5 (n = 3), all of them from 1e10 (n = 6). The bound keeps 30x from the first failure.
+#: program scales its rows by mu, and Clarabel starts failing on random grasps a little
+#: above 1e4: the bound keeps a wide margin below that (docs/performance.md#exact-stage).
 MAX_FRICTION_COEFFICIENT = 1e3
 
 #: Fans of the torque filter are widened by this angle (radians) on each side.
@@ -79,8 +78,9 @@ CERTIFICATE_TOL = 1e-6
 
 #: Rounding allowance of the filter's check of its own wrenches, in units of
 #: eps * (1 + mu_i), for a_i computed from a unit direction and lever arms scaled to at
-#: most one: the worst case of the few products and sums involved, doubled. It matters only when every a_j is rounding noise
-#: (a wrench no contact can do any work on, e.g. the torque about a line of contacts).
+#: most one: the worst case of the few products and sums involved, doubled. It matters
+#: only when every a_j is rounding noise (a wrench no contact can do any work on, e.g.
+#: the torque about a line of contacts).
 WORK_ROUNDING_ULPS = 16
 
 #: Contact forces pass :func:`verify_certificates` if their net force and net torque

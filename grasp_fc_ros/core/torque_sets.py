@@ -67,7 +67,7 @@ class TorqueSets:
     second: np.ndarray
     axis: np.ndarray
 
-    def subset(self, index) -> "TorqueSets":
+    def subset(self, index: tuple[slice | np.ndarray, ...]) -> TorqueSets:
         """The sets at ``index`` of the batch dimensions (shape (...))."""
         return TorqueSets(self.kind[index], self.first[(slice(None),) + index],
                           self.second[(slice(None),) + index],

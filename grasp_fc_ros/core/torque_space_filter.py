@@ -47,34 +47,46 @@ its hit rate times the exact test's cost exceeds its own cost: the pipeline's
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Literal, TypeAlias, overload
+
 import numpy as np
+import numpy.typing as npt
 
 from .contact_model import largest_work
 from .grasp_input import GraspBatch, prepare_grasps
 from .positive_span import positively_spans
 from .tolerances import CERTIFICATE_TOL, SOFT_SPAN_TOL, WORK_ROUNDING_ULPS
-from .torque_sets import (concatenate, cone_torque_sets, dot, friction_half_angle_sine,
-                          normal_lines)
+from .torque_sets import concatenate, cone_torque_sets, dot, friction_half_angle_sine, normal_lines
 
 ORIGIN_CHOICES = ("seed", "all")
 
+#: (origin (K,), grasp (K,)) -> (spans (K,), separating directions (3, K) or None without
+#: certificates): do the other contacts' torque sets about contact origin[k] of
+#: grasp[k] positively span R^3?
+SpansAbout: TypeAlias = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray | None]]
+
+#: What an origin schedule returns: passing (N,), and with certificates the origin each
+#: rejected grasp failed about (N,) and the separating direction found there (3, N).
+OriginVerdicts: TypeAlias = tuple[np.ndarray, np.ndarray | None, np.ndarray | None]
+
 #: Most origins ``"all"`` tries. Each costs about O(n log n), so every contact as an
-#: origin would cost O(n^2 log n): measured 10 s for one grasp of 3,000 contacts against
-#: 0.56 s for its exact test. Past 64 contacts the filter does not pay anyway.
+#: origin would cost O(n^2 log n), far more than the exact test of a grasp of thousands
+#: of contacts (docs/performance.md#filter). Past 64 contacts the filter does not pay
+#: anyway.
 MAX_ALL_ORIGINS = 64
 
 #: Largest contact count at which the filter saves more exact-test time than it costs
-#: (hit rate x exact cost per grasp > filter cost per grasp), per origin choice. Measured
-#: by benchmarks/bench_filter.py (box grasps, one core, medians of 3) against the fast
-#: exact stage at mu = 0.01, tan 10 deg and 0.5 (n = 3 to 12): with both origin choices
-#: it paid at every mu up to n = 4, at mu = 0.01 up to 5, and nowhere beyond 5 (against
-#: the Clarabel path, ~30x slower, it had paid up to n = 8). Re-run the benchmark and
-#: update when either stage changes.
+#: (hit rate x exact cost per grasp > filter cost per grasp), per origin choice, on
+#: batches, against the fast exact stage (tuned: docs/performance.md#filter, from
+#: benchmarks/bench_filter.py). Re-run the benchmark and update when either stage
+#: changes.
 FILTER_PAYS_UP_TO_CONTACTS = {"seed": 4, "all": 4}
 
 #: From this many grasps on, origins are tried one after another so that grasps
 #: already rejected skip the rest; below it, all origins go in one pass, which pays
-#: numpy's per-call overhead once instead of once per origin (measured crossover).
+#: numpy's per-call overhead once instead of once per origin (tuned:
+#: docs/performance.md#filter).
 _ONE_ORIGIN_AT_A_TIME_MIN_GRASPS = 256
 
 #: Lever arms handled per vectorised pass (problems x contacts): bounds the memory of
@@ -102,7 +114,7 @@ def filter_worthwhile(n_contacts: int, origins: str = "seed") -> bool:
     return n_contacts <= FILTER_PAYS_UP_TO_CONTACTS[origins]
 
 
-def resolve_use_filter(use_filter, n_contacts: int, origins: str = "seed") -> bool:
+def resolve_use_filter(use_filter: bool | str, n_contacts: int, origins: str = "seed") -> bool:
     """``use_filter`` of the pipeline as a bool: True and False as given, "auto" by
     :func:`filter_worthwhile`.
 
@@ -118,9 +130,10 @@ def resolve_use_filter(use_filter, n_contacts: int, origins: str = "seed") -> bo
     return bool(use_filter)
 
 
-def torque_filter(positions, normals, mu, origins: str = "seed",
-                  certificates: bool = False,
-                  torsional_friction=0.0) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+def torque_filter(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayLike,
+                  origins: str = "seed", certificates: bool = False,
+                  torsional_friction: npt.ArrayLike = 0.0
+                  ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Necessary condition for force closure: do the torque sets positively span R^3?
 
     Parameters
@@ -159,8 +172,23 @@ def torque_filter(positions, normals, mu, origins: str = "seed",
     return grasps.unbatch(passed), grasps.unbatch(wrench)
 
 
+@overload
 def passes_torque_filter(grasps: GraspBatch, origins: str = "seed",
-                         certificates: bool = False):
+                         certificates: Literal[False] = False) -> np.ndarray: ...
+@overload
+def passes_torque_filter(grasps: GraspBatch, origins: str,
+                         certificates: Literal[True]) -> tuple[np.ndarray, np.ndarray]: ...
+@overload
+def passes_torque_filter(grasps: GraspBatch, origins: str = "seed", *,
+                         certificates: Literal[True]) -> tuple[np.ndarray, np.ndarray]: ...
+@overload
+def passes_torque_filter(grasps: GraspBatch, origins: str,
+                         certificates: bool) -> np.ndarray | tuple[np.ndarray, np.ndarray]: ...
+
+
+def passes_torque_filter(grasps: GraspBatch, origins: str = "seed",
+                         certificates: bool = False
+                         ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """:func:`torque_filter` on validated input.
 
     Returns
@@ -186,7 +214,8 @@ def passes_torque_filter(grasps: GraspBatch, origins: str = "seed",
     soft = None if grasps.torsional is None else np.ascontiguousarray(grasps.torsional.T) > 0
     per_pass = max(1, _MAX_LEVER_ARMS_PER_PASS // (n_contacts - 1))
 
-    def spans_about(origin: np.ndarray, grasp: np.ndarray):
+    def spans_about(origin: np.ndarray,
+                    grasp: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Do the other contacts' torque sets about contact origin[k] of grasp[k] span?
         With certificates also the separating directions (3, K). Bounded memory."""
         if origin.size > per_pass:
@@ -202,14 +231,15 @@ def passes_torque_filter(grasps: GraspBatch, origins: str = "seed",
         if soft is not None:
             # Every soft contact, the origin's own included, adds the line {tau n}.
             sets = concatenate([sets, normal_lines(normals[:, :, grasp], soft[:, grasp])])
-        result = positively_spans(sets, directions=certificates)
-        return result if certificates else (result, None)
+        if certificates:
+            return positively_spans(sets, directions=True)
+        return positively_spans(sets), None
 
     origin = _origin_indices(points, origins)                          # (O, N)
     try_origins = (_all_origins_at_once if origin.shape[1] < _ONE_ORIGIN_AT_A_TIME_MIN_GRASPS
                    else _one_origin_at_a_time)
     passing, rejected_about, direction = try_origins(spans_about, origin, certificates)
-    if not certificates:
+    if rejected_about is None or direction is None:      # without certificates
         return passing
     return _certify(grasps, passing, rejected_about, direction)
 
@@ -220,13 +250,15 @@ def soft_normals_span(grasps: GraspBatch) -> np.ndarray:
     Their lines {tau n_i} alone positively span R^3 about every origin, so the filter
     passes them whatever the other torque sets are.
     """
+    if grasps.torsional is None:
+        return np.zeros(grasps.mu.shape[0], dtype=bool)
     soft = (grasps.torsional > 0).astype(np.float64)
     moment = np.einsum("gi,gij,gik->gjk", soft, grasps.normals, grasps.normals)
     return np.linalg.eigvalsh(moment)[:, 0] > SOFT_SPAN_TOL
 
 
 def _pass_spanned(grasps: GraspBatch, spanned: np.ndarray, origins: str,
-                  certificates: bool):
+                  certificates: bool) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """:func:`passes_torque_filter` with the ``spanned`` grasps (N,) passed at once and
     the rest filtered."""
     if origins not in ORIGIN_CHOICES:
@@ -237,7 +269,8 @@ def _pass_spanned(grasps: GraspBatch, spanned: np.ndarray, origins: str,
     rest = np.flatnonzero(~spanned)
     if rest.size:
         others = GraspBatch(grasps.positions[rest], grasps.normals[rest], grasps.mu[rest],
-                            single=False, torsional=grasps.torsional[rest])
+                            single=False,
+                            torsional=None if grasps.torsional is None else grasps.torsional[rest])
         if certificates:
             passed[rest], wrench[rest] = passes_torque_filter(others, origins, True)
         else:
@@ -245,7 +278,8 @@ def _pass_spanned(grasps: GraspBatch, spanned: np.ndarray, origins: str,
     return (passed, wrench) if certificates else passed
 
 
-def _all_origins_at_once(spans_about, origin: np.ndarray, certificates: bool):
+def _all_origins_at_once(spans_about: SpansAbout, origin: np.ndarray,
+                         certificates: bool) -> OriginVerdicts:
     """Every origin of every grasp in one pass: numpy's call overhead is paid once.
 
     Parameters
@@ -267,14 +301,15 @@ def _all_origins_at_once(spans_about, origin: np.ndarray, certificates: bool):
     grasp = np.broadcast_to(np.arange(n_grasps), origin.shape)
     spans, found = spans_about(origin.ravel(), grasp.ravel())
     spans = spans.reshape(origin.shape)
-    if not certificates:
-        return spans.all(axis=0), None, None
+    if found is None:                                    # without certificates
+        return np.all(spans, axis=0), None, None
     first = (~spans).argmax(axis=0)
-    return (spans.all(axis=0), origin[first, np.arange(n_grasps)],
+    return (np.all(spans, axis=0), origin[first, np.arange(n_grasps)],
             found.reshape((3,) + origin.shape)[:, first, np.arange(n_grasps)])
 
 
-def _one_origin_at_a_time(spans_about, origin: np.ndarray, certificates: bool):
+def _one_origin_at_a_time(spans_about: SpansAbout, origin: np.ndarray,
+                          certificates: bool) -> OriginVerdicts:
     """One origin after another: a grasp rejected about one is not tried again.
 
     Same parameters and returns as :func:`_all_origins_at_once`.
@@ -286,7 +321,7 @@ def _one_origin_at_a_time(spans_about, origin: np.ndarray, certificates: bool):
     for row in origin:
         grasp = np.flatnonzero(passing)
         spans, found = spans_about(row[grasp], grasp)
-        if certificates:
+        if found is not None:                            # with certificates
             rejected = grasp[~spans]
             rejected_about[rejected] = row[rejected]
             direction[:, rejected] = found[:, ~spans]
@@ -295,7 +330,7 @@ def _one_origin_at_a_time(spans_about, origin: np.ndarray, certificates: bool):
 
 
 def _certify(grasps: GraspBatch, passing: np.ndarray, rejected_about: np.ndarray,
-             direction: np.ndarray):
+             direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Separating wrenches (N, 6) of the rejected grasps, checked; unchecked ones pass.
 
     ``direction`` (3, N) has every torque set of grasp g about contact

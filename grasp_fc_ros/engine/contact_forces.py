@@ -97,12 +97,12 @@ def contact_forces_for_load(packed: PackedGrasps, wrench: ArrayLike,
             f"{label}, contact {bad[0]}: max_normal_force must be >= 0 (inf: no limit), "
             f"got {limits[bad[0]]}")
     torsional = np.zeros(n_contacts) if packed.torsional is None else packed.torsional
-    s_star, forces, torques = optimal_contact_forces(
+    solution = optimal_contact_forces(
         packed.positions, packed.normals, mu, wrench, limits if len(limits) else None,
         torsional_friction=torsional)
-    s_star = float(s_star)
+    s_star = float(solution.max_normal_force)
     if math.isnan(s_star):
         return ContactForces.refused(f"{label}: the solver could not decide")
     if math.isinf(s_star):
         return ContactForces.infeasible(s_star)
-    return ContactForces(True, s_star, forces, torques)
+    return ContactForces(True, s_star, solution.forces, solution.torques)

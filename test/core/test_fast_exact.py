@@ -11,8 +11,7 @@ from grasp_fc_ros.core import Status, check_force_closure, verify_certificates, 
 from grasp_fc_ros.core.certificates import normalise_positions
 from grasp_fc_ros.core.exact_test import solve_exact
 from grasp_fc_ros.core.grasp_input import prepare_grasps
-from grasp_fc_ros.core.interior_point import (FORCE_CLOSURE, NOT_FORCE_CLOSURE, UNDECIDED,
-                                              solve_fast)
+from grasp_fc_ros.core.interior_point import FORCE_CLOSURE, NOT_FORCE_CLOSURE, UNDECIDED, solve_fast
 from grasp_fc_ros.core.tolerances import (
     MARGIN_ACCURACY,
     MARGIN_TOL,
@@ -276,7 +275,7 @@ def test_fast_stage_results_are_identical_alone_and_in_a_batch():
     together = _fast_codes(positions, normals, 0.5)
     for g in range(0, 60, 7):
         alone = _fast_codes(positions[g:g + 1], normals[g:g + 1], 0.5)
-        for batch_value, alone_value in zip(together, alone):
+        for batch_value, alone_value in zip(together, alone, strict=True):
             np.testing.assert_array_equal(batch_value[g], alone_value[0])
 
 

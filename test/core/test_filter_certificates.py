@@ -3,7 +3,8 @@ force does positive work on, in the caller's frame about the caller's origin."""
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from grasp_cases import MU_PAPER, adversarial_grasps, ellipsoid_grasps, random_rotation
 from grasp_fc_ros.core import exact_force_closure, torque_filter

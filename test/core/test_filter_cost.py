@@ -6,10 +6,18 @@ import numpy as np
 import pytest
 
 from grasp_cases import ellipsoid_grasps
-from grasp_fc_ros.core import check_force_closure, exact_force_closure, torque_filter
-from grasp_fc_ros.core import positive_span, torque_space_filter
-from grasp_fc_ros.core.torque_space_filter import (FILTER_PAYS_UP_TO_CONTACTS,
-                                                   filter_worthwhile, resolve_use_filter)
+from grasp_fc_ros.core import (
+    check_force_closure,
+    exact_force_closure,
+    positive_span,
+    torque_filter,
+    torque_space_filter,
+)
+from grasp_fc_ros.core.torque_space_filter import (
+    FILTER_PAYS_UP_TO_CONTACTS,
+    filter_worthwhile,
+    resolve_use_filter,
+)
 
 
 def peak_bytes(function):

@@ -2,11 +2,16 @@
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from grasp_cases import MU_PAPER, adversarial_grasps, ellipsoid_grasps, random_rotation
-from grasp_fc_ros.core import (check_force_closure, exact_force_closure, torque_filter,
-                               validate_grasps)
+from grasp_fc_ros.core import (
+    check_force_closure,
+    exact_force_closure,
+    torque_filter,
+    validate_grasps,
+)
 
 
 @pytest.mark.parametrize("n_contacts", [3, 4, 6, 8])

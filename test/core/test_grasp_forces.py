@@ -7,10 +7,20 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from grasp_cases import adversarial_grasps, ellipsoid_grasps, random_rotation
-from grasp_fc_ros.core import (certificates, check_force_closure, force_interior_point,
-                               grasp_forces, warm_up)
-from grasp_fc_ros.core.grasp_forces import (FORCE_TOL, OPTIMALITY_TOL, lower_bound,
-                                            optimal_contact_forces)
+from grasp_fc_ros.core import (
+    certificates,
+    check_force_closure,
+    force_interior_point,
+    grasp_forces,
+    warm_up,
+)
+from grasp_fc_ros.core.grasp_forces import (
+    GraspForces,
+    FORCE_TOL,
+    OPTIMALITY_TOL,
+    lower_bound,
+    optimal_contact_forces,
+)
 from grasp_fc_ros.objects import make_object, sample_grasps
 from reference_pyramids import pyramid_min_max_force
 
@@ -41,7 +51,7 @@ def test_gravity_on_a_three_finger_equator_grasp():
     """Horizontal normals: only friction lifts. sum_i mu f_n,i >= m g, so the least
     largest normal force is m g / (3 mu), reached by equal shares."""
     positions, normals = equator_grasp()
-    s_star, forces = optimal_contact_forces(positions, normals, 0.5, GRAVITY)
+    s_star, forces, _ = optimal_contact_forces(positions, normals, 0.5, GRAVITY)
     assert s_star == pytest.approx(9.81 / 1.5, rel=1e-7)
     assert_holds(positions, normals, 0.5, GRAVITY, s_star, forces)
     np.testing.assert_allclose(forces[:, 2], 9.81 / 3, rtol=1e-6)
@@ -53,25 +63,25 @@ def test_gravity_at_an_offset_centre_of_mass_is_a_torque_about_the_origin():
     positions, normals = equator_grasp()
     centre = np.array([0.1, -0.2, 0.05])
     load = np.concatenate([GRAVITY[:3], np.cross(centre, GRAVITY[:3])])
-    s_star, forces = optimal_contact_forces(positions, normals, 0.8, load)
+    s_star, forces, _ = optimal_contact_forces(positions, normals, 0.8, load)
     assert_holds(positions, normals, 0.8, load, s_star, forces)
-    moved, _ = optimal_contact_forces(positions - centre, normals, 0.8, GRAVITY)
+    moved, _, _ = optimal_contact_forces(positions - centre, normals, 0.8, GRAVITY)
     assert s_star == pytest.approx(moved, rel=1e-7)
-    centred, _ = optimal_contact_forces(positions, normals, 0.8, GRAVITY)
+    centred, _, _ = optimal_contact_forces(positions, normals, 0.8, GRAVITY)
     assert s_star > centred                     # an off-centre load costs more force
 
 
 def test_normal_force_limits():
     positions, normals = equator_grasp()
     needed = 9.81 / 1.5
-    s_star, forces = optimal_contact_forces(positions, normals, 0.5, GRAVITY,
+    s_star, forces, _ = optimal_contact_forces(positions, normals, 0.5, GRAVITY,
                                             max_normal_force=needed * 0.99)
     assert s_star == np.inf and np.isnan(forces).all()
-    s_star, forces = optimal_contact_forces(positions, normals, 0.5, GRAVITY,
+    s_star, forces, _ = optimal_contact_forces(positions, normals, 0.5, GRAVITY,
                                             max_normal_force=needed * 1.01)
     assert s_star == pytest.approx(needed, rel=1e-7)
     # One contact may not push at all: two fingers cannot lift by friction alone here.
-    s_star, _ = optimal_contact_forces(positions, normals, 0.5, GRAVITY,
+    s_star, _, _ = optimal_contact_forces(positions, normals, 0.5, GRAVITY,
                                        max_normal_force=[np.inf, np.inf, 0.0])
     assert s_star == np.inf
 
@@ -82,11 +92,11 @@ def test_limits_raise_s_star_where_the_best_forces_break_them():
     rng = np.random.default_rng(7)
     positions, normals = ellipsoid_grasps(rng, 1, 6)
     wrench = rng.normal(size=6)
-    free, forces = optimal_contact_forces(positions[0], normals[0], 0.7, wrench)
+    free, forces, _ = optimal_contact_forces(positions[0], normals[0], 0.7, wrench)
     busiest = np.argmax((forces * normals[0]).sum(axis=1))
     limits = np.full(6, np.inf)
     limits[busiest] = 0.5 * free
-    limited, limited_forces = optimal_contact_forces(positions[0], normals[0], 0.7, wrench,
+    limited, limited_forces, _ = optimal_contact_forces(positions[0], normals[0], 0.7, wrench,
                                                      max_normal_force=limits)
     assert np.isfinite(free) and limited >= free * (1 - 1e-9)
     if np.isfinite(limited):
@@ -95,17 +105,17 @@ def test_limits_raise_s_star_where_the_best_forces_break_them():
 
 def test_zero_wrench_needs_no_force():
     positions, normals = equator_grasp()
-    s_star, forces = optimal_contact_forces(positions, normals, 0.5, np.zeros(6))
+    s_star, forces, _ = optimal_contact_forces(positions, normals, 0.5, np.zeros(6))
     assert s_star == 0.0 and (forces == 0).all()
 
 
 def test_two_antipodal_fingers_cannot_resist_a_torque_about_their_axis():
     positions = np.array([[1.0, 0, 0], [-1.0, 0, 0]])
     twist = np.array([0, 0, 0, 1.0, 0, 0])
-    s_star, forces = optimal_contact_forces(positions, -positions, 2.0, twist)
+    s_star, forces, _ = optimal_contact_forces(positions, -positions, 2.0, twist)
     assert s_star == np.inf and np.isnan(forces).all()
     squeeze_load = np.array([0, 0, -1.0, 0, 0, 0])
-    s_star, forces = optimal_contact_forces(positions, -positions, 2.0, squeeze_load)
+    s_star, forces, _ = optimal_contact_forces(positions, -positions, 2.0, squeeze_load)
     assert s_star == pytest.approx(0.25, rel=1e-7)         # each lifts 1/2 = mu f_n
 
 
@@ -126,7 +136,7 @@ def test_returned_forces_hold_the_wrench():
     positions, normals = ellipsoid_grasps(rng, 50, 6)
     wrenches = rng.normal(size=(50, 6))
     mu = rng.uniform(0.3, 1.0, (50, 6))
-    s_star, forces = optimal_contact_forces(positions, normals, mu, wrenches)
+    s_star, forces, _ = optimal_contact_forces(positions, normals, mu, wrenches)
     held = np.flatnonzero(np.isfinite(s_star))
     assert held.size > 10 and not np.isnan(s_star).any()
     for g in held:
@@ -140,7 +150,7 @@ def test_lp_pyramids_bracket_s_star():
     wrenches = rng.normal(size=(12, 6))
     limits = rng.uniform(0.5, 3.0, (12, 5))
     for limit in (None, limits):
-        s_star, _ = optimal_contact_forces(positions, normals, 0.6, wrenches, limit)
+        s_star, _, _ = optimal_contact_forces(positions, normals, 0.6, wrenches, limit)
         for g in range(12):
             lim = None if limit is None else limit[g]
             outer = pyramid_min_max_force(positions[g], normals[g], 0.6, wrenches[g],
@@ -167,17 +177,17 @@ def test_invariant_under_rigid_motion_and_scaling(seed, n_contacts, scale, load)
     positions, normals = ellipsoid_grasps(rng, 4, n_contacts, axes=rng.uniform(0.5, 3, 3))
     wrench = rng.normal(size=(4, 6))
     mu = rng.uniform(0.3, 1.2, (4, n_contacts))
-    base, _ = optimal_contact_forces(positions, normals, mu, wrench)
+    base, _, _ = optimal_contact_forces(positions, normals, mu, wrench)
 
     rotation, shift = random_rotation(rng), rng.uniform(-5, 5, 3)
     force = wrench[:, :3] @ rotation.T
     moved_wrench = np.concatenate([force, wrench[:, 3:] @ rotation.T + np.cross(shift, force)],
                                   axis=1)
-    moved, _ = optimal_contact_forces(positions @ rotation.T + shift, normals @ rotation.T,
+    moved, _, _ = optimal_contact_forces(positions @ rotation.T + shift, normals @ rotation.T,
                                       mu, moved_wrench)
     scaled_wrench = np.concatenate([wrench[:, :3], scale * wrench[:, 3:]], axis=1)
-    scaled, _ = optimal_contact_forces(scale * positions, normals, mu, scaled_wrench)
-    heavier, _ = optimal_contact_forces(positions, normals, mu, load * wrench)
+    scaled, _, _ = optimal_contact_forces(scale * positions, normals, mu, scaled_wrench)
+    heavier, _, _ = optimal_contact_forces(positions, normals, mu, load * wrench)
 
     finite = np.isfinite(base)
     # Each answer is within OPTIMALITY_TOL of its own frame's dual bound, by forces inside
@@ -205,7 +215,7 @@ def test_dual_lower_bound_is_sound_for_any_wrench(seed, n_contacts):
     mu = rng.uniform(0.3, 1.2, (6, n_contacts))
     limits = np.where(rng.random((6, n_contacts)) < 0.3, rng.uniform(0.5, 5.0, (6, n_contacts)),
                       np.inf)
-    s_star, _ = optimal_contact_forces(positions, normals, mu, wrench, limits)
+    s_star, _, _ = optimal_contact_forces(positions, normals, mu, wrench, limits)
     unit, centroid, size = certificates.normalise_positions(positions)
     torque = wrench[:, 3:] - np.cross(centroid, wrench[:, :3])
     scaled = np.concatenate([wrench[:, :3], torque / size[:, None]], axis=1)
@@ -227,12 +237,12 @@ def solve_both_ways(monkeypatch, positions, normals, mu, wrench, limits=None):
     with monkeypatch.context() as patch:
         patch.setattr(grasp_forces, "_clarabel_stage",
                       lambda gmap, *args: (left.append(gmap.shape[0]), stage(gmap, *args))[1])
-        fast, _ = optimal_contact_forces(positions, normals, mu, wrench, limits)
+        fast, _, _ = optimal_contact_forces(positions, normals, mu, wrench, limits)
     with monkeypatch.context() as patch:
         patch.setattr(grasp_forces, "_fast_stage", lambda unit, *args: (
             np.zeros(unit.shape[0]), np.zeros(unit.shape[:2] + (3,)),
             np.zeros(unit.shape[0], dtype=bool)))
-        slow, _ = optimal_contact_forces(positions, normals, mu, wrench, limits)
+        slow, _, _ = optimal_contact_forces(positions, normals, mu, wrench, limits)
     return fast, sum(left), slow
 
 
@@ -256,7 +266,7 @@ def test_fast_stage_agrees_with_clarabel_and_decides_nearly_every_box_grasp(
     mu = rng.uniform(0.3, 1.0, (150, n_contacts))
     limits = None
     if limited:   # around the unlimited need: some grasps are held still, some no more
-        need, _ = optimal_contact_forces(positions, normals, mu, wrench)
+        need, _, _ = optimal_contact_forces(positions, normals, mu, wrench)
         limits = rng.uniform(0.5, 3.0, (150, n_contacts)) * np.minimum(need, 1e3)[:, None]
         limits[rng.random((150, n_contacts)) < 0.3] = np.inf
     fast, left, slow = solve_both_ways(monkeypatch, positions, normals, mu, wrench, limits)
@@ -350,13 +360,13 @@ def test_batch_shapes():
     rng = np.random.default_rng(11)
     positions, normals = ellipsoid_grasps(rng, 5, 4)
     one_wrench = rng.normal(size=6)
-    s_batch, f_batch = optimal_contact_forces(positions, normals, 0.9, one_wrench)
+    s_batch, f_batch, _ = optimal_contact_forces(positions, normals, 0.9, one_wrench)
     assert s_batch.shape == (5,) and f_batch.shape == (5, 4, 3)
-    s_one, f_one = optimal_contact_forces(positions[2], normals[2], 0.9, one_wrench)
+    s_one, f_one, _ = optimal_contact_forces(positions[2], normals[2], 0.9, one_wrench)
     assert s_one.shape == () and f_one.shape == (4, 3)
     np.testing.assert_allclose(s_one, s_batch[2], rtol=1e-7)
     many = rng.normal(size=(7, 6))
-    s_many, f_many = optimal_contact_forces(positions[0], normals[0], 0.9, many)
+    s_many, f_many, _ = optimal_contact_forces(positions[0], normals[0], 0.9, many)
     assert s_many.shape == (7,) and f_many.shape == (7, 4, 3)
     lone = [optimal_contact_forces(positions[0], normals[0], 0.9, w)[0] for w in many]
     np.testing.assert_allclose(s_many, lone, rtol=1e-7)
@@ -376,3 +386,16 @@ def test_bad_input_is_named():
     with pytest.raises(ValueError, match=r"does not match"):
         optimal_contact_forces(np.stack([positions] * 2), np.stack([normals] * 2), 0.5,
                                np.zeros((3, 6)))
+
+
+def test_one_return_shape_for_hard_and_soft_contacts():
+    positions, normals = (a[0] for a in sample_grasps(make_object("box"), 1, 4,
+                                                      np.random.default_rng(5)))
+    hard = optimal_contact_forces(positions, normals, 0.5, GRAVITY)
+    given_zero = optimal_contact_forces(positions, normals, 0.5, GRAVITY, torsional_friction=0.0)
+    soft = optimal_contact_forces(positions, normals, 0.5, GRAVITY, torsional_friction=0.01)
+    for solution in (hard, given_zero, soft):
+        assert isinstance(solution, GraspForces) and len(solution) == 3
+        assert solution.forces.shape == (4, 3) and solution.torques.shape == (4,)
+    assert hard.max_normal_force == given_zero.max_normal_force
+    np.testing.assert_array_equal(hard.torques, np.where(np.isnan(hard.forces[:, 0]), np.nan, 0))

@@ -5,8 +5,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from grasp_fc_ros.core import (check_force_closure, exact_force_closure, torque_filter,
-                               validate_grasps)
+from grasp_fc_ros.core import (
+    check_force_closure,
+    exact_force_closure,
+    torque_filter,
+    validate_grasps,
+)
 
 TETRAHEDRON = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], float)
 
@@ -42,12 +46,18 @@ def test_mu_broadcasts_per_contact_and_per_grasp():
 
 
 @pytest.mark.parametrize("corrupt, message", [
-    (lambda p, n, m: p.__setitem__((2, 1, 0), np.nan), "grasp 2, contact 1: position is not finite"),
-    (lambda p, n, m: n.__setitem__((1, 3, 2), np.inf), "grasp 1, contact 3: normal is not finite"),
-    (lambda p, n, m: n.__setitem__((0, 2), 0.0), "grasp 0, contact 2: normal has zero length"),
-    (lambda p, n, m: m.__setitem__((3, 0), 0.0), "grasp 3, contact 0: friction coefficient must be > 0"),
-    (lambda p, n, m: m.__setitem__((3, 1), -1.0), "grasp 3, contact 1: friction coefficient must be > 0"),
-    (lambda p, n, m: m.__setitem__((2, 2), np.nan), "grasp 2, contact 2: friction coefficient is not finite"),
+    (lambda p, n, m: p.__setitem__((2, 1, 0), np.nan),
+     "grasp 2, contact 1: position is not finite"),
+    (lambda p, n, m: n.__setitem__((1, 3, 2), np.inf),
+     "grasp 1, contact 3: normal is not finite"),
+    (lambda p, n, m: n.__setitem__((0, 2), 0.0),
+     "grasp 0, contact 2: normal has zero length"),
+    (lambda p, n, m: m.__setitem__((3, 0), 0.0),
+     "grasp 3, contact 0: friction coefficient must be > 0"),
+    (lambda p, n, m: m.__setitem__((3, 1), -1.0),
+     "grasp 3, contact 1: friction coefficient must be > 0"),
+    (lambda p, n, m: m.__setitem__((2, 2), np.nan),
+     "grasp 2, contact 2: friction coefficient is not finite"),
 ])
 def test_bad_values_name_the_grasp_and_contact(corrupt, message):
     positions, normals = batch()
@@ -189,8 +199,11 @@ def test_quick_all_valid_check_agrees_with_the_per_grasp_validation(seed):
     """prepare_grasps skips the per-grasp validation when a few whole-array checks pass:
     those must pass exactly when the per-grasp validation finds nothing."""
     from grasp_fc_ros.core.grasp_input import _all_valid, _validate
-    from grasp_fc_ros.core.tolerances import (MAX_ABS_COORDINATE, MAX_FRICTION_COEFFICIENT,
-                                              MIN_NORMAL_COMPONENT)
+    from grasp_fc_ros.core.tolerances import (
+        MAX_ABS_COORDINATE,
+        MAX_FRICTION_COEFFICIENT,
+        MIN_NORMAL_COMPONENT,
+    )
     rng = np.random.default_rng(seed)
     positions = rng.normal(size=(4, 5, 3))
     normals = rng.normal(size=(4, 5, 3))

@@ -10,9 +10,16 @@ from hypothesis import strategies as st
 
 from grasp_cases import ellipsoid_grasps, random_rotation
 from grasp_fc_ros.core import certificates, check_force_closure
-from grasp_fc_ros.core.minimum_friction import (ABS_TOL, CERT_MARGIN, MU_CAP, REL_TOL,
-                                                lower_certificate, minimum_friction,
-                                                minimum_friction_bounds, upper_certificate)
+from grasp_fc_ros.core.minimum_friction import (
+    ABS_TOL,
+    CERT_MARGIN,
+    MU_CAP,
+    REL_TOL,
+    lower_certificate,
+    minimum_friction,
+    minimum_friction_bounds,
+    upper_certificate,
+)
 from grasp_fc_ros.core.tolerances import MARGIN_TOL, MAX_FRICTION_COEFFICIENT
 from reference_pyramids import pyramid_minimum_friction
 
@@ -174,7 +181,7 @@ def test_lp_pyramids_bracket_the_minimum_friction():
     positions = [p for batch in cases for p in batch[0]]
     normals = [n for batch in cases for n in batch[1]]
     ratios = [rng.uniform(0.5, 2.0, len(p)) for p in positions]
-    for p, n, r in zip(positions, normals, ratios):
+    for p, n, r in zip(positions, normals, ratios, strict=True):
         mu = minimum_friction(p, n, r)
         _, circumscribed = pyramid_minimum_friction(p, n, r, inscribed=False)
         _, inscribed = pyramid_minimum_friction(p, n, r, inscribed=True)
@@ -193,7 +200,7 @@ def test_batch_answers_match_lone_answers():
     rng = np.random.default_rng(14)
     positions, normals = ellipsoid_grasps(rng, 12, 6)
     batch = minimum_friction(positions, normals)
-    lone = np.array([minimum_friction(p, n) for p, n in zip(positions, normals)])
+    lone = np.array([minimum_friction(p, n) for p, n in zip(positions, normals, strict=True)])
     assert batch.shape == (12,) and lone[0].shape == ()
     np.testing.assert_allclose(batch, lone, rtol=2 * REL_TOL)
 

@@ -57,7 +57,7 @@ def random_sets(rng, n_sets, plane_probability):
             np.array(generators).reshape(-1, 3))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def lp_cases(n_sets, plane_probability):
     """60 random problems, as TorqueSets, and their LP verdicts (shared by all paths)."""
     rng = np.random.default_rng(n_sets * 100 + int(plane_probability * 10))

@@ -2,16 +2,27 @@
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from grasp_cases import ellipsoid_grasps, random_rotation
-from grasp_fc_ros.core import (Status, check_force_closure, exact_force_closure,
-                               minimum_friction, optimal_contact_forces,
-                               torque_filter, validate_grasps, verify_certificates)
+from grasp_fc_ros.core import (
+    Status,
+    check_force_closure,
+    exact_force_closure,
+    minimum_friction,
+    optimal_contact_forces,
+    torque_filter,
+    validate_grasps,
+    verify_certificates,
+)
 from grasp_fc_ros.core.contact_model import HARD, SOFT, model_of
 from grasp_fc_ros.core.grasp_input import prepare_grasps
-from reference_pyramids import (soft_pyramid_is_force_closure, soft_pyramid_min_max_force,
-                               soft_pyramid_minimum_friction)
+from reference_pyramids import (
+    soft_pyramid_is_force_closure,
+    soft_pyramid_min_max_force,
+    soft_pyramid_minimum_friction,
+)
 
 
 def antipodal_pairs(rng, n_grasps):
@@ -136,9 +147,9 @@ def test_soft_verdicts_are_bracketed_by_polyhedral_soft_cones():
     mu = 0.4
     exact = exact_force_closure(positions, normals, mu, torsional_friction=gamma)
     inner = np.array([soft_pyramid_is_force_closure(p, n, mu, g, inscribed=True)
-                      for p, n, g in zip(positions, normals, gamma)])
+                      for p, n, g in zip(positions, normals, gamma, strict=True)])
     outer = np.array([soft_pyramid_is_force_closure(p, n, mu, g, inscribed=False)
-                      for p, n, g in zip(positions, normals, gamma)])
+                      for p, n, g in zip(positions, normals, gamma, strict=True)])
     assert not np.any(inner & ~exact), "inscribed soft cones FC but exact says not"
     assert not np.any(exact & ~outer), "exact FC but circumscribed soft cones not"
     assert inner.any() and (~outer).any()
@@ -229,9 +240,9 @@ def test_soft_optimal_forces_are_bracketed_by_polyhedral_soft_cones():
     s_star, forces, torques = optimal_contact_forces(positions, normals, 0.5, wrench,
                                                      torsional_friction=gamma)
     inner = [soft_pyramid_min_max_force(p, n, 0.5, g, w, inscribed=True)
-             for p, n, g, w in zip(positions, normals, gamma, wrench)]
+             for p, n, g, w in zip(positions, normals, gamma, wrench, strict=True)]
     outer = [soft_pyramid_min_max_force(p, n, 0.5, g, w, inscribed=False)
-             for p, n, g, w in zip(positions, normals, gamma, wrench)]
+             for p, n, g, w in zip(positions, normals, gamma, wrench, strict=True)]
     finite = np.isfinite(s_star)
     assert finite.any() and (~finite).any()
     larger = optimal_contact_forces(positions, normals, 0.5, wrench,
@@ -282,7 +293,7 @@ def test_soft_minimum_friction_is_bracketed_by_polyhedral_soft_cones():
     rng = np.random.default_rng(9)
     positions, normals, gamma = soft_grasps(rng, 6, 3, soft_share=1.0)
     soft = minimum_friction(positions, normals, torsional_friction=gamma)
-    for p, n, g, value in zip(positions, normals, gamma, soft):
+    for p, n, g, value in zip(positions, normals, gamma, soft, strict=True):
         outer_low, _ = soft_pyramid_minimum_friction(p, n, g, inscribed=False)
         _, inner_high = soft_pyramid_minimum_friction(p, n, g, inscribed=True)
         assert outer_low <= value * (1 + 1e-6) + 1e-9
@@ -326,7 +337,7 @@ def test_filter_passes_grasps_whose_soft_normals_span_at_once(monkeypatch):
         torque_filter(positions, normals, 0.3, origins="none", torsional_friction=1.0)
     monkeypatch.setattr(torque_space_filter, "soft_normals_span",
                         lambda grasps: np.zeros(len(grasps.mu), dtype=bool))
-    for (passed, wrench), origins in zip(quick, ("seed", "all")):
+    for (passed, wrench), origins in zip(quick, ("seed", "all"), strict=True):
         slow, slow_wrench = torque_filter(positions, normals, 0.3, origins=origins,
                                           torsional_friction=gamma, certificates=True)
         assert np.array_equal(passed, slow) and passed[spanned].all()

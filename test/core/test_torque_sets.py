@@ -5,8 +5,7 @@ import pytest
 
 from grasp_cases import rotate_towards
 from grasp_fc_ros.core.tolerances import FAN_WIDEN_RAD
-from grasp_fc_ros.core.torque_sets import (TorqueSetKind, cone_torque_sets,
-                                           friction_half_angle_sine)
+from grasp_fc_ros.core.torque_sets import TorqueSetKind, cone_torque_sets, friction_half_angle_sine
 
 
 def sampled_torques(lever_arm, normal, mu, rng, count=20000):
@@ -107,5 +106,5 @@ def test_fan_does_not_depend_on_the_lever_arms_length(scale):
     reference = one_set([1.0, -0.3, 0.2], normal, 0.4)
     scaled = one_set(np.array([1.0, -0.3, 0.2]) * scale, normal, 0.4)
     assert reference[0] == scaled[0] == TorqueSetKind.FAN
-    for a, b in zip(reference[1:], scaled[1:]):
+    for a, b in zip(reference[1:], scaled[1:], strict=True):
         assert np.allclose(a, b, atol=1e-14)

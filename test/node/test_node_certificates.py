@@ -189,7 +189,7 @@ def test_compute_contact_forces_balances_the_load_and_matches_the_core(certifyin
     _, client = certifying
     got = client.compute_contact_forces(positions, normals, wrench)  # mu: node default
     assert got.feasible and got.message == ""
-    s_star, _ = optimal_contact_forces(positions, normals, DEFAULT_MU, wrench)
+    s_star, _, _ = optimal_contact_forces(positions, normals, DEFAULT_MU, wrench)
     assert got.max_normal_force == pytest.approx(float(s_star), rel=S_STAR_RTOL)
     f = got.contact_forces
     assert f.shape == (4, 3)

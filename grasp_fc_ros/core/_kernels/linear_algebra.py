@@ -1,0 +1,109 @@
+"""The 6 x 6 Cholesky factor, its solves and the norm of its inverse (numba).
+
+Every loop runs over the literal size 6, which lets the compiler unroll it (faster than
+loops over ``shape[0]``), and each divides by a diagonal entry once, multiplying by its
+reciprocal after: the substitutions are chains of dependent operations, where a division
+costs several multiplications (tuned: docs/performance.md#exact-stage). Results differ
+from divisions by at most an ulp per step; every caller checks what it uses (a projection
+by its residual, a rank bound with its own margin).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .jit import jit
+
+
+@jit
+def cholesky(matrix: np.ndarray, factor: np.ndarray) -> bool:
+    """Lower Cholesky factor L (L L^T = matrix) of a symmetric 6 x 6 matrix.
+
+    Parameters
+    ----------
+    matrix : ndarray, shape (6, 6)
+        Only its lower triangle is read.
+    factor : ndarray, shape (6, 6)
+        Output: L, zero above the diagonal.
+
+    Returns
+    -------
+    bool
+        False on a pivot that is not positive (``factor`` is then incomplete).
+    """
+    factor[:] = 0.0
+    for r in range(6):
+        for c in range(r + 1):
+            acc = matrix[r, c]
+            for k in range(c):
+                acc -= factor[r, k] * factor[c, k]
+            if r == c:
+                if not acc > 0.0:
+                    return False
+                factor[r, r] = np.sqrt(acc)
+            else:
+                # (one reciprocal per column: the unrolled loops share it)
+                factor[r, c] = acc * (1.0 / factor[c, c])
+    return True
+
+
+@jit
+def cholesky_solve(factor: np.ndarray, rhs: np.ndarray, x: np.ndarray,
+                   y: np.ndarray) -> None:
+    """Solve (L L^T) x = rhs by forward and back substitution.
+
+    Parameters
+    ----------
+    factor : ndarray, shape (6, 6)
+        Lower-triangular L (from :func:`cholesky`).
+    rhs : ndarray, shape (6,)
+    x : ndarray, shape (6,)
+        Output; may be ``rhs`` itself.
+    y : ndarray, shape (6,)
+        Scratch.
+    """
+    i0, i1, i2 = 1.0 / factor[0, 0], 1.0 / factor[1, 1], 1.0 / factor[2, 2]
+    i3, i4, i5 = 1.0 / factor[3, 3], 1.0 / factor[4, 4], 1.0 / factor[5, 5]
+    inverse = (i0, i1, i2, i3, i4, i5)
+    for r in range(6):
+        acc = rhs[r]
+        for c in range(r):
+            acc -= factor[r, c] * y[c]
+        y[r] = acc * inverse[r]
+    for r in range(5, -1, -1):
+        acc = y[r]
+        for c in range(r + 1, 6):
+            acc -= factor[c, r] * x[c]
+        x[r] = acc * inverse[r]
+
+
+@jit
+def triangular_inverse_norm2(factor: np.ndarray, column: np.ndarray) -> float:
+    """|L^-1|_F^2 of a lower-triangular 6 x 6 L, by forward substitution column by column.
+
+    Parameters
+    ----------
+    factor : ndarray, shape (6, 6)
+        Lower-triangular L with a positive diagonal.
+    column : ndarray, shape (6,)
+        Scratch.
+
+    Returns
+    -------
+    float
+    """
+    i0, i1, i2 = 1.0 / factor[0, 0], 1.0 / factor[1, 1], 1.0 / factor[2, 2]
+    i3, i4, i5 = 1.0 / factor[3, 3], 1.0 / factor[4, 4], 1.0 / factor[5, 5]
+    inverse = (i0, i1, i2, i3, i4, i5)
+    total = 0.0
+    for k in range(6):
+        for r in range(6):
+            if r < k:
+                column[r] = 0.0
+                continue
+            acc = 1.0 if r == k else 0.0
+            for c in range(k, r):
+                acc -= factor[r, c] * column[c]
+            column[r] = acc * inverse[r]
+            total += column[r] * column[r]
+    return total
