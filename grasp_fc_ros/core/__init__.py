@@ -15,6 +15,8 @@ Closure Grasp":
 * :mod:`.certificates` -- internal forces and bounding wrenches, checked in numpy;
 * :mod:`.pipeline` -- the filter, then the exact test on the survivors;
 * :mod:`.one_grasp` -- the compiled fast path of one grasp through the pipeline;
+* :mod:`.epsilon` -- the Ferrari-Canny epsilon (Q1) with circular cones, certified
+  bounds; its compiled search in :mod:`.epsilon_kernels`;
 * :mod:`.minimum_friction` -- the least friction coefficient that makes a grasp force
   closure (certified bounds);
 * :mod:`.grasp_forces` -- the least largest normal force that holds a given load;
@@ -37,6 +39,7 @@ True
 """
 
 from .certificates import verify_certificates
+from .epsilon import EpsilonResult, epsilon_quality
 from .grasp_forces import optimal_contact_forces
 from .grasp_input import GraspValidation, validate_grasps
 from .one_grasp import warm_up
@@ -46,11 +49,13 @@ from .torque_space_filter import ORIGIN_CHOICES, torque_filter
 
 __all__ = [
     "ORIGIN_CHOICES",
+    "EpsilonResult",
     "ForceClosureResult",
     "GraspValidation",
     "MinimumFriction",
     "Status",
     "check_force_closure",
+    "epsilon_quality",
     "exact_force_closure",
     "minimum_friction",
     "minimum_friction_bounds",
