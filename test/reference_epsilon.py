@@ -74,7 +74,7 @@ def contact_points(positions, normals, mu, center=(0.0, 0.0, 0.0), torque_scale=
     radius = 1.0 if inscribed else 1.0 / np.cos(np.pi / sides)
     angle = 2 * np.pi * np.arange(sides) / sides
     out = []
-    for r, n, m, g in zip(lever, normals, mu, gamma):
+    for r, n, m, g in zip(lever, normals, mu, gamma, strict=True):
         t1, t2 = _tangents(n)
         if g > 0:
             ball = ball_polytope(sides, inscribed)

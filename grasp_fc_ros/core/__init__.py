@@ -42,8 +42,8 @@ from .certificates import verify_certificates
 from .epsilon import EpsilonResult, epsilon_quality
 from .grasp_forces import optimal_contact_forces
 from .grasp_input import GraspValidation, validate_grasps
-from .one_grasp import warm_up
 from .minimum_friction import MinimumFriction, minimum_friction, minimum_friction_bounds
+from .one_grasp import warm_up
 from .pipeline import ForceClosureResult, Status, check_force_closure, exact_force_closure
 from .torque_space_filter import ORIGIN_CHOICES, torque_filter
 
