@@ -78,9 +78,21 @@ MAX_FACETS = 1 << 17
 #: accepted within CERTIFICATE_TOL (1e-6) of max_j |a_j| as well.
 ZERO_UPPER_TOL = 1e-6
 
-#: The first support points are taken at +-each row of this fixed orthonormal frame,
-#: chosen at random once (seed fixed) so that no grasp's symmetry lines up with it.
-SEED_FRAME = np.linalg.qr(np.random.default_rng(20_240_611).standard_normal((6, 6)))[0].T
+
+
+def _seed_directions() -> np.ndarray:
+    """The first support points' directions (19, 6): the 7 vertices of a regular
+    simplex, then +-each axis, all in an orthonormal frame chosen at random once (seed
+    fixed) so that no grasp's symmetry lines up with them."""
+    frame = np.linalg.qr(np.random.default_rng(20_240_611).standard_normal((6, 6)))[0].T
+    centred = np.eye(7) - 1.0 / 7.0                       # 7 points summing to 0, in R^7
+    simplex = centred @ np.linalg.svd(centred)[2][:6].T   # ... in their 6-D span
+    simplex /= np.linalg.norm(simplex, axis=1, keepdims=True)
+    return np.ascontiguousarray(np.vstack([simplex, frame, -frame]) @ frame)
+
+
+#: Directions of the first support points (:func:`_seed_directions`).
+SEED_DIRECTIONS = _seed_directions()
 
 
 @dataclass(frozen=True)
@@ -245,7 +257,7 @@ def _search(normal_rows, tangent_rows, mu, wrench_scale, linf, rtol):
     """The compiled search on a subset of grasps: lower, upper, direction, points,
     status."""
     lower, upper, direction, points, status = epsilon_kernels.epsilon_batch(
-        normal_rows, tangent_rows, kernel_array(mu), wrench_scale, linf, rtol, SEED_FRAME,
+        normal_rows, tangent_rows, kernel_array(mu), wrench_scale, linf, rtol, SEED_DIRECTIONS,
         MAX_SUPPORT_POINTS, MAX_FACETS)
     stalled = status != epsilon_kernels.CONVERGED
     if stalled.any():

@@ -31,9 +31,10 @@ support value seen. Nothing in the result rests on the surface being a convex hu
   products' rounding and by ``SUPPORT_ROUNDING_ULPS`` (how far a computed support point
   may lie from the exact one).
 
-The surface starts as the simplex and then hull of support points in 12 fixed
-directions, built around an interior point of its own until the origin lies strictly
-inside every facet, and only then switches to facets oriented about the origin.
+The surface starts as the simplex of support points in 7 fixed directions (those of a
+regular simplex; 19 where these span too little), built around an interior point of
+its own until the origin lies strictly inside every facet, and only then switches to
+facets oriented about the origin.
 """
 
 from __future__ import annotations
@@ -80,6 +81,9 @@ VISIBLE_RETRY = 0.25
 #: this fraction of the wrench scale beyond the origin; nearer, the origin-based plane
 #: of a facet would be ill-conditioned.
 CONTAINMENT_TOL = 1e-10
+
+#: The first surface is the simplex of the support points in this many seed directions.
+SEED_SIMPLEX = 7
 
 #: Status codes of a grasp.
 CONVERGED, BUDGET, STUCK, NOT_CONTAINED, DEGENERATE = 0, 1, 2, 3, 4
@@ -264,16 +268,18 @@ def _set_facet(points, facet, reference, origin_based, allowance, vertices, norm
 
 
 @_jit
-def _insert(points, q, start, reference, origin_based, allowance, tol, vertices, neighbours,
-            normals, offsets, certified, alive, stuck, marks, stamp, n_facets, scratch_int,
-            scratch_new, matrix, normal):
+def _insert(points, q, start, reference, origin_based, allowance, tol, floor, vertices,
+            neighbours, normals, offsets, certified, alive, stuck, marks, stamp, n_facets,
+            scratch_int, scratch_new, matrix, normal):
     """Replace the facets visible from point ``q`` (reached from facet ``start``) by the
     cone from q over their horizon. Returns the new facet count, or -1 (nothing
     changed) if the insertion would break the surface or overflow its arrays.
 
     A new facet whose orientation cannot be certified (a sliver: q barely beyond the
-    facet across its horizon ridge, or nearly in line with that ridge) is avoided by
-    counting that facet as visible too, up to ``_MAX_FORCED`` times.
+    facet across its horizon ridge, or nearly in line with that ridge), or whose
+    certified offset falls below ``floor`` (which a convex hull growing around the
+    origin never does: the surface has turned non-convex there), is avoided by counting
+    the facet across its horizon ridge as visible too, up to ``_MAX_FORCED`` times.
     """
     visible = scratch_int[0]
     n_visible = _visible_from(points, q, start, tol, neighbours, normals, offsets, marks,
@@ -285,7 +291,7 @@ def _insert(points, q, start, reference, origin_based, allowance, tol, vertices,
                              scratch_int[2])
         if n_horizon < 0 or n_facets + n_horizon > vertices.shape[0]:
             return -1
-        failed = _new_facets(points, q, reference, origin_based, allowance, vertices,
+        failed = _new_facets(points, q, reference, origin_based, allowance, floor, vertices,
                              normals, offsets, certified, n_facets, n_horizon,
                              scratch_int[1], scratch_int[2], matrix, normal)
         if failed < 0:
@@ -366,11 +372,12 @@ def _horizon(neighbours, marks, stamp, visible, n_visible, horizon_facet, horizo
 
 
 @_jit
-def _new_facets(points, q, reference, origin_based, allowance, vertices, normals, offsets,
-                certified, first, count, horizon_facet, horizon_slot, matrix, normal):
+def _new_facets(points, q, reference, origin_based, allowance, floor, vertices, normals,
+                offsets, certified, first, count, horizon_facet, horizon_slot, matrix, normal):
     """Facets first..first+count-1: each horizon facet with q in place of the vertex
     opposite its horizon ridge (which keeps the surface's orientation coherent).
-    Returns -1, or the first horizon index whose facet's orientation is not certified."""
+    Returns -1, or the first horizon index whose facet's orientation is not certified
+    or (about the origin) whose certified offset is below ``floor``."""
     for h in range(count):
         f = first + h
         g, j = horizon_facet[h], horizon_slot[h]
@@ -379,6 +386,8 @@ def _new_facets(points, q, reference, origin_based, allowance, vertices, normals
         vertices[f, j] = q
         if not _set_facet(points, f, reference, origin_based, allowance, vertices, normals,
                           offsets, certified, matrix, normal):
+            return h
+        if origin_based and certified[f] < floor:
             return h
     return -1
 
@@ -550,34 +559,30 @@ def _query(normal_rows, tangent_rows, mu, linf, allowance, direction, point, bes
 
 
 @_jit
-def _epsilon_one(normal_rows, tangent_rows, mu, scale, linf, rtol, frame, max_points,
-                 points, vertices, neighbours, normals, offsets, certified, alive, stuck,
-                 marks, scratch_int, scratch_new, matrix, normal, direction):
-    """Certified bounds on one grasp's epsilon. Returns (lower, upper, points used,
-    status); ``direction`` (6,) <- the direction certifying upper."""
-    allowance = SUPPORT_ROUNDING_ULPS * _EPS * scale
-    tol = VISIBLE_TOL * scale
-    upper = np.inf
-    u = np.empty(6)
-    for k in range(12):
-        for c in range(6):
-            u[c] = frame[k % 6, c] if k < 6 else -frame[k % 6, c]
-        _, bound = _query(normal_rows, tangent_rows, mu, linf, allowance, u, points[k],
+def _seed_surface(normal_rows, tangent_rows, mu, linf, allowance, tol, contain_tol, seeds,
+                  n_seeds, points, vertices, neighbours, normals, offsets, certified, alive,
+                  stuck, marks, scratch_int, scratch_new, matrix, normal, direction, reference,
+                  upper):
+    """The first surface: the hull of the support points in the first ``n_seeds``
+    directions of ``seeds``, oriented about their simplex's centroid (``reference``).
+    Returns (facets, insertions so far, upper), facets 0 if the points span less than
+    six dimensions."""
+    for k in range(n_seeds):
+        _, bound = _query(normal_rows, tangent_rows, mu, linf, allowance, seeds[k], points[k],
                           upper, direction)
         upper = min(upper, bound)
-    n_points = 12
     chosen = np.empty(7, np.int64)
-    if not _initial_simplex(points, n_points, CONTAINMENT_TOL * scale, chosen):
-        return 0.0, upper, n_points, DEGENERATE
-    reference = np.zeros(6)
-    for k in range(7):
-        for c in range(6):
+    if not _initial_simplex(points, n_seeds, contain_tol, chosen):
+        return 0, 0, upper
+    for c in range(6):
+        reference[c] = 0.0
+        for k in range(7):
             reference[c] += points[chosen[k], c] / 7.0
     if not _simplex_surface(points, chosen, reference, allowance, vertices, neighbours,
                             normals, offsets, certified, alive, stuck, marks, matrix, normal):
-        return 0.0, upper, n_points, DEGENERATE
+        return 0, 0, upper
     n_facets, stamp = 7, 0
-    for p in range(12):
+    for p in range(n_seeds):
         start = -1
         for f in range(n_facets):
             if alive[f]:
@@ -589,11 +594,39 @@ def _epsilon_one(normal_rows, tangent_rows, mu, scale, linf, rtol, frame, max_po
                     break
         if start >= 0:
             stamp += 1
-            grown = _insert(points, p, start, reference, False, allowance, tol, vertices,
-                            neighbours, normals, offsets, certified, alive, stuck, marks, stamp,
-                            n_facets, scratch_int, scratch_new, matrix, normal)
+            grown = _insert(points, p, start, reference, False, allowance, tol, -np.inf,
+                            vertices, neighbours, normals, offsets, certified, alive, stuck,
+                            marks, stamp, n_facets, scratch_int, scratch_new, matrix, normal)
             if grown > 0:
                 n_facets = grown
+    return n_facets, stamp, upper
+
+
+@_jit
+def _epsilon_one(normal_rows, tangent_rows, mu, scale, linf, rtol, seeds, max_points,
+                 points, vertices, neighbours, normals, offsets, certified, alive, stuck,
+                 marks, scratch_int, scratch_new, matrix, normal, direction):
+    """Certified bounds on one grasp's epsilon. Returns (lower, upper, points used,
+    status); ``direction`` (6,) <- the direction certifying upper.
+
+    The first surface uses the support points in the first ``SEED_SIMPLEX`` rows of
+    ``seeds`` (a regular simplex of directions), or all of them where those do not span
+    six dimensions (several directions with one support point)."""
+    allowance = SUPPORT_ROUNDING_ULPS * _EPS * scale
+    tol = VISIBLE_TOL * scale
+    reference = np.zeros(6)
+    upper = np.inf
+    n_points, n_facets, stamp = 0, 0, 0
+    for n_seeds in (SEED_SIMPLEX, seeds.shape[0]):
+        n_points = n_seeds
+        n_facets, stamp, upper = _seed_surface(
+            normal_rows, tangent_rows, mu, linf, allowance, tol, CONTAINMENT_TOL * scale,
+            seeds, n_seeds, points, vertices, neighbours, normals, offsets, certified, alive,
+            stuck, marks, scratch_int, scratch_new, matrix, normal, direction, reference, upper)
+        if n_facets > 0:
+            break
+    if n_facets == 0:
+        return 0.0, upper, n_points, DEGENERATE
     origin = np.zeros(6)
     for phase in range(2):
         origin_based = phase == 1
@@ -619,8 +652,9 @@ def _epsilon_one(normal_rows, tangent_rows, mu, scale, linf, rtol, frame, max_po
             grown = -1
             for fraction in (VISIBLE_FRACTION, VISIBLE_RETRY):
                 stamp += 1
+                visible_tol = max(tol, fraction * (h - offsets[f]))
                 grown = _insert(points, n_points, f, origin if origin_based else reference,
-                                origin_based, allowance, max(tol, fraction * (h - offsets[f])),
+                                origin_based, allowance, visible_tol, least - visible_tol,
                                 vertices, neighbours, normals, offsets, certified, alive, stuck,
                                 marks, stamp, n_facets, scratch_int, scratch_new, matrix, normal)
                 if grown >= 0:
@@ -641,7 +675,7 @@ def _epsilon_one(normal_rows, tangent_rows, mu, scale, linf, rtol, frame, max_po
 
 
 @_jit
-def epsilon_batch(normal_rows, tangent_rows, mu, scale, linf, rtol, frame, max_points,
+def epsilon_batch(normal_rows, tangent_rows, mu, scale, linf, rtol, seeds, max_points,
                   max_facets):
     """:func:`_epsilon_one` for every grasp of a batch (one workspace for all).
 
@@ -655,8 +689,9 @@ def epsilon_batch(normal_rows, tangent_rows, mu, scale, linf, rtol, frame, max_p
     linf : bool
         L-infinity budget instead of L1.
     rtol : float
-    frame : ndarray, shape (6, 6)
-        Orthonormal rows; the first support points are taken at +-each row.
+    seeds : ndarray, shape (S, 6)
+        Unit directions of the first support points: a regular simplex (the first
+        ``SEED_SIMPLEX`` rows), then more for grasps where those span too little.
     max_points, max_facets : int
         Budgets per grasp.
 
@@ -684,7 +719,7 @@ def epsilon_batch(normal_rows, tangent_rows, mu, scale, linf, rtol, frame, max_p
     matrix, normal = np.empty((6, 7)), np.empty(6)
     for g in range(n_grasps):
         lower[g], upper[g], n_points[g], status[g] = _epsilon_one(
-            normal_rows[g], tangent_rows[g], mu[g], scale[g], linf, rtol, frame, max_points,
+            normal_rows[g], tangent_rows[g], mu[g], scale[g], linf, rtol, seeds, max_points,
             points, vertices, neighbours, normals, offsets, certified, alive, stuck, marks,
             scratch_int, scratch_new, matrix, normal, direction[g])
     return lower, upper, direction, n_points, status
