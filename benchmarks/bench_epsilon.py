@@ -6,9 +6,10 @@ L = the grasp's largest |p_i - c|), for n = 4 and 6 contacts and mu = 0.5 and ta
 
 * ``epsilon_quality`` at ``--rtol`` (default 1e-3), all grasps of a cell in one call;
 * the peer: the Q1 that DexGraspBench (q1.py) and BODex (chq1.py) compute, written out
-  here as they do it: per contact 8 edges of unit normal force at radius mu (inscribed),
-  Qhull (scipy's ConvexHull) of the 8 n wrench points and the origin, least facet
-  offset (0 when the origin is not strictly inside), one grasp per Qhull call.
+  as they do it (grasp_fc_ros.experiment.epsilon_study.pyramid_q1): per contact 8 edges
+  of unit normal force at radius mu (inscribed), Qhull (scipy's ConvexHull) of the 8 n
+  wrench points and the origin, least facet offset (0 when the origin is not strictly
+  inside), one grasp per Qhull call.
 
 Grasps per second are medians of ``--repeats`` runs, ours and the peer's interleaved,
 in CPU seconds of this process (BLAS and numba on one thread), so that other processes
@@ -35,9 +36,9 @@ from collections.abc import Callable  # noqa: E402
 from functools import partial  # noqa: E402
 
 import numpy as np  # noqa: E402
-from scipy.spatial import ConvexHull, QhullError  # noqa: E402
 
 from grasp_fc_ros.core import epsilon_quality  # noqa: E402
+from grasp_fc_ros.experiment.epsilon_study import pyramid_q1_batch  # noqa: E402
 from grasp_fc_ros.objects import OBJECT_NAMES, make_object, sample_grasps  # noqa: E402
 from timing import MU_PAPER, ratio_or_nan  # noqa: E402
 
@@ -47,34 +48,6 @@ FRICTIONS = (0.5, MU_PAPER)
 PEER_EDGES = 8
 #: Target of issue 21: at least this many times the peer's grasps per second.
 TARGET_RATIO = 10.0
-
-
-def pyramid_q1(positions: np.ndarray, normals: np.ndarray, mu: float, centre: np.ndarray,
-               scale: float, edges: int = PEER_EDGES) -> float:
-    """Q1 of one grasp as DexGraspBench q1.py / BODex chq1.py compute it: ``edges``
-    inscribed edges n + mu (cos a t1 + sin a t2) of unit normal force, wrenches
-    (f, (p - c) x f / L), Qhull of them and the origin, least facet offset."""
-    angle = 2 * np.pi * np.arange(edges) / edges
-    points = [np.zeros(6)]
-    for p, n in zip(positions, normals, strict=True):
-        helper = np.eye(3)[np.abs(n).argmin()]
-        t1 = np.cross(n, helper)
-        t1 /= np.linalg.norm(t1)
-        t2 = np.cross(n, t1)
-        forces = n + mu * (np.cos(angle)[:, None] * t1 + np.sin(angle)[:, None] * t2)
-        torques = np.cross((p - centre) / scale, forces)
-        points.extend(np.concatenate([forces, torques], axis=1))
-    try:
-        hull = ConvexHull(np.array(points))
-    except QhullError:
-        return 0.0
-    return max(0.0, float(-hull.equations[:, -1].max()))
-
-
-def peer_q1(positions, normals, mu, centre, scales) -> np.ndarray:
-    """The peer on a batch: one Qhull call per grasp, as the dataset tools run it."""
-    return np.array([pyramid_q1(positions[g], normals[g], mu, centre, scales[g])
-                     for g in range(positions.shape[0])])
 
 
 def cell_grasps(n_fingers: int, per_object: int, objects, seed: int):
@@ -101,8 +74,8 @@ def measure(positions, normals, mu, rtol, repeats):
         seconds, result = cpu_seconds(partial(epsilon_quality, positions, normals, mu,
                                               center=centre, rtol=rtol))
         ours.append(seconds)
-        seconds, q1 = cpu_seconds(partial(peer_q1, positions, normals, mu, centre,
-                                          result.torque_scale))
+        seconds, q1 = cpu_seconds(partial(pyramid_q1_batch, positions, normals, mu, centre,
+                                          result.torque_scale, PEER_EDGES))
         peer.append(seconds)
     fc = result.force_closure
     inconsistent = int(np.sum((result.lower > 0) & ~fc) + np.sum(fc & ~(result.upper > 0)))
