@@ -326,3 +326,18 @@ def test_bad_contacts_name_grasp_and_contact():
         epsilon_quality(CUBE, -CUBE, [0.0, 1, 1, 1, 1, 1])
     with pytest.raises(ValueError, match="positions must have shape"):
         epsilon_quality(CUBE[:, :2], -CUBE[:, :2], 0.5)
+
+
+@pytest.mark.parametrize("name,n_contacts,mu,index", [
+    ("ellipsoid", 4, 1.0, 50), ("cylinder", 6, 1.0, 22), ("mug", 8, 0.5, 1)])
+def test_grasps_that_once_folded_the_surface_converge(name, n_contacts, mu, index):
+    """Random grasps on which a coarser visibility tolerance folded the surface (new facets
+    of negative orientation) and stalled the search."""
+    from grasp_fc_ros.objects import OBJECT_NAMES, make_object, sample_grasps
+
+    rng = np.random.default_rng([OBJECT_NAMES.index(name), n_contacts])
+    positions, normals = sample_grasps(make_object(name), 60, n_contacts, rng)
+    for rtol in (1e-3, 1e-6):
+        result = epsilon_quality(positions[index], normals[index], mu, rtol=rtol)
+        assert result.force_closure and result.converged
+        assert_bounds_contract(result, rtol, positions[index], normals[index], mu)

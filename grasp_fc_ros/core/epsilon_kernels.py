@@ -71,11 +71,12 @@ SUPPORT_ROUNDING_ULPS = 64.0
 #: than ``VISIBLE_FRACTION`` of how far it lies beyond the facet it was queried for (a
 #: retry after a refused insertion uses ``VISIBLE_RETRY`` of it). A facet barely
 #: visible would be replaced by slivers whose orientation the determinant cannot
-#: certify; one left in place only makes the surface slightly non-convex there, which
-#: the certificate does not need.
+#: certify; one left in place makes the surface slightly non-convex there, which the
+#: certificate does not need, but later insertions do: larger fractions left folds
+#: that stalled the search (tuned: docs/epsilon.md#robustness).
 VISIBLE_TOL = 1e-12
-VISIBLE_FRACTION = 1e-3
-VISIBLE_RETRY = 0.25
+VISIBLE_FRACTION = 1e-6
+VISIBLE_RETRY = 1e-3
 
 #: The surface is switched to facets about the origin once every facet lies at least
 #: this fraction of the wrench scale beyond the origin; nearer, the origin-based plane
@@ -279,7 +280,8 @@ def _insert(points, q, start, reference, origin_based, allowance, tol, floor, ve
     facet across its horizon ridge, or nearly in line with that ridge), or whose
     certified offset falls below ``floor`` (which a convex hull growing around the
     origin never does: the surface has turned non-convex there), is avoided by counting
-    the facet across its horizon ridge as visible too, up to ``_MAX_FORCED`` times.
+    the facet across its horizon ridge as visible too (if q lies at most ``tol`` beneath
+    it), up to ``_MAX_FORCED`` times.
     """
     visible = scratch_int[0]
     n_visible = _visible_from(points, q, start, tol, neighbours, normals, offsets, marks,
@@ -297,7 +299,12 @@ def _insert(points, q, start, reference, origin_based, allowance, tol, floor, ve
         if failed < 0:
             break
         forced = neighbours[scratch_int[1, failed], scratch_int[2, failed]]
-        if n_visible == visible.shape[0]:
+        beyond = -offsets[forced]
+        for c in range(6):
+            beyond += normals[forced, c] * points[q, c]
+        # Only a facet q is at most ``tol`` beneath: replacing one q lies clearly beneath
+        # would fold the surface.
+        if beyond < -tol or n_visible == visible.shape[0]:
             return -1
         marks[forced] = stamp
         visible[n_visible] = forced
