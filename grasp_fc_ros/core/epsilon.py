@@ -49,7 +49,7 @@ does positive work on it (within CERTIFICATE_TOL), so ``upper`` is 0 or within
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -151,8 +151,8 @@ def epsilon_quality(positions, normals, mu, *, center=(0.0, 0.0, 0.0), torque_sc
         L, a length (> 0): torques are divided by it. None: the largest |p_i - c| of
         each grasp (1 where every contact is at c).
     rtol : float
-        Relative accuracy: upper - lower <= rtol * upper, MIN_RTOL <= rtol < 1. 1e-3
-        is cheap; 1e-6 takes ~1.5-2x longer.
+        Relative accuracy: upper - lower <= rtol * upper, MIN_RTOL <= rtol < 1; smaller
+        is slower (docs/epsilon.md#cost).
     budget : {"l1", "linf"}
         Sum of the normal forces <= 1 (Q1, default), or each normal force <= 1.
     torsional_friction : float or array_like broadcastable to (N, n)
@@ -172,41 +172,56 @@ def epsilon_quality(positions, normals, mu, *, center=(0.0, 0.0, 0.0), torque_sc
     grasps = prepare_grasps(positions, normals, mu, torsional_friction)
     centre = _centres(center, grasps.positions.shape[0])
     scale = _torque_scales(torque_scale, grasps.positions, centre)
-    normal_rows, tangent_rows = wrench_rows(grasps, centre, scale)
-    wrench_scale = _wrench_scale(normal_rows, tangent_rows, grasps.mu)
-    verdict = run_pipeline(grasps, certificates=True)
+    rows = _Rows(*wrench_rows(grasps, centre, scale), grasps.mu, linf)
+    verdict = run_pipeline(grasps, use_filter="auto", certificates=True)
     force_closure = np.atleast_1d(verdict.force_closure)
     separating = np.atleast_1d(verdict.separating_wrench).reshape(-1, 6)
+    has_wrench = ~np.isnan(separating).any(axis=1)
 
     n_grasps = force_closure.shape[0]
     lower, upper = np.zeros(n_grasps), np.zeros(n_grasps)
     direction = np.zeros((n_grasps, 6))
-    converged = np.zeros(n_grasps, dtype=bool)
+    status = np.full(n_grasps, epsilon_kernels.CONVERGED)
     points = np.zeros(n_grasps, dtype=np.int64)
-    has_wrench = ~np.isnan(separating).any(axis=1)
-
-    def rows(index):
-        return (normal_rows[index], tangent_rows[index], grasps.mu[index], wrench_scale[index],
-                linf)
-
     searched = np.flatnonzero(force_closure | ~has_wrench)
     if searched.size:
-        lower[searched], upper[searched], direction[searched], points[searched], status = \
-            _search(*rows(searched), rtol)
-        converged[searched] = status == epsilon_kernels.CONVERGED
+        lower[searched], upper[searched], direction[searched], points[searched], \
+            status[searched] = _search(rows.subset(searched), rtol)
     separated = np.flatnonzero(~force_closure & has_wrench)
     if separated.size:
         direction[separated] = _to_frame(separating[separated], centre[separated],
                                          scale[separated])
-        upper[separated] = _certified_uppers(*rows(separated), direction[separated])
-    not_closure = ~force_closure
-    lower[not_closure] = 0.0
-    converged[not_closure] = upper[not_closure] <= ZERO_UPPER_TOL * wrench_scale[not_closure]
+        upper[separated] = _certified_uppers(rows.subset(separated), direction[separated])
+    # The verdicts decide: no lower bound above 0 without force closure, where epsilon
+    # is 0 up to the separating wrench's tolerance.
+    lower[~force_closure] = 0.0
+    converged = np.where(force_closure, status == epsilon_kernels.CONVERGED,
+                         upper <= ZERO_UPPER_TOL * rows.wrench_scale)
     return EpsilonResult(
         lower=grasps.unbatch(lower), upper=grasps.unbatch(upper),
         direction=grasps.unbatch(direction), force_closure=grasps.unbatch(force_closure),
         converged=grasps.unbatch(converged), center=grasps.unbatch(centre),
         torque_scale=grasps.unbatch(scale), support_points=grasps.unbatch(points))
+
+
+@dataclass(frozen=True)
+class _Rows:
+    """A batch's wrench rows (:func:`wrench_rows`), friction, rounding scale and budget."""
+
+    normal_rows: np.ndarray
+    tangent_rows: np.ndarray
+    mu: np.ndarray
+    linf: bool
+    wrench_scale: np.ndarray = field(init=False)
+
+    def __post_init__(self):
+        object.__setattr__(self, "mu", kernel_array(self.mu))
+        object.__setattr__(self, "wrench_scale", _wrench_scale(
+            self.normal_rows, self.tangent_rows, self.mu, self.linf))
+
+    def subset(self, index: np.ndarray) -> _Rows:
+        return _Rows(self.normal_rows[index], self.tangent_rows[index], self.mu[index],
+                     self.linf)
 
 
 def wrench_rows(grasps: GraspBatch, centre: np.ndarray,
@@ -244,27 +259,25 @@ def _tangent_basis(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return first, np.cross(normals, first)
 
 
-def _wrench_scale(normal_rows: np.ndarray, tangent_rows: np.ndarray,
-                  mu: np.ndarray) -> np.ndarray:
+def _wrench_scale(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray,
+                  linf: bool) -> np.ndarray:
     """Per grasp, an upper bound on |support point| (N,): the scale of the rounding
-    allowances."""
+    allowances (an L-infinity support point sums one point per contact)."""
     reach = (np.linalg.norm(normal_rows, axis=-1)
              + mu * np.linalg.norm(tangent_rows, axis=-1).sum(axis=-1))
-    return kernel_array(reach.max(axis=1))
+    return kernel_array(reach.sum(axis=1) if linf else reach.max(axis=1))
 
 
-def _search(normal_rows, tangent_rows, mu, wrench_scale, linf, rtol):
-    """The compiled search on a subset of grasps: lower, upper, direction, points,
-    status."""
+def _search(rows: _Rows, rtol: float):
+    """The compiled search on a batch: lower, upper, direction, points, status (N,)."""
     lower, upper, direction, points, status = epsilon_kernels.epsilon_batch(
-        normal_rows, tangent_rows, kernel_array(mu), wrench_scale, linf, rtol, SEED_DIRECTIONS,
-        MAX_SUPPORT_POINTS, MAX_FACETS)
+        rows.normal_rows, rows.tangent_rows, rows.mu, rows.wrench_scale, rows.linf, rtol,
+        SEED_DIRECTIONS, MAX_SUPPORT_POINTS, MAX_FACETS)
     stalled = status != epsilon_kernels.CONVERGED
     if stalled.any():
         # Marginal or rank-deficient grasps: a wrench no contact works on, if any.
-        null = _least_worked_directions(normal_rows[stalled], tangent_rows[stalled])
-        null_upper = _certified_uppers(normal_rows[stalled], tangent_rows[stalled],
-                                       mu[stalled], wrench_scale[stalled], linf, null)
+        null = _least_worked_directions(rows.normal_rows[stalled], rows.tangent_rows[stalled])
+        null_upper = _certified_uppers(rows.subset(np.flatnonzero(stalled)), null)
         better = null_upper < upper[stalled]
         index = np.flatnonzero(stalled)[better]
         upper[index], direction[index] = null_upper[better], null[better]
@@ -284,10 +297,11 @@ def _least_worked_directions(normal_rows: np.ndarray, tangent_rows: np.ndarray) 
     return kernel_array(least * sign[:, None])
 
 
-def _certified_uppers(normal_rows, tangent_rows, mu, wrench_scale, linf, directions):
+def _certified_uppers(rows: _Rows, directions: np.ndarray) -> np.ndarray:
     """Upper bounds, valid despite rounding, on h(direction / |direction|) (N,)."""
-    return epsilon_kernels.certified_upper_batch(normal_rows, tangent_rows, kernel_array(mu),
-                                                 wrench_scale, linf, kernel_array(directions))
+    return epsilon_kernels.certified_upper_batch(
+        rows.normal_rows, rows.tangent_rows, rows.mu, rows.wrench_scale, rows.linf,
+        kernel_array(directions))
 
 
 def _to_frame(wrench: np.ndarray, centre: np.ndarray, scale: np.ndarray) -> np.ndarray:

@@ -61,9 +61,9 @@ DETERMINANT_SAFETY = 4.0
 
 #: A computed support point (and a computed support value) may differ from the exact one
 #: by this many ulps of the grasp's wrench scale (the largest |w_i(n_i)| + mu_i sum_k
-#: |tangent_rows[i, k]|): the normal and tangent basis, the lever arm, the cross
-#: products, the 3-vector z and its normalisation each err by a few ulps; their sum,
-#: times the lever arm of at most one (default torque scale), stays below ~30.
+#: |tangent_rows[i, k]|, summed over the contacts for the L-infinity budget): the normal
+#: and tangent basis, the lever arm, the cross products, the 3-vector z and its
+#: normalisation each err by a few ulps of the rows they make, ~30 in all.
 SUPPORT_ROUNDING_ULPS = 64.0
 
 #: A point is on the far side of a facet (the facet is visible from it) only if it lies
@@ -462,20 +462,22 @@ def _ridge_key(vertices, skip_a, skip_b):
 
 @_jit
 def certified_upper(normal_rows, tangent_rows, mu, linf, u, allowance):
-    """An upper bound, valid despite rounding, on h(u / |u|): each contact's work is
-    raised by ``allowance`` before the maximum (L1) or the sum (L-infinity) of the
-    positive ones, and the result divided by a lower bound on |u|."""
+    """An upper bound, valid despite rounding, on h(u / |u|), where ``allowance`` bounds
+    the rounding of every contact's work (and, L-infinity, of their sum): 0 where every
+    contact's work plus it is <= 0. Divided by a lower bound on |u|."""
     z = np.empty(3)
-    total = 0.0
+    total, most = 0.0, -np.inf
     for i in range(normal_rows.shape[0]):
         work, _ = _contact_work(normal_rows, tangent_rows, mu, i, u, z)
-        work += allowance
-        if work > 0.0:
-            total = total + work if linf else max(total, work)
+        total += max(work, 0.0)
+        most = max(most, work)
+    if most + allowance <= 0.0:
+        return 0.0
+    bound = (total if linf else most) + allowance
     norm = 0.0
     for c in range(6):
         norm += u[c] * u[c]
-    return total / (sqrt(norm) * (1.0 - 8.0 * _EPS))
+    return bound / (sqrt(norm) * (1.0 - 8.0 * _EPS))
 
 
 @_jit
