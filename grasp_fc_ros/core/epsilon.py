@@ -49,6 +49,7 @@ does positive work on it (within CERTIFICATE_TOL), so ``upper`` is 0 or within
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -56,7 +57,7 @@ import numpy as np
 from . import epsilon_kernels
 from .grasp_input import GraspBatch, prepare_grasps, unit_vectors
 from .interior_point import kernel_array
-from .pipeline import run_pipeline
+from .pipeline import check_force_closure, run_pipeline
 from .tolerances import MAX_ABS_COORDINATE
 
 BUDGETS = ("l1", "linf")
@@ -70,8 +71,9 @@ MIN_RTOL = 1e-9
 MAX_SUPPORT_POINTS = 2000
 
 #: Facets per grasp before the search gives up (the surface grows by ~50-100 facets
-#: per support point in six dimensions).
-MAX_FACETS = 1 << 17
+#: per support point in six dimensions). With MAX_SUPPORT_POINTS it sizes the search's
+#: arrays (~11 MB, kept per thread).
+MAX_FACETS = 1 << 16
 
 #: A grasp that is not force closure counts as ``converged`` when its ``upper`` is at
 #: most this fraction of its wrench scale: the separating wrench of its verdict is only
@@ -173,9 +175,7 @@ def epsilon_quality(positions, normals, mu, *, center=(0.0, 0.0, 0.0), torque_sc
     centre = _centres(center, grasps.positions.shape[0])
     scale = _torque_scales(torque_scale, grasps.positions, centre)
     rows = _Rows(*wrench_rows(grasps, centre, scale), grasps.mu, linf)
-    verdict = run_pipeline(grasps, use_filter="auto", certificates=True)
-    force_closure = np.atleast_1d(verdict.force_closure)
-    separating = np.atleast_1d(verdict.separating_wrench).reshape(-1, 6)
+    force_closure, separating = _verdicts(positions, normals, mu, torsional_friction, grasps)
     has_wrench = ~np.isnan(separating).any(axis=1)
 
     n_grasps = force_closure.shape[0]
@@ -202,6 +202,25 @@ def epsilon_quality(positions, normals, mu, *, center=(0.0, 0.0, 0.0), torque_sc
         direction=grasps.unbatch(direction), force_closure=grasps.unbatch(force_closure),
         converged=grasps.unbatch(converged), center=grasps.unbatch(centre),
         torque_scale=grasps.unbatch(scale), support_points=grasps.unbatch(points))
+
+
+def _verdicts(positions, normals, mu, torsional_friction,
+              grasps: GraspBatch) -> tuple[np.ndarray, np.ndarray]:
+    """Force closure (N,) from :func:`.pipeline.check_force_closure` (its one-grasp fast
+    path where it applies), and the separating wrenches (N, 6) of the grasps that are
+    not (NaN where none; the certificates are computed for those grasps only)."""
+    verdict = check_force_closure(positions, normals, mu, margin="bound",
+                                  torsional_friction=torsional_friction)
+    force_closure = np.atleast_1d(verdict.force_closure)
+    separating = np.full((force_closure.size, 6), np.nan)
+    others = np.flatnonzero(~force_closure)
+    if others.size:
+        torsional = None if grasps.torsional is None else grasps.torsional[others]
+        subset = GraspBatch(grasps.positions[others], grasps.normals[others],
+                            grasps.mu[others], False, torsional)
+        separating[others] = run_pipeline(subset, use_filter="auto", margin="bound",
+                                          certificates=True).separating_wrench
+    return force_closure, separating
 
 
 @dataclass(frozen=True)
@@ -268,11 +287,24 @@ def _wrench_scale(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndar
     return kernel_array(reach.sum(axis=1) if linf else reach.max(axis=1))
 
 
+_WORKSPACES = threading.local()
+
+
+def _workspace() -> tuple:
+    """This thread's search arrays (:func:`.epsilon_kernels.workspace`), made once:
+    allocating them took ~1 ms, as much as a grasp's search."""
+    arrays = getattr(_WORKSPACES, "arrays", None)
+    if arrays is None:
+        arrays = _WORKSPACES.arrays = epsilon_kernels.workspace(MAX_SUPPORT_POINTS,
+                                                                MAX_FACETS)
+    return arrays
+
+
 def _search(rows: _Rows, rtol: float):
     """The compiled search on a batch: lower, upper, direction, points, status (N,)."""
     lower, upper, direction, points, status = epsilon_kernels.epsilon_batch(
         rows.normal_rows, rows.tangent_rows, rows.mu, rows.wrench_scale, rows.linf, rtol,
-        SEED_DIRECTIONS, MAX_SUPPORT_POINTS, MAX_FACETS)
+        SEED_DIRECTIONS, _workspace())
     stalled = status != epsilon_kernels.CONVERGED
     if stalled.any():
         # Marginal or rank-deficient grasps: a wrench no contact works on, if any.

@@ -683,10 +683,25 @@ def _epsilon_one(normal_rows, tangent_rows, mu, scale, linf, rtol, seeds, max_po
     return 0.0, upper, n_points, STUCK
 
 
+def workspace(max_points: int, max_facets: int) -> tuple:
+    """The arrays of one search (a grasp's surface and scratch), for :func:`epsilon_batch`:
+    reused from grasp to grasp and, by the caller, from call to call. Nothing in them
+    needs clearing: every facet is written in full when it is made."""
+    return (np.empty((max_points + 1, 6)),                       # points
+            np.empty((max_facets, 6), np.int64),                 # vertices
+            np.empty((max_facets, 6), np.int64),                 # neighbours
+            np.empty((max_facets, 6)),                           # normals
+            np.empty(max_facets), np.empty(max_facets),          # offsets, certified
+            np.empty(max_facets, np.bool_), np.empty(max_facets, np.bool_),  # alive, stuck
+            np.empty(max_facets, np.int64),                      # marks
+            np.empty((3, max(_MAX_VISIBLE, _MAX_HORIZON)), np.int64),
+            np.empty((2, 5 * _MAX_HORIZON), np.int64),
+            np.empty((6, 7)), np.empty(6))
+
+
 @_jit
-def epsilon_batch(normal_rows, tangent_rows, mu, scale, linf, rtol, seeds, max_points,
-                  max_facets):
-    """:func:`_epsilon_one` for every grasp of a batch (one workspace for all).
+def epsilon_batch(normal_rows, tangent_rows, mu, scale, linf, rtol, seeds, arrays):
+    """:func:`_epsilon_one` for every grasp of a batch.
 
     Parameters
     ----------
@@ -701,8 +716,8 @@ def epsilon_batch(normal_rows, tangent_rows, mu, scale, linf, rtol, seeds, max_p
     seeds : ndarray, shape (S, 6)
         Unit directions of the first support points: a regular simplex (the first
         ``SEED_SIMPLEX`` rows), then more for grasps where those span too little.
-    max_points, max_facets : int
-        Budgets per grasp.
+    arrays : tuple
+        :func:`workspace` (its sizes are the budgets of support points and facets).
 
     Returns
     -------
@@ -711,26 +726,17 @@ def epsilon_batch(normal_rows, tangent_rows, mu, scale, linf, rtol, seeds, max_p
     n_points : ndarray of int64, shape (N,)
     status : ndarray of int64, shape (N,)
     """
+    (points, vertices, neighbours, normals, offsets, certified, alive, stuck, marks,
+     scratch_int, scratch_new, matrix, normal) = arrays
     n_grasps = normal_rows.shape[0]
     lower, upper = np.empty(n_grasps), np.empty(n_grasps)
     direction = np.zeros((n_grasps, 6))
     n_points, status = np.empty(n_grasps, np.int64), np.empty(n_grasps, np.int64)
-    points = np.empty((max_points + 1, 6))
-    vertices = np.empty((max_facets, 6), np.int64)
-    neighbours = np.empty((max_facets, 6), np.int64)
-    normals = np.empty((max_facets, 6))
-    offsets, certified = np.empty(max_facets), np.empty(max_facets)
-    alive = np.zeros(max_facets, np.bool_)
-    stuck = np.zeros(max_facets, np.bool_)
-    marks = np.zeros(max_facets, np.int64)
-    scratch_int = np.empty((3, max(_MAX_VISIBLE, _MAX_HORIZON)), np.int64)
-    scratch_new = np.empty((2, 5 * _MAX_HORIZON), np.int64)
-    matrix, normal = np.empty((6, 7)), np.empty(6)
     for g in range(n_grasps):
         lower[g], upper[g], n_points[g], status[g] = _epsilon_one(
-            normal_rows[g], tangent_rows[g], mu[g], scale[g], linf, rtol, seeds, max_points,
-            points, vertices, neighbours, normals, offsets, certified, alive, stuck, marks,
-            scratch_int, scratch_new, matrix, normal, direction[g])
+            normal_rows[g], tangent_rows[g], mu[g], scale[g], linf, rtol, seeds,
+            points.shape[0] - 1, points, vertices, neighbours, normals, offsets, certified,
+            alive, stuck, marks, scratch_int, scratch_new, matrix, normal, direction[g])
     return lower, upper, direction, n_points, status
 
 
