@@ -67,7 +67,7 @@ BUDGETS = ("l1", "linf")
 MIN_RTOL = 1e-9
 
 #: Support points per grasp before the search gives up (``converged`` False, bounds
-#: still valid). The random grasps of the benchmarks need 20-70 at rtol 1e-6.
+#: still valid): far above what random grasps need at rtol 1e-6 (docs/epsilon.md#cost).
 MAX_SUPPORT_POINTS = 2000
 
 #: Facets per grasp before the search gives up (the surface grows by ~50-100 facets
@@ -292,7 +292,7 @@ _WORKSPACES = threading.local()
 
 def _workspace() -> tuple:
     """This thread's search arrays (:func:`.epsilon_kernels.workspace`), made once:
-    allocating them took ~1 ms, as much as a grasp's search."""
+    allocated per call they cost as much as a grasp's search (docs/epsilon.md#cost)."""
     arrays = getattr(_WORKSPACES, "arrays", None)
     if arrays is None:
         arrays = _WORKSPACES.arrays = epsilon_kernels.workspace(MAX_SUPPORT_POINTS,

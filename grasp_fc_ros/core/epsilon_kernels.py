@@ -163,16 +163,6 @@ def support(normal_rows, tangent_rows, mu, linf, u, point):
 
 
 @_jit
-def support_values(normal_rows, tangent_rows, mu, linf, directions):
-    """h(u) (not normalised) of every row of ``directions`` (K, 6) for one grasp."""
-    out = np.empty(directions.shape[0])
-    point = np.empty(6)
-    for k in range(directions.shape[0]):
-        out[k] = support(normal_rows, tangent_rows, mu, linf, directions[k], point)
-    return out
-
-
-@_jit
 def _facet_plane(points, vertices, reference, matrix, normal):
     """The plane of a facet: ``normal`` (6,) <- m with <m, v_1 - ref> = 1 and
     <m, v_k - v_1> = 0 (so the plane is {x: <m, x - ref> = 1}, facing away from ref).
