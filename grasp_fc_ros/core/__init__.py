@@ -16,6 +16,8 @@ Closure Grasp":
 * :mod:`.pipeline` -- the filter, then the exact test on the survivors;
 * :mod:`.one_grasp` -- the compiled fast path of one grasp through the pipeline;
 * :mod:`.one_grasp_filter` -- the torque filter of that path, compiled;
+* :mod:`.epsilon` -- the Ferrari-Canny epsilon (Q1) with circular cones, certified
+  bounds; its compiled search in :mod:`.epsilon_kernels`;
 * :mod:`.minimum_friction` -- the least friction coefficient that makes a grasp force
   closure (certified bounds);
 * :mod:`.grasp_forces` -- the least largest normal force that holds a given load;
@@ -40,6 +42,7 @@ True
 """
 
 from .certificates import verify_certificates
+from .epsilon import EpsilonResult, epsilon_quality
 from .grasp_forces import GraspForces, optimal_contact_forces
 from .grasp_input import GraspValidation, validate_grasps
 from .minimum_friction import MinimumFriction, minimum_friction, minimum_friction_bounds
@@ -49,12 +52,14 @@ from .torque_space_filter import ORIGIN_CHOICES, torque_filter
 
 __all__ = [
     "ORIGIN_CHOICES",
+    "EpsilonResult",
     "ForceClosureResult",
     "GraspForces",
     "GraspValidation",
     "MinimumFriction",
     "Status",
     "check_force_closure",
+    "epsilon_quality",
     "exact_force_closure",
     "minimum_friction",
     "minimum_friction_bounds",

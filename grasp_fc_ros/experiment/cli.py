@@ -5,6 +5,7 @@ Example::
     grasp-fc-experiment --out bench_out            # paper size: 100,000 grasps per object
     grasp-fc-experiment --quick --out /tmp/quick   # small version (the test suite runs it)
     grasp-fc-experiment --objects mug --mesh part.stl --fingers 4 --grasps 20000
+    grasp-fc-experiment --epsilon-only --epsilon-grasps 1000 --out bench_out/epsilon
 """
 
 import argparse
@@ -30,9 +31,11 @@ EXAMPLE_GRASPS = 400
 
 # Full-size defaults, and the --quick ones (explicit flags override both).
 FULL = {"grasps": 100_000, "points": 5000, "peer_grasps": 500, "sides_grasps": 50,
-        "sides_pool": 1000, "sweep_grasps": 500, "label_grasps": 2000, "soft_grasps": 1000}
+        "sides_pool": 1000, "sweep_grasps": 500, "label_grasps": 2000, "soft_grasps": 1000,
+        "epsilon_grasps": 500}
 QUICK = {"grasps": 300, "points": 1000, "peer_grasps": 20, "sides_grasps": 4,
-         "sides_pool": 100, "sweep_grasps": 30, "label_grasps": 20, "soft_grasps": 20}
+         "sides_pool": 100, "sweep_grasps": 30, "label_grasps": 20, "soft_grasps": 20,
+         "epsilon_grasps": 12}
 
 
 def _finger_count(text):
@@ -105,6 +108,13 @@ def build_parser():
     parser.add_argument("--soft-grasps", type=positive_int,
                         help="grasps per object and finger count in the soft-finger sweep "
                              f"(default {FULL['soft_grasps']})")
+    parser.add_argument("--epsilon-grasps", type=positive_int,
+                        help="grasps per object whose exact Ferrari-Canny epsilon is compared "
+                             "with the 4- and 8-edge pyramid Q1 of dataset tools "
+                             f"(default {FULL['epsilon_grasps']})")
+    parser.add_argument("--epsilon-only", action="store_true",
+                        help="run only the epsilon comparison (writes "
+                             "epsilon.csv, epsilon_vs_pyramids.png, epsilon_report.md)")
     return parser
 
 
@@ -206,6 +216,7 @@ def run(args):
     print("minimum friction labels, soft fingers ...", file=sys.stderr, flush=True)
     labels = quality.friction_labels(surfaces, args.label_grasps, _stream(args.seed, 4))
     soft_rows = quality.soft_sweep(surfaces, args.soft_grasps, _stream(args.seed, 5))
+    epsilon_lines, epsilon_problems = _epsilon_part(surfaces, args)
 
     out = args.out
     report.write_csv(out / report.FRICTION_LABELS_CSV, report.friction_label_rows(labels))
@@ -231,10 +242,50 @@ def run(args):
                                   {"command": report.command_line(), "seed": args.seed,
                                    "jobs": args.jobs},
                                   total, names,
-                                  report.quality_section(labels, soft_rows, quality.SOFT_SWEEP_MU))
+                                  report.quality_section(labels, soft_rows, quality.SOFT_SWEEP_MU)
+                                  + epsilon_lines)
     path = out / report.REPORT_MD
     path.write_text(text)
-    problems = report.soundness_problems(results)
+    problems = report.soundness_problems(results) + epsilon_problems
+    for line in problems:
+        print(f"SOUNDNESS VIOLATION: {line}", file=sys.stderr)
+    print(f"report: {path} ({total:.1f} s)", file=sys.stderr)
+    return path, problems
+
+
+def _epsilon_part(surfaces, args):
+    """The epsilon comparison: writes its CSV and plot into args.out; returns the report's
+    markdown lines and the soundness problems (a pyramid Q1 above a certified upper
+    bound)."""
+    from . import epsilon_study, plots, report
+
+    print("exact epsilon against pyramid Q1 ...", file=sys.stderr, flush=True)
+    comparisons = epsilon_study.compare_objects(surfaces, args.epsilon_grasps, args.fingers,
+                                                args.mu, _stream(args.seed, 6))
+    rows = epsilon_study.summary_rows(comparisons)
+    report.write_csv(args.out / report.EPSILON_CSV, [report.epsilon_row(r) for r in rows])
+    plots.plot_epsilon_comparison(comparisons, epsilon_study.EDGE_COUNTS,
+                                  args.out / report.PLOTS["epsilon"])
+    problems = [f"{r['object']}, {r['edges']} edges: the pyramid Q1 exceeds the certified "
+                f"upper bound on {r['above_upper']} grasps"
+                for r in rows if r["object"] != "all" and r["above_upper"]]
+    lines = report.epsilon_section(rows, args.fingers, args.mu)
+    return lines + [f"![epsilon against pyramid Q1]({report.PLOTS['epsilon']})", ""], problems
+
+
+def run_epsilon_only(args):
+    """Only the epsilon comparison, with its own short report; returns (path, problems)."""
+    from . import report
+
+    start = time.perf_counter()
+    surfaces = load_objects(args)
+    args.out.mkdir(parents=True, exist_ok=True)
+    lines, problems = _epsilon_part(surfaces, args)
+    total = time.perf_counter() - start
+    path = args.out / report.EPSILON_REPORT_MD
+    path.write_text("\n".join(lines + [
+        f"Machine: {report.machine_description()}; code: {report.code_version()}; "
+        f"{total:.0f} s.", "", f"Reproduce: `{report.command_line()}`", ""]))
     for line in problems:
         print(f"SOUNDNESS VIOLATION: {line}", file=sys.stderr)
     print(f"report: {path} ({total:.1f} s)", file=sys.stderr)
@@ -242,9 +293,10 @@ def run(args):
 
 
 def main(argv=None):
-    """Entry point; exit status 1 if the filter changed any verdict, else 0."""
+    """Entry point; exit status 1 if the filter changed any verdict or a pyramid Q1
+    exceeded a certified epsilon bound, else 0."""
     args = resolve_settings(build_parser().parse_args(argv))
-    _, problems = run(args)
+    _, problems = run_epsilon_only(args) if args.epsilon_only else run(args)
     return 1 if problems else 0
 
 

@@ -211,3 +211,34 @@ def plot_soft_sweep(rows, path):
     ax.set_title("Soft against hard fingers on the same random grasps")
     ax.legend(fontsize=8)
     _save(fig, path)
+
+
+def plot_epsilon_comparison(comparisons, edge_counts, path):
+    """Pyramid Q1 against the exact epsilon (left) and the relative error's cumulative
+    distribution (right), over the force-closure grasps of all objects."""
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4))
+    exact = np.concatenate([c.exact[c.force_closure] for c in comparisons])
+    floor = 0.5 * exact.min() if exact.size else 1e-6
+    for edges, colour in zip(edge_counts, (ALL_COLOUR, SEED_COLOUR, FC_COLOUR), strict=False):
+        q1 = np.concatenate([c.pyramid[edges][c.force_closure] for c in comparisons])
+        left.scatter(exact, np.maximum(q1, floor), s=6, alpha=0.5, color=colour,
+                     label=f"{edges} edges (Q1 = 0 drawn at the bottom)")
+        errors = np.sort(np.concatenate([c.relative_errors(edges) for c in comparisons]))
+        right.plot(100 * errors, np.arange(1, errors.size + 1) / max(errors.size, 1),
+                   color=colour, label=f"{edges} edges")
+    if exact.size:
+        line = np.array([exact.min(), exact.max()])
+        left.plot(line, line, color=PAPER_COLOUR, linewidth=1, label="Q1 = epsilon")
+    left.set_xscale("log")
+    left.set_yscale("log")
+    left.set_xlabel("exact epsilon (certified)")
+    left.set_ylabel("pyramid Q1")
+    left.legend(fontsize=8)
+    right.set_xscale("symlog", linthresh=1.0)
+    right.set_xlabel("(epsilon - Q1) / epsilon  [%]")
+    right.set_ylabel("share of force-closure grasps")
+    right.legend(fontsize=8)
+    c0 = comparisons[0]
+    fig.suptitle(f"Pyramid Q1 against the exact epsilon: {c0.n_fingers} fingers, "
+                 f"mu = {c0.mu:.3f}")
+    _save(fig, path)

@@ -21,7 +21,9 @@ FINGERS_CSV = "fingers.csv"
 PEER_SIDES_CSV = "peer_sides.csv"
 FRICTION_LABELS_CSV = "friction_labels.csv"
 SOFT_SWEEP_CSV = "soft_sweep.csv"
+EPSILON_CSV = "epsilon.csv"
 REPORT_MD = "report.md"
+EPSILON_REPORT_MD = "epsilon_report.md"
 PLOTS = {
     "speedup": "speedup.png",
     "specificity": "specificity.png",
@@ -30,6 +32,7 @@ PLOTS = {
     "grasp_example": "grasp_example.png",
     "friction_labels": "friction_labels.png",
     "soft_sweep": "soft_vs_hard.png",
+    "epsilon": "epsilon_vs_pyramids.png",
 }
 # Friction values at which the report gives the share of force-closure grasps (mu* below).
 LABEL_MU_LEVELS = (0.1, 0.2, 0.5, 1.0)
@@ -163,6 +166,41 @@ def quality_section(labels, soft_rows, soft_mu):
         "",
         _table(["fingers"] + [f"gamma/size = {f:g}" for f in fractions],
                [[n] + [f"{share(n, f):.3f}" for f in fractions] for n in fingers]),
+        "",
+    ]
+
+
+def epsilon_row(row):
+    """A summary row of :func:`.epsilon_study.summary_rows` for the CSV (rounded)."""
+    return {key: (f"{value:.6g}" if isinstance(value, float) else value)
+            for key, value in row.items()}
+
+
+def epsilon_section(rows, n_fingers, mu):
+    """Markdown lines of the epsilon part: exact epsilon against the pyramid Q1."""
+    from .epsilon_study import EXACT_RTOL
+
+    def share(value):
+        return "-" if value != value else f"{100 * value:.1f}%"
+
+    return [
+        "## Ferrari-Canny epsilon: exact against the pyramid Q1 of dataset tools",
+        "",
+        f"Random {n_fingers}-finger grasps per object, mu = {mu:.4f}; epsilon certified to "
+        f"rtol {EXACT_RTOL:g} (`epsilon_quality`) against the Q1 of the inscribed "
+        "pyramid with 4 and 8 edges (Qhull, least facet offset; DexGraspBench q1.py, "
+        "BODex chq1.py), both about the object's centre with L = the grasp's largest "
+        "|p_i - c|. Errors are (epsilon - Q1) / epsilon over the force-closure grasps; a "
+        "flip is a pair of force-closure grasps whose exact order is certain and which the "
+        "pyramid orders the other way (ties: it scores them equal).",
+        "",
+        _table(["object", "edges", "FC grasps", "median error", "90% error", "max error",
+                "FC scored 0", "flipped pairs", "tied pairs", "Q1 > upper"],
+               [[r["object"], r["edges"], f"{r['force_closure']} / {r['grasps']}",
+                 share(r["median_error"]), share(r["p90_error"]), share(r["max_error"]),
+                 r["pyramid_zero"],
+                 f"{r['flipped_pairs']} / {r['ordered_pairs']} ({share(r['flip_share'])})",
+                 r["tied_pairs"], r["above_upper"]] for r in rows]),
         "",
     ]
 

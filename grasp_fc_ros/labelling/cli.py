@@ -6,6 +6,7 @@ Examples::
     grasp-fc-label big.npz --out labels.parquet --scheduler tcp://10.0.0.5:8786
     grasp-fc-label --mesh part.stl --objects mug --grasps-per-object 100000 \\
         --fingers 4 --mu 0.5 --out dataset/
+    grasp-fc-label grasps.npz --quality --out labels/        # + certified epsilon (Q1)
 
 Exit status: 0 done, 2 bad input or usage (nothing written), 1 a failure while running
 (the parts written so far are kept; the same command resumes).
@@ -28,6 +29,7 @@ PROG = "grasp-fc-label"
 # The experiment's friction coefficient: tan 10 degrees.
 DEFAULT_MU = 0.17632698070846498
 DEFAULT_FINGERS = 6
+DEFAULT_QUALITY_RTOL = 1e-3
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -75,6 +77,19 @@ def build_parser() -> argparse.ArgumentParser:
     cluster.add_argument("--origins", choices=("seed", "all"), default="seed",
                          help="torque origins of the filter (default seed)")
     cluster.add_argument("--no-progress", action="store_true", help="no progress line")
+    quality = parser.add_argument_group("grasp quality")
+    quality.add_argument("--quality", action="store_true",
+                         help="also write the certified Ferrari-Canny epsilon (Q1 with "
+                              "circular friction cones, normal forces summing to <= 1; torques "
+                              "about the origin of the grasps' frame divided by each grasp's "
+                              "largest contact distance from it): columns epsilon_lower and "
+                              "epsilon_upper (lower <= epsilon <= upper, upper - lower <= "
+                              "rtol * upper; lower 0 where not force closure) and "
+                              "epsilon_direction (6 floats: the unit wrench whose support "
+                              "value is upper). Its cost: docs/epsilon.md")
+    quality.add_argument("--quality-rtol", type=positive_float, default=DEFAULT_QUALITY_RTOL,
+                         help=f"relative accuracy of epsilon (default {DEFAULT_QUALITY_RTOL:g}; "
+                              "down to 1e-6 and below, slower)")
     return parser
 
 
@@ -90,7 +105,8 @@ def make_plan(args):
     from .sources import object_sources
 
     settings = {"chunk_size": args.chunk_size, "use_filter": FILTER_CHOICES[args.filter],
-                "origins": args.origins}
+                "origins": args.origins,
+                "quality_rtol": args.quality_rtol if args.quality else None}
     if args.inputs:
         return Plan.from_files(args.inputs, **settings)
     return Plan(object_sources(args.objects, args.mesh, args.grasps_per_object, args.fingers,
@@ -111,6 +127,8 @@ def main(argv=None) -> int:
         parser.error("give --scheduler or --scheduler-file, not both")
     if (args.scheduler or args.scheduler_file) and args.workers:
         parser.error("--workers sets up a local cluster; it cannot go with a scheduler")
+    if args.quality and not 1e-9 <= args.quality_rtol < 1:
+        parser.error(f"--quality-rtol must be in [1e-9, 1), got {args.quality_rtol:g}")
 
     from .output import OutputConflict
     from .runner import TaskFailed, dask_client, run

@@ -66,12 +66,16 @@ class Plan:
         (same verdicts either way; "auto" runs it where it pays).
     origins : {"seed", "all"}
         The filter's torque origins.
+    quality_rtol : float or None
+        Also label the certified Ferrari-Canny epsilon, to this relative accuracy
+        (``--quality``); None: not.
     """
 
     sources: list
     chunk_size: int = DEFAULT_CHUNK_SIZE
     use_filter: bool | str = "auto"
     origins: str = "seed"
+    quality_rtol: float | None = None
 
     def __post_init__(self):
         drawn = {getattr(source, "chunk_size", self.chunk_size) for source in self.sources}
@@ -108,11 +112,13 @@ class Plan:
     def schema(self):
         with_grasps = any(source.object_name is not None for source in self.sources)
         fingers = self.sources[0].n_contacts if self.sources else 0
-        return output_schema(with_grasps, fingers)
+        return output_schema(with_grasps, fingers, quality=self.quality_rtol is not None)
 
     def manifest(self) -> dict:
+        # quality_rtol only when set: outputs of runs without it keep their manifest.
+        quality = {} if self.quality_rtol is None else {"quality_rtol": self.quality_rtol}
         return {"format": MANIFEST_FORMAT, "chunk_size": self.chunk_size,
-                "use_filter": self.use_filter, "origins": self.origins,
+                "use_filter": self.use_filter, "origins": self.origins, **quality,
                 "sources": [source.describe() for source in self.sources]}
 
 
@@ -232,8 +238,9 @@ def run(plan: Plan, out, client, progress: bool = True) -> Summary:
         summary.grasps_written += table.num_rows
         bar.update(table.num_rows)
 
-    _map_chunks(client, label_chunk, sources, todo, (plan.use_filter, plan.origins),
-                f"label-{run_id}", on_result=write)
+    _map_chunks(client, label_chunk, sources, todo,
+                (plan.use_filter, plan.origins, plan.quality_rtol), f"label-{run_id}",
+                on_result=write)
     del sources
     output.finish([chunk.part for chunk in chunks], plan.schema)
     summary.status_counts = {name: int(n) for name, n in zip(STATUS_NAMES, counts)}

@@ -19,8 +19,21 @@ With grasps drawn on objects (``--objects``/``--mesh``), the grasps themselves t
 3n float64: x, y, z per contact, contact after contact -- the Parquet input layout, so the
 output can be labelled again).
 
-Later columns (``min_friction``, certificates) are added to :data:`LABEL_FIELDS` as
-optional entries of :func:`label_table`, without changing the existing ones.
+With ``--quality`` (:data:`QUALITY_FIELDS`, after ``margin``): the certified
+Ferrari-Canny epsilon of :func:`grasp_fc_ros.core.epsilon_quality` (Q1 with circular
+friction cones, the sum of normal forces <= 1), torques about the origin of the grasps'
+frame divided by the grasp's largest contact distance from it:
+
+========================  =========================  =====================================
+``epsilon_lower``         float64                    lower <= epsilon; 0 where not force
+                                                     closure
+``epsilon_upper``         float64                    epsilon <= upper = h(direction)
+``epsilon_direction``     fixed-size list of 6       the unit wrench (force, torque / L)
+                          float64                    certifying upper (48 bytes a grasp)
+========================  =========================  =====================================
+
+Later columns (``min_friction``, certificates) are added as optional entries of
+:func:`label_table`, without changing the existing ones.
 """
 
 from __future__ import annotations
@@ -41,6 +54,13 @@ LABEL_FIELDS = [
 ]
 
 
+QUALITY_FIELDS = [
+    pa.field("epsilon_lower", pa.float64(), nullable=False),
+    pa.field("epsilon_upper", pa.float64(), nullable=False),
+    pa.field("epsilon_direction", pa.list_(pa.float64(), 6), nullable=False),
+]
+
+
 def grasp_fields(n_contacts: int) -> list[pa.Field]:
     """The columns that hold the grasps themselves (n contacts each)."""
     vectors = pa.list_(pa.float64(), 3 * n_contacts)
@@ -50,12 +70,13 @@ def grasp_fields(n_contacts: int) -> list[pa.Field]:
             pa.field("normals", vectors, nullable=False)]
 
 
-def output_schema(with_grasps: bool, n_contacts: int) -> pa.Schema:
+def output_schema(with_grasps: bool, n_contacts: int, quality: bool = False) -> pa.Schema:
     """Schema of every part of one run."""
-    return pa.schema(LABEL_FIELDS + (grasp_fields(n_contacts) if with_grasps else []))
+    return pa.schema(LABEL_FIELDS + (QUALITY_FIELDS if quality else [])
+                     + (grasp_fields(n_contacts) if with_grasps else []))
 
 
-def label_table(chunk, result, object_name: str | None = None) -> pa.Table:
+def label_table(chunk, result, object_name: str | None = None, epsilon=None) -> pa.Table:
     """One chunk's labels (and grasps, when ``object_name`` is given) as an Arrow table.
 
     Parameters
@@ -66,6 +87,8 @@ def label_table(chunk, result, object_name: str | None = None) -> pa.Table:
         Their verdicts, arrays of shape (k,).
     object_name : str or None
         The object the grasps were drawn on; None for grasps read from files.
+    epsilon : grasp_fc_ros.core.EpsilonResult or None
+        Their certified epsilon (``--quality``), arrays of shape (k,) and (k, 6).
     """
     status = np.asarray(result.status, dtype=np.uint8)
     names = pa.DictionaryArray.from_arrays(pa.array(status.astype(np.int8)),
@@ -74,14 +97,19 @@ def label_table(chunk, result, object_name: str | None = None) -> pa.Table:
                pa.array(np.asarray(result.force_closure, dtype=bool)),
                pa.array(status, pa.uint8()), names,
                pa.array(np.asarray(result.margin, dtype=np.float64))]
+    if epsilon is not None:
+        direction = np.asarray(epsilon.direction, dtype=np.float64).reshape(-1)
+        columns += [pa.array(np.asarray(epsilon.lower, dtype=np.float64)),
+                    pa.array(np.asarray(epsilon.upper, dtype=np.float64)),
+                    pa.FixedSizeListArray.from_arrays(pa.array(direction), 6)]
     n_contacts = chunk.positions.shape[1]
     if object_name is not None:
         k = len(chunk.ids)
         mu = np.broadcast_to(chunk.mu, (k, n_contacts))[:, 0]
         columns += [pa.array([object_name] * k, pa.string()), pa.array(mu, pa.float64()),
                     _vectors(chunk.positions), _vectors(chunk.normals)]
-    return pa.Table.from_arrays(columns, schema=output_schema(object_name is not None,
-                                                              n_contacts))
+    return pa.Table.from_arrays(columns, schema=output_schema(
+        object_name is not None, n_contacts, quality=epsilon is not None))
 
 
 def _vectors(values: np.ndarray) -> pa.FixedSizeListArray:

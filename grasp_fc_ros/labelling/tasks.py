@@ -48,16 +48,20 @@ def _grasp_names(path, chunk):
     return lambda g: f"{path}: grasp {int(chunk.rows[g])} (id {int(chunk.ids[g])})"
 
 
-def label_chunk(source, start: int, stop: int, use_filter: bool | str, origins: str):
-    """Labels of rows ``start:stop`` of ``source``, as a ``pyarrow.Table``.
+def label_chunk(source, start: int, stop: int, use_filter: bool | str, origins: str,
+                quality_rtol: float | None = None):
+    """Labels of rows ``start:stop`` of ``source``, as a ``pyarrow.Table``; with
+    ``quality_rtol``, their certified epsilon to that accuracy too.
 
     See :mod:`grasp_fc_ros.labelling.schema` for the columns.
     """
-    from grasp_fc_ros.core import check_force_closure
+    from grasp_fc_ros.core import check_force_closure, epsilon_quality
 
     from .schema import label_table
 
     chunk = source.read(start, stop)
     result = check_force_closure(chunk.positions, chunk.normals, chunk.mu,
                                  use_filter=use_filter, origins=origins)
-    return label_table(chunk, result, source.object_name)
+    epsilon = (None if quality_rtol is None else
+               epsilon_quality(chunk.positions, chunk.normals, chunk.mu, rtol=quality_rtol))
+    return label_table(chunk, result, source.object_name, epsilon)

@@ -9,7 +9,7 @@ import pytest
 pytest.importorskip("matplotlib")
 pytest.importorskip("scipy")
 
-from grasp_fc_ros.experiment import cli, report  # noqa: E402
+from grasp_fc_ros.experiment import cli, epsilon_study, report  # noqa: E402
 from grasp_fc_ros.experiment.linearized_peer import (linearized_force_closure,  # noqa: E402
                                                      pyramid_edges)
 from grasp_fc_ros.objects import make_object  # noqa: E402
@@ -36,7 +36,8 @@ def test_quick_run_writes_report_csv_and_plots(quick_run):
     for name in report.PLOTS.values():
         assert (quick_run / name).read_bytes()[:8] == PNG_MAGIC, name
     text = (quick_run / report.REPORT_MD).read_text()
-    for heading in ("Table I", "Table II", "Per-query cost", "linearized peer"):
+    for heading in ("Table I", "Table II", "Per-query cost", "linearized peer",
+                    "Ferrari-Canny epsilon"):
         assert heading in text
 
 
@@ -157,3 +158,50 @@ def test_quick_run_soft_sweep(quick_run):
         # only gain force closure as gamma grows
         fc = [count for _, count in counts]
         assert fc == sorted(fc), (name, fingers, counts)
+
+
+def _check_epsilon_rows(rows, objects):
+    edges = [int(e) for e in epsilon_study.EDGE_COUNTS]
+    assert [(r["object"], int(r["edges"])) for r in rows] == [
+        (name, e) for e in edges for name in [*objects, "all"]]
+    for r in rows:
+        fc, grasps = int(r["force_closure"]), int(r["grasps"])
+        assert 0 <= fc <= grasps
+        # the inscribed pyramid lies inside W: its Q1 never exceeds the certified bound
+        assert int(r["above_upper"]) == 0
+        assert int(r["pyramid_zero"]) <= fc
+        assert int(r["flipped_pairs"]) + int(r["tied_pairs"]) <= int(r["ordered_pairs"])
+        assert int(r["ordered_pairs"]) <= fc * (fc - 1) // 2
+        if fc:
+            errors = [float(r[k]) for k in ("median_error", "p90_error", "max_error")]
+            assert 0.0 <= errors[0] <= errors[1] <= errors[2] <= 1.0
+    total = next(r for r in rows if r["object"] == "all" and int(r["edges"]) == edges[0])
+    assert int(total["grasps"]) == len(objects) * cli.QUICK["epsilon_grasps"]
+
+
+def test_quick_run_compares_epsilon_with_the_pyramids(quick_run):
+    _check_epsilon_rows(_rows(quick_run / report.EPSILON_CSV), list(cli.DEFAULT_OBJECTS))
+
+
+def test_epsilon_only_run_writes_its_own_report(tmp_path):
+    assert cli.main(["--quick", "--epsilon-only", "--objects", "box", "mug",
+                     "--out", str(tmp_path)]) == 0
+    _check_epsilon_rows(_rows(tmp_path / report.EPSILON_CSV), ["box", "mug"])
+    assert (tmp_path / report.PLOTS["epsilon"]).read_bytes()[:8] == PNG_MAGIC
+    text = (tmp_path / report.EPSILON_REPORT_MD).read_text()
+    assert "Ferrari-Canny epsilon" in text and "Reproduce: `grasp-fc-experiment" in text
+    assert not (tmp_path / report.RESULTS_CSV).exists()
+
+
+def test_pyramid_q1_on_the_cube_faces():
+    """Inscribed pyramids lie inside the cones: Q1 <= 1/sqrt(6), growing with the edges
+    (the 4 edges are among the 8), and close to it with many edges."""
+    axes = np.vstack([np.eye(3), -np.eye(3)])
+    centre = np.zeros(3)
+    q1 = {edges: epsilon_study.pyramid_q1(axes, -axes, 0.5, centre, 1.0, edges)
+          for edges in (4, 8, 64)}
+    exact = 1.0 / np.sqrt(6.0)
+    assert 0 < q1[4] <= q1[8] <= q1[64] <= exact * (1 + 1e-12)
+    assert q1[64] >= 0.99 * exact
+    # a grasp that is not force closure (all normals alike) scores 0
+    assert epsilon_study.pyramid_q1(axes, np.tile([0.0, 0, 1], (6, 1)), 0.5, centre, 1.0) == 0

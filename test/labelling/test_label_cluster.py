@@ -177,6 +177,25 @@ def test_grasps_drawn_on_objects_and_relabelled(client, tmp_path):
                                rtol=0, atol=1e-7)
 
 
+def test_quality_columns_on_the_cluster_equal_the_core(client, tmp_path):
+    from grasp_fc_ros.core import epsilon_quality
+
+    p, n = _box_grasps(600, 4, 21)
+    np.savez(tmp_path / "q.npz", positions=p, normals=n, mu=0.5)
+    plan = Plan.from_files([str(tmp_path / "q.npz")], chunk_size=250, quality_rtol=1e-3)
+    run(plan, tmp_path / "labels.parquet", client, progress=False)
+    table = pq.read_table(tmp_path / "labels.parquet")
+    assert table.schema.equals(plan.schema)
+    fc = table["force_closure"].to_numpy()
+    lower, upper = table["epsilon_lower"].to_numpy(), table["epsilon_upper"].to_numpy()
+    for start in range(0, 600, 250):
+        part = slice(start, start + 250)
+        expected = epsilon_quality(p[part], n[part], 0.5)
+        assert np.array_equal(lower[part], expected.lower)
+        assert np.array_equal(upper[part], expected.upper)
+    assert fc.any() and np.all((lower > 0) == fc)
+
+
 # --- a scheduler and workers as separate processes -------------------------------------
 
 

@@ -175,6 +175,54 @@ def test_label_chunk_equals_core(tmp_path):
     assert len(set(names)) >= 2
 
 
+def test_label_chunk_with_quality_adds_the_certified_epsilon(tmp_path):
+    from grasp_fc_ros.core import epsilon_quality
+
+    positions, normals = _grasps(30, n_fingers=6, seed=4)
+    mu = np.random.default_rng(1).uniform(0.3, 0.8, 30)
+    np.savez(tmp_path / "a.npz", positions=positions, normals=normals, mu=mu)
+    table = label_chunk(open_input(tmp_path / "a.npz"), 0, 30, "auto", "seed",
+                        quality_rtol=1e-4)
+    assert table.column_names == ["id", "force_closure", "status", "status_name", "margin",
+                                  "epsilon_lower", "epsilon_upper", "epsilon_direction"]
+    expected = epsilon_quality(positions, normals, mu[:, None], rtol=1e-4)
+    lower, upper = table["epsilon_lower"].to_numpy(), table["epsilon_upper"].to_numpy()
+    direction = np.stack(table["epsilon_direction"].to_numpy(zero_copy_only=False))
+    assert np.array_equal(lower, expected.lower) and np.array_equal(upper, expected.upper)
+    assert np.array_equal(direction, expected.direction)
+    fc = table["force_closure"].to_numpy()
+    assert fc.any() and not fc.all()
+    assert np.all((lower > 0) == fc) and np.all(upper[fc] - lower[fc] <= 1e-4 * upper[fc])
+    # without --quality the table is as before
+    plain = label_chunk(open_input(tmp_path / "a.npz"), 0, 30, "auto", "seed")
+    assert plain.column_names == table.column_names[:5]
+
+
+def test_quality_setting_in_schema_and_manifest(tmp_path):
+    positions, normals = _grasps(10)
+    np.savez(tmp_path / "a.npz", positions=positions, normals=normals, mu=0.5)
+    plain = Plan.from_files([tmp_path / "a.npz"], chunk_size=5)
+    quality = Plan.from_files([tmp_path / "a.npz"], chunk_size=5, quality_rtol=1e-3)
+    assert "quality_rtol" not in plain.manifest()
+    assert quality.manifest()["quality_rtol"] == 1e-3
+    assert "epsilon_upper" not in plain.schema.names
+    assert quality.schema.names[5:8] == ["epsilon_lower", "epsilon_upper",
+                                         "epsilon_direction"]
+    args = cli.build_parser().parse_args([str(tmp_path / "a.npz"), "--out", "o", "--quality",
+                                          "--quality-rtol", "1e-5"])
+    assert cli.make_plan(args).quality_rtol == 1e-5
+    args = cli.build_parser().parse_args([str(tmp_path / "a.npz"), "--out", "o"])
+    assert cli.make_plan(args).quality_rtol is None
+
+
+def test_quality_usage_errors(tmp_path, capsys):
+    with pytest.raises(SystemExit) as stop:
+        cli.main(["a.npz", "--out", str(tmp_path / "o"), "--quality", "--quality-rtol", "1.5"])
+    assert stop.value.code == 2
+    assert "--quality-rtol must be in [1e-9, 1), got 1.5" in capsys.readouterr().err
+    assert "epsilon_direction" in cli.build_parser().format_help()
+
+
 @pytest.mark.parametrize("arrays, message", [
     ({"positions": np.zeros((4, 3, 3)), "mu": 0.5}, "missing array(s) normals"),
     ({"positions": np.zeros((4, 3)), "normals": np.zeros((4, 3)), "mu": 0.5},
