@@ -86,10 +86,10 @@ def measure(surface, n_fingers, n_grasps, repeats, rng):
     mu_s, bounds = median_seconds(lambda: minimum_friction_bounds(positions, normals), repeats)
     tol_s, tol_bounds = median_seconds(
         lambda: minimum_friction_bounds(positions, normals, margin=MARGIN_TOL), repeats)
-    forces_s, (s_star, _) = median_seconds(
+    forces_s, (s_star, _, _) = median_seconds(
         lambda: optimal_contact_forces(positions, normals, MU, wrench), repeats)
     fallback = clarabel_share(lambda: optimal_contact_forces(positions, normals, MU, wrench))
-    slow_s, (slow_star, _) = median_seconds(without_fast_stage(
+    slow_s, (slow_star, _, _) = median_seconds(without_fast_stage(
         lambda: optimal_contact_forces(positions, normals, MU, wrench)), repeats)
     both = np.isfinite(s_star) & np.isfinite(slow_star)
     differ = float(np.max(np.abs(s_star[both] - slow_star[both]) / slow_star[both],

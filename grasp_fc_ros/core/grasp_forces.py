@@ -85,23 +85,17 @@ RETRY_TOL = 1e-11
 
 
 class GraspForces(NamedTuple):
-    """What :func:`optimal_contact_forces` returns, one shape whatever the contacts.
+    """What :func:`optimal_contact_forces` returns, one shape whatever the contacts."""
 
-    Attributes
-    ----------
-    max_normal_force : ndarray of float, shape () or (N,)
-        s* = min over equilibrating forces of max_i n_i . f_i (force unit of the wrench);
-        0 for a zero wrench; inf where no forces within the cones (and limits) can hold
-        the wrench; NaN where the solver could not decide.
-    forces : ndarray of float, shape (n, 3) or (N, n, 3)
-        Optimal contact forces (world frame); NaN where s* is inf or NaN.
-    torques : ndarray of float, shape (n,) or (N, n)
-        The torsional moment of each contact about its normal (force unit x length
-        unit): 0 at hard contacts, NaN where ``forces`` is.
-    """
-
+    #: s* = min over equilibrating forces of max_i n_i . f_i (force unit of the wrench),
+    #: shape () or (N,): 0 for a zero wrench; inf where no forces within the cones (and
+    #: limits) can hold the wrench; NaN where the solver could not decide.
     max_normal_force: np.ndarray
+    #: Optimal contact forces (world frame), shape (n, 3) or (N, n, 3); NaN where s* is
+    #: inf or NaN.
     forces: np.ndarray
+    #: The torsional moment of each contact about its normal (force unit x length
+    #: unit), shape (n,) or (N, n): 0 at hard contacts, NaN where ``forces`` is.
     torques: np.ndarray
 
 
