@@ -30,11 +30,11 @@ import time
 import numpy as np
 import rclpy
 from action_msgs.msg import GoalStatus
-from bench_ros import REPLY_TIMEOUT_S, start_node, stop_node  # noqa: E402
 from grasp_fc_msgs.action import LabelGrasps
 from rclpy.action import ActionClient
 from rclpy.node import Node
 
+from bench_ros import REPLY_TIMEOUT_S, start_node, stop_node  # noqa: E402
 from grasp_fc_ros.client import request_on_spin_thread
 from grasp_fc_ros.core import check_force_closure
 from grasp_fc_ros.interface.conversions import grasps_to_batch_msg, verdict_array_to_numpy

@@ -18,6 +18,8 @@ import argparse
 
 import numpy as np
 import rclpy
+from rclpy.serialization import serialize_message
+
 from bench_ros import (
     N_FINGERS,
     bench_batches,
@@ -26,11 +28,9 @@ from bench_ros import (
     stop_node,
     tree_cpu_s,
 )
-from rclpy.serialization import serialize_message
-from timing import ratio_or_nan
-
 from grasp_fc_ros.interface.conversions import verdicts_to_array_msg
 from grasp_fc_ros.objects import make_object, sample_grasps
+from timing import ratio_or_nan
 
 SETTINGS = {
     "off": [],

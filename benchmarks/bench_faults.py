@@ -29,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 import rclpy
-from bench_ros import process_cpu_s, start_node, stop_node, verdict
 
+from bench_ros import process_cpu_s, start_node, stop_node, verdict
 from grasp_fc_ros.core import Status, check_force_closure
 from grasp_fc_ros.engine.packed import PackedGrasps, Settings, Verdicts
 from grasp_fc_ros.engine.pool import EvaluationPool

@@ -31,11 +31,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from timing import ratio_or_nan
 
 from grasp_fc_ros.core import check_force_closure
 from grasp_fc_ros.markers.build import grasp_markers
 from grasp_fc_ros.objects import make_object, sample_grasps
+from timing import ratio_or_nan
 
 if TYPE_CHECKING:
     from rclpy.parameter_client import AsyncParameterClient
@@ -140,9 +140,10 @@ def round_trips_ms(send: Callable[[int], object], n: int, first_id: int) -> list
 def bench_node(queries: int, rounds: int) -> None:
     """2.: one-query round trips through the node with publish_markers off and on."""
     import rclpy
-    from bench_ros import start_node, stop_node
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter_client import AsyncParameterClient
+
+    from bench_ros import start_node, stop_node
 
     p, n = sample_grasps(make_object("box"), 1000, FINGERS, np.random.default_rng(1))
     rclpy.init()

@@ -18,8 +18,8 @@ import sys
 import time
 
 import numpy as np
-from bench_ros import bench_core, bench_core_everywhere, ceiling_pool, tree_cpu_s
 
+from bench_ros import bench_core, bench_core_everywhere, ceiling_pool, tree_cpu_s
 from grasp_fc_ros.engine.packed import PackedGrasps, Settings
 from grasp_fc_ros.engine.pool import EvaluationPool
 from grasp_fc_ros.objects import make_object, sample_grasps
@@ -68,7 +68,8 @@ def main(argv=None) -> int:
                 decision.result()
             rate = n_grasps / (time.perf_counter() - start)
             owner = (time.process_time() - owner) / n_grasps
-            workers = sum(tree_cpu_s(pid) - c for pid, c in zip(pids, workers)) / n_grasps
+            workers = sum(tree_cpu_s(pid) - c
+                          for pid, c in zip(pids, workers, strict=True)) / n_grasps
             ratios.append(rate / core)
             print(f"core {core:8.0f} grasps/s; core in {args.workers} processes "
                   f"{ceiling:8.0f} ({ceiling / core:.2f}x); pool {rate:8.0f} "

@@ -42,12 +42,12 @@ from pathlib import Path
 
 import numpy as np
 import rclpy
-from timing import ratio_or_nan
 
 from grasp_fc_ros.client import GraspClient
 from grasp_fc_ros.core import check_force_closure, warm_up
 from grasp_fc_ros.engine.chunking import CHUNK_CONTACTS
 from grasp_fc_ros.objects import make_object, sample_grasps
+from timing import ratio_or_nan
 
 N_FINGERS = 6
 CONNECT_TIMEOUT_S = 30.0

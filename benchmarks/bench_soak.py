@@ -26,7 +26,6 @@ import rclpy
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_ros import REPLY_TIMEOUT_S, process_tree, start_node, stop_node  # noqa: E402
-
 from grasp_fc_ros.objects import make_object, sample_grasps  # noqa: E402
 
 N_FINGERS = 6

@@ -145,7 +145,7 @@ def _prism_patches(polygon, height):
     """Boundary of a simple polygon (counter-clockwise, (V, 2)) extruded over z in [0, height]."""
     polygon = np.asarray(polygon, dtype=np.float64)
     patches = []
-    for a, b in zip(polygon, np.roll(polygon, -1, axis=0)):
+    for a, b in zip(polygon, np.roll(polygon, -1, axis=0), strict=True):
         edge = b - a
         length = float(np.hypot(*edge))
         # counter-clockwise boundary: the interior is on the left of each edge
@@ -321,7 +321,7 @@ def _sample_patches(patches, n_points, rng):
     factor = _OVERSAMPLE
     for _ in range(_MAX_OVERSAMPLE_ROUNDS):
         counts = rng.multinomial(int(np.ceil(factor * n_points)), nominal / nominal.sum())
-        parts = [p.sample(rng, int(c)) for p, c in zip(patches, counts)]
+        parts = [p.sample(rng, int(c)) for p, c in zip(patches, counts, strict=True)]
         points = np.concatenate([pts for pts, _ in parts])
         normals = np.concatenate([nrm for _, nrm in parts])
         if len(points) >= n_points:

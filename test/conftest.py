@@ -14,6 +14,7 @@ import pytest
 def ros():
     """rclpy initialised once for the whole run, on this run's own ROS_DOMAIN_ID."""
     import rclpy
+
     import ros_fixtures  # noqa: F401 - sets ROS_DOMAIN_ID before rclpy starts
 
     if not rclpy.ok():
@@ -30,9 +31,9 @@ def own_node(ros):
     (and ``pool``, the node's pool if given, closed).
     """
     from rclpy.parameter import Parameter
-    from ros_fixtures import Client, SpinThread
 
     from grasp_fc_ros.node import ForceClosureNode
+    from ros_fixtures import Client, SpinThread
 
     made = []
 

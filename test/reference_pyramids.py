@@ -49,7 +49,7 @@ def _pyramid_wrench_columns(positions, normals, frictions, sides, inscribed):
     centred = positions - positions.mean(axis=0)
     centred = centred / np.abs(centred).max()
     columns = [np.concatenate([f, np.cross(p, f)])
-               for p, n, mu in zip(centred, normals, frictions)
+               for p, n, mu in zip(centred, normals, frictions, strict=True)
                for f in pyramid_edges(n, mu, sides, inscribed)]
     return np.array(columns).T
 
@@ -117,7 +117,7 @@ def pyramid_min_max_force(positions, normals, mu, wrench, sides=8, inscribed=Tru
     sum_i (f_i, p_i x f_i) + wrench = 0, n_i . f_i <= s, n_i . f_i <= limit_i, lam >= 0.
     """
     frictions = np.broadcast_to(np.asarray(mu, float), (len(positions),))
-    edges = [pyramid_edges(n, m, sides, inscribed) for n, m in zip(normals, frictions)]
+    edges = [pyramid_edges(n, m, sides, inscribed) for n, m in zip(normals, frictions, strict=True)]
     return _min_max_force_lp(positions, normals, edges, [np.zeros(len(e)) for e in edges],
                              wrench, max_normal_force)
 
@@ -128,8 +128,8 @@ def _min_max_force_lp(positions, normals, edges, twists, wrench, max_normal_forc
     minimise s subject to equilibrium with ``wrench``, n_i . f_i <= s and the limits."""
     n_contacts = len(positions)
     columns, normal_parts, owner = [], [], []
-    for i, (p, n) in enumerate(zip(positions, normals)):
-        for f, tau in zip(edges[i], twists[i]):
+    for i, (p, n) in enumerate(zip(positions, normals, strict=True)):
+        for f, tau in zip(edges[i], twists[i], strict=True):
             columns.append(np.concatenate([f, np.cross(p, f) + tau * n]))
             normal_parts.append(f @ n)
             owner.append(i)
@@ -177,7 +177,7 @@ def _soft_wrench_columns(positions, normals, frictions, torsional, points, inscr
     scale = np.abs(centred).max()
     centred = centred / scale
     columns = []
-    for p, n, mu, gamma in zip(centred, normals, frictions, torsional / scale):
+    for p, n, mu, gamma in zip(centred, normals, frictions, torsional / scale, strict=True):
         if gamma == 0:
             edges, twists = pyramid_edges(n, mu, points, inscribed), np.zeros(points)
         else:
@@ -189,7 +189,7 @@ def _soft_wrench_columns(positions, normals, frictions, torsional, points, inscr
             edges = n + mu * (ball[:, :1] * t1 + ball[:, 1:2] * t2)
             twists = gamma * ball[:, 2]
         columns += [np.concatenate([f, np.cross(p, f) + tau * n])
-                    for f, tau in zip(edges, twists)]
+                    for f, tau in zip(edges, twists, strict=True)]
     return np.array(columns).T
 
 
@@ -220,7 +220,7 @@ def soft_pyramid_min_max_force(positions, normals, mu, torsional, wrench, points
     frictions = np.broadcast_to(np.asarray(mu, float), (n_contacts,))
     gammas = np.broadcast_to(np.asarray(torsional, float), (n_contacts,))
     edges, twists = [], []
-    for n, m, gamma in zip(normals, frictions, gammas):
+    for n, m, gamma in zip(normals, frictions, gammas, strict=True):
         if gamma == 0:
             edges.append(pyramid_edges(n, m, points, inscribed))
             twists.append(np.zeros(points))

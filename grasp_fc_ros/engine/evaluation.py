@@ -91,7 +91,7 @@ def find_invalid(packed: PackedGrasps, mu: np.ndarray, settings: Settings
     owner = np.searchsorted(np.cumsum(counts), bad_contacts, side="right")
     starts = packed.starts
     seen = set(np.flatnonzero(wrong_size).tolist())
-    for k, g in zip(bad_contacts.tolist(), owner.tolist()):
+    for k, g in zip(bad_contacts.tolist(), owner.tolist(), strict=True):
         if g in seen:
             continue  # report the first problem of a grasp only
         seen.add(g)

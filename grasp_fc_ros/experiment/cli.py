@@ -49,7 +49,8 @@ def _int_list(text):
     try:
         values = [int(part) for part in text.split(",") if part]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated integers, got {text!r}") from None
     if not values or min(values) < 3:
         raise argparse.ArgumentTypeError(f"need integers >= 3, got {text!r}")
     return values
@@ -83,7 +84,7 @@ def build_parser():
                         help="small, fast version (smoke test; numbers are not meaningful)")
     parser.add_argument("--peer-grasps", type=positive_int,
                         help="grasps per object given to the slow linearized peer "
-                             f"(default {FULL['peer_grasps']}; about 11 ms per grasp with 8 sides here)")
+                             f"(default {FULL['peer_grasps']}; milliseconds a grasp)")
     parser.add_argument("--peer-sides", type=positive_int, default=8,
                         help="pyramid sides of the peer in the main comparison (default 8)")
     parser.add_argument("--sides-sweep", type=_int_list, default=list(DEFAULT_SIDES_SWEEP),
@@ -137,7 +138,7 @@ def load_objects(args):
         try:
             surfaces.append(load_surface(path, n_points=args.points, seed=args.seed))
         except (OSError, ValueError) as error:
-            raise SystemExit(f"grasp-fc-experiment: {error}")
+            raise SystemExit(f"grasp-fc-experiment: {error}") from error
     too_small = [s.name for s in surfaces if len(s) < args.fingers]
     if too_small:
         raise SystemExit(f"grasp-fc-experiment: fewer than {args.fingers} points on "

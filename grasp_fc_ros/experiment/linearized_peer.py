@@ -111,4 +111,4 @@ def linearized_force_closure(positions, normals, mu, sides=DEFAULT_SIDES):
     if positions.ndim == 2:
         return np.bool_(linearized_margin(positions, normals, mu, sides) > INSIDE_MARGIN)
     return np.array([linearized_margin(p, n, mu, sides) > INSIDE_MARGIN
-                     for p, n in zip(positions, normals)], dtype=bool)
+                     for p, n in zip(positions, normals, strict=True)], dtype=bool)

@@ -137,7 +137,7 @@ def _draw_grasp(ax, surface, positions, normals, mu, colour, title):
                alpha=0.5, depthshade=False)
     size = np.ptp(surface.points, axis=0).max()
     half_angle = np.arctan(mu)
-    for p, n in zip(positions, normals):
+    for p, n in zip(positions, normals, strict=True):
         # the finger pushes along n into the object; draw its cone on the finger's
         # side (outside the surface) so it is not hidden by the object
         xs, ys, zs = _cone_mesh(p, -n, half_angle, CONE_LENGTH_FRACTION * size)
@@ -147,7 +147,7 @@ def _draw_grasp(ax, surface, positions, normals, mu, colour, title):
     ax.scatter(*positions.T, s=30, color=colour, edgecolor="black", depthshade=False)
     centre = surface.points.mean(axis=0)
     reach = 0.5 * size + CONE_LENGTH_FRACTION * size
-    for setter, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):
+    for setter, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre, strict=True):
         setter(c - reach, c + reach)
     ax.set_box_aspect((1, 1, 1), zoom=1.6)
     ax.set_axis_off()
@@ -183,7 +183,7 @@ def plot_friction_labels(labels, path):
     fig, axes = plt.subplots(rows, columns, figsize=(3.3 * columns, 2.6 * rows),
                              squeeze=False, sharex=True)
     bins = np.arange(0.0, LABEL_MU_MAX + LABEL_BIN_WIDTH / 2, LABEL_BIN_WIDTH)
-    for ax, label in zip(axes.flat, labels):
+    for ax, label in zip(axes.flat, labels, strict=True):
         mu_star = label.mu_star
         shown = mu_star[np.isfinite(mu_star) & (mu_star <= LABEL_MU_MAX)]
         beyond = int(np.count_nonzero(~np.isfinite(mu_star) | (mu_star > LABEL_MU_MAX)))

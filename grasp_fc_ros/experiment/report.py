@@ -10,11 +10,22 @@ from pathlib import Path
 
 import numpy as np
 
-from .paper import (PAPER_AVG_FALSE_POSITIVES, PAPER_AVG_FC, PAPER_AVG_FILTERED_S,
-                    PAPER_AVG_SPECIFICITY, PAPER_AVG_SPEEDUP, PAPER_AVG_UNFILTERED_S,
-                    PAPER_EXACT_MS, PAPER_FILTER_MS, PAPER_GRASPS, PAPER_IMPLIED_PASSED_MS,
-                    PAPER_IMPLIED_REJECTED_MS, PAPER_PASSED_SHARE, PAPER_TABLE_I,
-                    PAPER_TABLE_II)
+from .paper import (
+    PAPER_AVG_FALSE_POSITIVES,
+    PAPER_AVG_FC,
+    PAPER_AVG_FILTERED_S,
+    PAPER_AVG_SPECIFICITY,
+    PAPER_AVG_SPEEDUP,
+    PAPER_AVG_UNFILTERED_S,
+    PAPER_EXACT_MS,
+    PAPER_FILTER_MS,
+    PAPER_GRASPS,
+    PAPER_IMPLIED_PASSED_MS,
+    PAPER_IMPLIED_REJECTED_MS,
+    PAPER_PASSED_SHARE,
+    PAPER_TABLE_I,
+    PAPER_TABLE_II,
+)
 
 RESULTS_CSV = "results.csv"
 FINGERS_CSV = "fingers.csv"
@@ -349,7 +360,8 @@ def markdown_report(results, finger_rows, sides_rows, settings, total_s, plots,
                 "filtered pipeline (ms/grasp)"],
                [[r.name, f"{f:.4f}", f"{e:.4f}", f"{e / f:.0f}" if f else "nan",
                  f"{split[0]:.4f}", f"{split[1]:.4f}", f"{p:.4f}"]
-                for r, f, e, p, split in zip(results, filter_ms, exact_ms, pipeline_ms, splits)]
+                for r, f, e, p, split in zip(results, filter_ms, exact_ms, pipeline_ms, splits,
+                                             strict=True)]
                + [["**average**", f"{_mean(filter_ms):.4f}", f"{_mean(exact_ms):.4f}",
                    f"{_mean(exact_ms) / _mean(filter_ms):.0f}",
                    f"{_mean(s[0] for s in splits):.4f}", f"{_mean(s[1] for s in splits):.4f}",
@@ -365,7 +377,7 @@ def markdown_report(results, finger_rows, sides_rows, settings, total_s, plots,
         "If the exact test cost the same on every grasp, the speedup could not exceed "
         "1 / (share of grasps passing the filter + filter cost / exact cost): "
         + ", ".join(f"{r.name} {1.0 / (r.seed.passed / r.grasps + f / e):.2f}"
-                    for r, f, e in zip(results, filter_ms, exact_ms))
+                    for r, f, e in zip(results, filter_ms, exact_ms, strict=True))
         + f". The paper's averages ({PAPER_PASSED_SHARE * PAPER_GRASPS:,.0f} of "
         f"{PAPER_GRASPS:,} grasps passing, "
         f"{PAPER_FILTER_MS} vs {PAPER_EXACT_MS} ms) give "
@@ -378,7 +390,8 @@ def markdown_report(results, finger_rows, sides_rows, settings, total_s, plots,
         "",
         f"Each cone replaced by an inscribed {r0.peer.sides}-sided pyramid; force closure iff "
         "the origin is strictly inside the convex hull of the primitive wrenches (scipy "
-        "ConvexHull / Qhull). It is slow (about 10 ms per grasp with 8 sides, more with more sides), so it runs on a subsample: "
+        "ConvexHull / Qhull). It is slow (milliseconds a grasp, more with more sides), so it runs "
+        "on a subsample: "
         f"the first {r0.peer.grasps:,} grasps of each object ({peer_grasps:,} in all), "
         "compared with the exact verdicts on the same grasps.",
         "",
@@ -386,7 +399,7 @@ def markdown_report(results, finger_rows, sides_rows, settings, total_s, plots,
                 "peer / ours", "FC missed by peer", "non-FC accepted by peer"],
                [[r.name, r.peer.grasps, f"{r.peer.ms_per_grasp:.2f}", f"{p:.4f}",
                  f"{r.peer.ms_per_grasp / p:.0f}x", r.peer.missed_fc, r.peer.false_fc]
-                for r, p in zip(results, pipeline_ms)]),
+                for r, p in zip(results, pipeline_ms, strict=True)]),
         "",
         f"Overall: peer {_mean(peer_ms):.2f} ms/grasp vs ours {_mean(pipeline_ms):.4f} "
         f"ms/grasp, ours is **{peer_ratio:.0f}x faster** (target: >= 50x). The peer's verdict "

@@ -15,7 +15,6 @@ import math
 from typing import Any, NamedTuple
 
 import numpy as np
-from numpy.typing import ArrayLike, DTypeLike
 from geometry_msgs.msg import Vector3
 from grasp_fc_msgs.msg import (
     ContactArray,
@@ -23,6 +22,7 @@ from grasp_fc_msgs.msg import (
     ForceClosureVerdict,
     ForceClosureVerdictArray,
 )
+from numpy.typing import ArrayLike, DTypeLike
 from std_msgs.msg import Header
 
 from grasp_fc_ros.engine.packed import OPTIONAL_FIELDS, PackedGrasps, Verdicts

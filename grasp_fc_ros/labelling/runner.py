@@ -84,7 +84,7 @@ class Plan:
                              f"size {self.chunk_size}, got {sorted(drawn)}")
 
     @classmethod
-    def from_files(cls, paths, **settings) -> "Plan":
+    def from_files(cls, paths, **settings) -> Plan:
         """The plan of input files, ids defaulting to the running index across them all.
 
         Raises
@@ -243,7 +243,7 @@ def run(plan: Plan, out, client, progress: bool = True) -> Summary:
                 on_result=write)
     del sources
     output.finish([chunk.part for chunk in chunks], plan.schema)
-    summary.status_counts = {name: int(n) for name, n in zip(STATUS_NAMES, counts)}
+    summary.status_counts = {name: int(n) for name, n in zip(STATUS_NAMES, counts, strict=True)}
     summary.seconds = time.perf_counter() - start
     return summary
 

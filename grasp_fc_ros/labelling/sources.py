@@ -390,7 +390,7 @@ def open_input(path, id_offset: int = 0):
     raise InputError(f"{path}: unsupported input (expected .npz or .parquet)")
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _builtin(name: str, points: int, seed: int):
     from grasp_fc_ros.objects import make_object
 

@@ -13,8 +13,8 @@ which computes the separating wrench of the rejected grasps with
 
 Why a process: building one grasp's markers costs several times a one-grasp core call
 (benchmarks/bench_markers.py), and on a thread of the node that work held the GIL
-while the next query waited for it (docs/performance.md#markers). When the marker process falls behind, the oldest queued marker
-work is dropped (and counted), never a verdict.
+while the next query waited for it (docs/performance.md#markers). When the marker process
+falls behind, the oldest queued marker work is dropped (and counted), never a verdict.
 """
 
 from __future__ import annotations

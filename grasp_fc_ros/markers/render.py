@@ -148,7 +148,7 @@ def render_marker_arrays(arrays: Sequence[MarkerArray], path: str | Path, *,
         for marker in array.markers:
             if marker.action == Marker.ADD:
                 _draw_marker(ax, marker, 2 * half)
-        for axis, c in zip("xyz", centre):
+        for axis, c in zip("xyz", centre, strict=True):
             getattr(ax, f"set_{axis}lim")(c - half, c + half)
         ax.set_box_aspect((1, 1, 1))
         ax.tick_params(labelsize=6)

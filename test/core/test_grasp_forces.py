@@ -15,9 +15,9 @@ from grasp_fc_ros.core import (
     warm_up,
 )
 from grasp_fc_ros.core.grasp_forces import (
-    GraspForces,
     FORCE_TOL,
     OPTIMALITY_TOL,
+    GraspForces,
     lower_bound,
     optimal_contact_forces,
 )

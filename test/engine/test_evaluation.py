@@ -187,7 +187,8 @@ def test_a_failing_core_group_fails_only_that_group(mixed, monkeypatch):
 @pytest.fixture(scope="module")
 def six_finger():
     """30 six-finger grasps on the box."""
-    return list(zip(*sample_grasps(make_object("box"), 30, 6, np.random.default_rng(5))))
+    grasps = sample_grasps(make_object("box"), 30, 6, np.random.default_rng(5))
+    return list(zip(*grasps, strict=True))
 
 
 @pytest.mark.parametrize("extras", [{}, {"certificates": True}, {"compute_min_friction": True}])

@@ -162,7 +162,7 @@ def test_started_requests_are_decided_side_by_side_and_collected_in_any_order(gr
     pool, _ = make_pool(workers=1, chunk_contacts=120)  # 20 grasps a chunk, one worker
     decisions = [pool.start(part, Settings()) for part in (first, second, tiny)]
     results = [decision.result()[0] for decision in reversed(decisions)][::-1]
-    for part, got in zip((first, second, tiny), results):
+    for part, got in zip((first, second, tiny), results, strict=True):
         inline, _ = evaluate(part, Settings())
         np.testing.assert_array_equal(got.ids, inline.ids)
         np.testing.assert_array_equal(got.status, inline.status)

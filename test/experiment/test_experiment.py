@@ -10,8 +10,7 @@ pytest.importorskip("matplotlib")
 pytest.importorskip("scipy")
 
 from grasp_fc_ros.experiment import cli, epsilon_study, report  # noqa: E402
-from grasp_fc_ros.experiment.linearized_peer import (linearized_force_closure,  # noqa: E402
-                                                     pyramid_edges)
+from grasp_fc_ros.experiment.linearized_peer import linearized_force_closure, pyramid_edges  # noqa: E402
 from grasp_fc_ros.objects import make_object  # noqa: E402
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"

@@ -3,8 +3,14 @@
 import numpy as np
 import pytest
 
-from grasp_fc_ros.objects import (OBJECT_NAMES, ContactSurface, _inside, load_surface,
-                                  make_object, sample_grasps)
+from grasp_fc_ros.objects import (
+    OBJECT_NAMES,
+    ContactSurface,
+    _inside,
+    load_surface,
+    make_object,
+    sample_grasps,
+)
 
 # Step along the normal used to probe the solid; small enough that only points
 # within ~1e-7 m of a sharp edge could step out through a neighbouring face.

@@ -22,10 +22,10 @@ def served(ros):
     import os
 
     from rclpy.node import Node
-    from ros_fixtures import SpinThread
     from std_srvs.srv import SetBool
 
     from grasp_fc_ros.interface.wait_sets import ServiceLoop
+    from ros_fixtures import SpinThread
 
     name = f"/loop_test_{os.getpid()}"
     calls, errors = [], []

@@ -9,8 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from grasp_fc_ros.labelling import OutputConflict, Plan, open_input
-from grasp_fc_ros.labelling import cli
+from grasp_fc_ros.labelling import OutputConflict, Plan, cli, open_input
 from grasp_fc_ros.labelling.npz_members import read_members
 from grasp_fc_ros.labelling.output import Output
 from grasp_fc_ros.labelling.tasks import label_chunk, validate_chunk

@@ -50,10 +50,10 @@ def tiled(grasps, n_grasps):
 def served(ros):
     """A node with one worker in a namespace of its own, and a GraspClient of it."""
     from rclpy.parameter import Parameter
-    from ros_fixtures import SpinThread
 
     from grasp_fc_ros.client import GraspClient
     from grasp_fc_ros.node import ForceClosureNode
+    from ros_fixtures import SpinThread
 
     namespace = "/action_test"
     node = ForceClosureNode(namespace=namespace, parameter_overrides=[
@@ -355,11 +355,11 @@ def test_destroying_the_node_aborts_its_goals_with_their_prefixes(grasps, ros):
     from grasp_fc_msgs.action import LabelGrasps
     from rclpy.action import ActionClient
     from rclpy.parameter import Parameter
-    from ros_fixtures import SpinThread
 
     from grasp_fc_ros.client import GraspClient
     from grasp_fc_ros.node import ForceClosureNode
     from grasp_fc_ros.node.label_action import ACTION_THREADS
+    from ros_fixtures import SpinThread
 
     namespace = "/action_shutdown_test"
     node = ForceClosureNode(namespace=namespace, parameter_overrides=[
@@ -404,9 +404,9 @@ def test_sigterm_aborts_a_running_goal_with_its_prefix_and_the_node_exits(grasps
 
     from grasp_fc_msgs.action import LabelGrasps
     from rclpy.action import ActionClient
-    from ros_fixtures import NodeProcess, node_command
 
     from grasp_fc_ros.client import GraspClient
+    from ros_fixtures import NodeProcess, node_command
 
     namespace = f"/action_sigterm_{os.getpid()}"
     process = NodeProcess(node_command() + ["--ros-args", "-r", f"__ns:={namespace}",

@@ -17,7 +17,6 @@ import time
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
-from ros_fixtures import REPLY_TIMEOUT_S, Client, SpinThread
 
 from grasp_fc_ros.core import Status, check_force_closure
 from grasp_fc_ros.engine import evaluation as evaluation_module
@@ -32,6 +31,7 @@ from grasp_fc_ros.node import ForceClosureNode
 from grasp_fc_ros.node import services as services_module
 from grasp_fc_ros.node.lane import SHUTDOWN_MESSAGE
 from grasp_fc_ros.objects import make_object, sample_grasps
+from ros_fixtures import REPLY_TIMEOUT_S, Client, SpinThread
 
 pytestmark = pytest.mark.timeout(120)
 

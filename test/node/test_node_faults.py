@@ -108,7 +108,6 @@ def served(ros):
 
     from grasp_fc_ros.client import GraspClient
     from grasp_fc_ros.node import ForceClosureNode
-
     from ros_fixtures import SpinThread
 
     before = worker_pids()

@@ -10,7 +10,6 @@ import time
 import numpy as np
 import pytest
 from grasp_fc_msgs.msg import ForceClosureVerdict
-from ros_fixtures import REPLY_TIMEOUT_S
 
 from grasp_fc_ros.client import GraspClient
 from grasp_fc_ros.core import Status, check_force_closure
@@ -19,6 +18,7 @@ from grasp_fc_ros.interface.conversions import grasp_to_contact_array, grasps_to
 from grasp_fc_ros.interface.names import QUERY_QOS
 from grasp_fc_ros.node.lane import SHUTDOWN_MESSAGE
 from grasp_fc_ros.objects import make_object, sample_grasps
+from ros_fixtures import REPLY_TIMEOUT_S
 
 pytestmark = pytest.mark.timeout(180)
 

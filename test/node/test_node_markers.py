@@ -13,7 +13,6 @@ import time
 
 import numpy as np
 import pytest
-from ros_fixtures import REPLY_TIMEOUT_S
 from std_srvs.srv import Empty
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -38,6 +37,7 @@ from grasp_fc_ros.markers.publisher import (
     sample_indices,
 )
 from grasp_fc_ros.objects import make_object, sample_grasps
+from ros_fixtures import REPLY_TIMEOUT_S
 
 pytestmark = pytest.mark.timeout(120)
 

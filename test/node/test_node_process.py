@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from ros_fixtures import Client, NodeProcess, node_command
 
 from grasp_fc_ros.client import GraspClient
 from grasp_fc_ros.core import Status, check_force_closure
@@ -27,6 +26,7 @@ from grasp_fc_ros.interface.conversions import (
 )
 from grasp_fc_ros.node.lane import SHUTDOWN_MESSAGE
 from grasp_fc_ros.objects import make_object, sample_grasps
+from ros_fixtures import Client, NodeProcess, node_command
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -7,11 +7,11 @@ import threading
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
-from ros_fixtures import DISCOVERY_TIMEOUT_S, REPLY_TIMEOUT_S, SpinThread
 
 from grasp_fc_ros.core import Status
 from grasp_fc_ros.interface.conversions import grasp_to_contact_array
 from grasp_fc_ros.node import ForceClosureNode
+from ros_fixtures import DISCOVERY_TIMEOUT_S, REPLY_TIMEOUT_S, SpinThread
 
 # Four fingers on a unit sphere: force closure at mu 0.5.
 POSITIONS = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0]], dtype=float)

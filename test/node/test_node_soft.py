@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
-from ros_fixtures import Client, SpinThread
 
 from grasp_fc_ros.core import Status, check_force_closure
 from grasp_fc_ros.engine.chunking import SOFT_CHUNK_DIVISOR
@@ -21,6 +20,7 @@ from grasp_fc_ros.interface.conversions import (
     verdict_array_to_numpy,
 )
 from grasp_fc_ros.node import ForceClosureNode
+from ros_fixtures import Client, SpinThread
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -14,7 +14,6 @@ import time
 import numpy as np
 import pytest
 from rclpy.serialization import serialize_message
-from ros_fixtures import REPLY_TIMEOUT_S
 
 from grasp_fc_ros.core import Status, check_force_closure
 from grasp_fc_ros.interface import wire
@@ -24,6 +23,7 @@ from grasp_fc_ros.interface.conversions import (
     verdict_array_to_numpy,
 )
 from grasp_fc_ros.objects import make_object, sample_grasps
+from ros_fixtures import REPLY_TIMEOUT_S
 
 DEFAULT_MU = 0.5
 
@@ -156,9 +156,8 @@ def test_a_batch_taken_serialized_keeps_its_header_ids_and_verdicts(own_node, gr
 
 
 def test_a_big_endian_batch_is_read_by_rclpy_and_answered(own_node, grasps):
-    from interface.test_wire import big_endian_batch
-
     from grasp_fc_ros.interface.conversions import batch_arrays
+    from interface.test_wire import big_endian_batch
 
     _, _, client = own_node("/wire_test_big_endian", workers=0)
     positions, normals = grasps

@@ -11,10 +11,10 @@ from pathlib import Path
 
 import pytest
 import yaml
-from ros_domains import claim_domain_id
 
 from grasp_fc_ros.interface.names import NODE_NAME
 from grasp_fc_ros.node import PARAMETERS
+from ros_domains import claim_domain_id
 
 ROOT = Path(__file__).resolve().parents[2]
 PARAMS_FILE = ROOT / "config" / "force_closure.yaml"

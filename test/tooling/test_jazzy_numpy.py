@@ -119,7 +119,8 @@ def test_core_passes_with_jazzy_numpy_and_the_pinned_clarabel_and_numba() -> Non
     pins = dict(r.split("==") for r in requirements)
     assert versions.stdout.split() == [pins["numpy"], pins["scipy"], pins["clarabel"],
                                        pins["numba"]]
-    files = [str(p) for name in CORE_TEST_FILES for p in sorted((ROOT / "test" / "core").glob(name))]
+    files = [str(p) for name in CORE_TEST_FILES
+             for p in sorted((ROOT / "test" / "core").glob(name))]
     assert len(files) == len(CORE_TEST_FILES), f"core test files not found: {files}"
     env = dict(os.environ, PYTHONPATH=str(ROOT), NUMBA_CACHE_DIR=str(venv / "numba_cache"))
     env.pop("PYTHONHOME", None)

@@ -286,7 +286,6 @@ def readme_node(ros: None) -> Iterator[Any]:
     from rclpy.parameter import Parameter
 
     from grasp_fc_ros.node import ForceClosureNode
-
     from ros_fixtures import SpinThread
 
     node = ForceClosureNode(parameter_overrides=[Parameter("workers", value=0)])

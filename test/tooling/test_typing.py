@@ -53,6 +53,7 @@ def test_core_public_api_has_real_signatures(cache_dir, tmp_path):
     returns = [r.rsplit(" -> ", 1)[-1] for r in revealed]
     assert returns[0] == "grasp_fc_ros.core.pipeline.ForceClosureResult"
     # torque_filter: the verdicts, or (verdicts, wrenches) with certificates=True.
-    assert re.fullmatch(r"numpy\.ndarray\[.*\] \| tuple\[numpy\.ndarray.*\]", returns[1]), returns[1]
+    certified = r"numpy\.ndarray\[.*\] \| tuple\[numpy\.ndarray.*\]"
+    assert re.fullmatch(certified, returns[1]), returns[1]
     assert returns[2].startswith("numpy.ndarray")
     assert returns[3] == "grasp_fc_ros.core.grasp_input.GraspValidation"
