@@ -219,19 +219,23 @@ def processes(tmp_path):
         started.append(proc)
         return proc
 
-    start("scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
-          "--scheduler-file", str(scheduler_file))
-    _wait_for(scheduler_file.exists, 60, "the scheduler")
-    address = json.loads(scheduler_file.read_text())["address"]
+    # Killed whatever happens, also when the scheduler never comes up: a leaked
+    # scheduler outlives the test run.
+    try:
+        start("scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+              "--scheduler-file", str(scheduler_file))
+        _wait_for(scheduler_file.exists, 60, "the scheduler")
+        address = json.loads(scheduler_file.read_text())["address"]
 
-    def worker():
-        return start("worker", address, "--nthreads", "1", "--no-nanny", "--host",
-                     "127.0.0.1", "--no-dashboard")
+        def worker():
+            return start("worker", address, "--nthreads", "1", "--no-nanny", "--host",
+                         "127.0.0.1", "--no-dashboard")
 
-    yield address, worker, scheduler_file
-    for proc in reversed(started):
-        proc.kill()
-        proc.wait()
+        yield address, worker, scheduler_file
+    finally:
+        for proc in reversed(started):
+            proc.kill()
+            proc.wait()
 
 
 def _big_input(tmp_path, n_grasps):
