@@ -53,6 +53,7 @@ import threading
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
 
 from . import epsilon_kernels
 from ._kernels.jit import kernel_array
@@ -134,9 +135,11 @@ class EpsilonResult:
     support_points: np.ndarray
 
 
-def epsilon_quality(positions, normals, mu, *, center=(0.0, 0.0, 0.0), torque_scale=None,
-                    rtol: float = 1e-3, budget: str = "l1",
-                    torsional_friction=0.0) -> EpsilonResult:
+def epsilon_quality(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayLike, *,
+                    center: npt.ArrayLike = (0.0, 0.0, 0.0),
+                    torque_scale: npt.ArrayLike | None = None, rtol: float = 1e-3,
+                    budget: str = "l1",
+                    torsional_friction: npt.ArrayLike = 0.0) -> EpsilonResult:
     """Certified Ferrari-Canny epsilon with circular friction cones (module docstring).
 
     Parameters
@@ -204,7 +207,8 @@ def epsilon_quality(positions, normals, mu, *, center=(0.0, 0.0, 0.0), torque_sc
         torque_scale=grasps.unbatch(scale), support_points=grasps.unbatch(points))
 
 
-def _verdicts(positions, normals, mu, torsional_friction,
+def _verdicts(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayLike,
+              torsional_friction: npt.ArrayLike,
               grasps: GraspBatch) -> tuple[np.ndarray, np.ndarray]:
     """Force closure (N,) from :func:`.pipeline.check_force_closure` (its one-grasp fast
     path where it applies), and the separating wrenches (N, 6) of the grasps that are
@@ -233,7 +237,7 @@ class _Rows:
     linf: bool
     wrench_scale: np.ndarray = field(init=False)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         object.__setattr__(self, "mu", kernel_array(self.mu))
         object.__setattr__(self, "wrench_scale", _wrench_scale(
             self.normal_rows, self.tangent_rows, self.mu, self.linf))
@@ -290,7 +294,7 @@ def _wrench_scale(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndar
 _WORKSPACES = threading.local()
 
 
-def _workspace() -> tuple:
+def _workspace() -> epsilon_kernels.Workspace:
     """This thread's search arrays (:func:`.epsilon_kernels.workspace`), made once:
     allocated per call they cost as much as a grasp's search (docs/epsilon.md#cost)."""
     arrays = getattr(_WORKSPACES, "arrays", None)
@@ -300,7 +304,8 @@ def _workspace() -> tuple:
     return arrays
 
 
-def _search(rows: _Rows, rtol: float):
+def _search(rows: _Rows,
+            rtol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The compiled search on a batch: lower, upper, direction, points, status (N,)."""
     lower, upper, direction, points, status = epsilon_kernels.epsilon_batch(
         rows.normal_rows, rows.tangent_rows, rows.mu, rows.wrench_scale, rows.linf, rtol,
@@ -346,20 +351,20 @@ def _to_frame(wrench: np.ndarray, centre: np.ndarray, scale: np.ndarray) -> np.n
     return kernel_array(direction / np.linalg.norm(direction, axis=1, keepdims=True))
 
 
-def _budget_is_linf(budget) -> bool:
+def _budget_is_linf(budget: str) -> bool:
     if budget not in BUDGETS:
         raise ValueError(f"budget must be one of {BUDGETS}, got {budget!r}")
     return budget == "linf"
 
 
-def _checked_rtol(rtol) -> float:
+def _checked_rtol(rtol: float) -> float:
     value = float(rtol)
     if not MIN_RTOL <= value < 1.0:
         raise ValueError(f"rtol must be in [{MIN_RTOL:g}, 1), got {rtol!r}")
     return value
 
 
-def _centres(center, n_grasps: int) -> np.ndarray:
+def _centres(center: npt.ArrayLike, n_grasps: int) -> np.ndarray:
     """``center`` as (N, 3): one for all grasps or one per grasp, finite and within
     MAX_ABS_COORDINATE."""
     value = np.asarray(center)
@@ -377,7 +382,8 @@ def _centres(center, n_grasps: int) -> np.ndarray:
     return np.ascontiguousarray(value)
 
 
-def _torque_scales(torque_scale, positions: np.ndarray, centre: np.ndarray) -> np.ndarray:
+def _torque_scales(torque_scale: npt.ArrayLike | None, positions: np.ndarray,
+                   centre: np.ndarray) -> np.ndarray:
     """L per grasp (N,): the given one (> 0, finite) or the largest |p_i - c|."""
     n_grasps = positions.shape[0]
     if torque_scale is None:

@@ -40,6 +40,7 @@ facets oriented about the origin.
 from __future__ import annotations
 
 from math import frexp, ldexp, sqrt
+from typing import TypeAlias
 
 import numpy as np
 
@@ -97,9 +98,16 @@ _MAX_FORCED = 8
 #: Bits per point index in the sorted key of a new facet's sub-ridge (4 indices).
 _KEY_BITS = 15
 
+#: The arrays of one search, as :func:`workspace` makes them (13 arrays).
+Workspace: TypeAlias = tuple[np.ndarray, ...]
+
+#: A double-double value (hi, lo), |lo| <= ulp(hi) / 2.
+DoubleDouble: TypeAlias = tuple[float, float]
+
 
 @jit
-def _contact_work(normal_rows, tangent_rows, mu, i, u, z):
+def _contact_work(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray, i: int,
+                  u: np.ndarray, z: np.ndarray) -> tuple[float, float]:
     """h_i(u) of contact i; z (3,) <- tangent_rows[i] u. Returns (h_i, |z|)."""
     a_n = 0.0
     for k in range(3):
@@ -113,7 +121,8 @@ def _contact_work(normal_rows, tangent_rows, mu, i, u, z):
 
 
 @jit
-def _add_disc_point(normal_rows, tangent_rows, mu, i, z, size, point):
+def _add_disc_point(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray, i: int,
+                    z: np.ndarray, size: float, point: np.ndarray) -> None:
     """point += contact i's support point for the tangential work z (3,) of length size."""
     scale = mu[i] / size if size > 0.0 else 0.0
     for c in range(6):
@@ -123,7 +132,8 @@ def _add_disc_point(normal_rows, tangent_rows, mu, i, z, size, point):
 
 
 @jit
-def support(normal_rows, tangent_rows, mu, linf, u, point):
+def support(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray, linf: bool,
+            u: np.ndarray, point: np.ndarray) -> float:
     """Support value h(u) of W and a maximiser, written to ``point`` (6,).
 
     L1: the best contact's disc point, or the origin where no contact does positive
@@ -152,7 +162,8 @@ def support(normal_rows, tangent_rows, mu, linf, u, point):
 
 
 @jit
-def _facet_plane(points, vertices, reference, matrix, normal):
+def _facet_plane(points: np.ndarray, vertices: np.ndarray, reference: np.ndarray,
+                 matrix: np.ndarray, normal: np.ndarray) -> float:
     """The plane of a facet: ``normal`` (6,) <- m with <m, v_1 - ref> = 1 and
     <m, v_k - v_1> = 0 (so the plane is {x: <m, x - ref> = 1}, facing away from ref).
 
@@ -206,7 +217,8 @@ def _facet_plane(points, vertices, reference, matrix, normal):
 
 
 @jit
-def _certified_offset(points, vertices, normal, allowance):
+def _certified_offset(points: np.ndarray, vertices: np.ndarray, normal: np.ndarray,
+                      allowance: float) -> float:
     """A lower bound, valid despite rounding, on |x| over the facet's simplex:
     min_j <m, v_j> / |m| less the dot products' error and ``allowance``."""
     least = np.inf
@@ -226,8 +238,10 @@ def _certified_offset(points, vertices, normal, allowance):
 
 
 @jit
-def _set_facet(points, facet, reference, origin_based, allowance, vertices, normals,
-               offsets, certified, matrix, normal):
+def _set_facet(points: np.ndarray, facet: int, reference: np.ndarray, origin_based: bool,
+               allowance: float, vertices: np.ndarray, normals: np.ndarray,
+               offsets: np.ndarray, certified: np.ndarray, matrix: np.ndarray,
+               normal: np.ndarray) -> bool:
     """Compute facet ``facet``'s plane about ``reference``; False if its orientation
     is not certified (a fold or a sliver)."""
     if not (_facet_plane(points, vertices[facet], reference, matrix, normal) > 0.0
@@ -248,9 +262,13 @@ def _set_facet(points, facet, reference, origin_based, allowance, vertices, norm
 
 
 @jit
-def _insert(points, q, start, reference, origin_based, allowance, tol, floor, vertices,
-            neighbours, normals, offsets, certified, alive, stuck, marks, stamp, n_facets,
-            scratch_int, scratch_new, matrix, normal):
+def _insert(points: np.ndarray, q: int, start: int, reference: np.ndarray,
+            origin_based: bool, allowance: float, tol: float, floor: float,
+            vertices: np.ndarray, neighbours: np.ndarray, normals: np.ndarray,
+            offsets: np.ndarray, certified: np.ndarray, alive: np.ndarray,
+            stuck: np.ndarray, marks: np.ndarray, stamp: int, n_facets: int,
+            scratch_int: np.ndarray, scratch_new: np.ndarray, matrix: np.ndarray,
+            normal: np.ndarray) -> int:
     """Replace the facets visible from point ``q`` (reached from facet ``start``) by the
     cone from q over their horizon. Returns the new facet count, or -1 (nothing
     changed) if the insertion would break the surface or overflow its arrays.
@@ -311,7 +329,9 @@ def _insert(points, q, start, reference, origin_based, allowance, tol, floor, ve
 
 
 @jit
-def _visible_from(points, q, start, tol, neighbours, normals, offsets, marks, stamp, visible):
+def _visible_from(points: np.ndarray, q: int, start: int, tol: float, neighbours: np.ndarray,
+                  normals: np.ndarray, offsets: np.ndarray, marks: np.ndarray, stamp: int,
+                  visible: np.ndarray) -> int:
     """The facets that q lies beyond by more than ``tol``, connected to ``start`` (breadth
     first), into ``visible``; marks them ``stamp`` (and those seen but not visible
     -stamp). Returns their count, or -1 if there are more than ``visible`` holds."""
@@ -341,7 +361,8 @@ def _visible_from(points, q, start, tol, neighbours, normals, offsets, marks, st
 
 
 @jit
-def _horizon(neighbours, marks, stamp, visible, n_visible, horizon_facet, horizon_slot):
+def _horizon(neighbours: np.ndarray, marks: np.ndarray, stamp: int, visible: np.ndarray,
+             n_visible: int, horizon_facet: np.ndarray, horizon_slot: np.ndarray) -> int:
     """The ridges between visible facets (marked ``stamp``) and the others, as (visible
     facet, slot opposite the ridge). Returns their count, or -1 on overflow."""
     n_horizon = 0
@@ -358,8 +379,11 @@ def _horizon(neighbours, marks, stamp, visible, n_visible, horizon_facet, horizo
 
 
 @jit
-def _new_facets(points, q, reference, origin_based, allowance, floor, vertices, normals,
-                offsets, certified, first, count, horizon_facet, horizon_slot, matrix, normal):
+def _new_facets(points: np.ndarray, q: int, reference: np.ndarray, origin_based: bool,
+                allowance: float, floor: float, vertices: np.ndarray, normals: np.ndarray,
+                offsets: np.ndarray, certified: np.ndarray, first: int, count: int,
+                horizon_facet: np.ndarray, horizon_slot: np.ndarray, matrix: np.ndarray,
+                normal: np.ndarray) -> int:
     """Facets first..first+count-1: each horizon facet with q in place of the vertex
     opposite its horizon ridge (which keeps the surface's orientation coherent).
     Returns -1, or the first horizon index whose facet's orientation is not certified
@@ -379,7 +403,8 @@ def _new_facets(points, q, reference, origin_based, allowance, floor, vertices, 
 
 
 @jit
-def _pair_sub_ridges(vertices, neighbours, first, count, slots, scratch):
+def _pair_sub_ridges(vertices: np.ndarray, neighbours: np.ndarray, first: int, count: int,
+                     slots: np.ndarray, scratch: np.ndarray) -> bool:
     """Link the new facets first..first+count-1 (each with q in slot ``slots[h]``)
     across their ridges through q: each ridge must be shared by exactly two."""
     n_keys = 5 * count
@@ -410,7 +435,7 @@ def _pair_sub_ridges(vertices, neighbours, first, count, slots, scratch):
 
 
 @jit
-def _ridge_key(vertices, skip_a, skip_b):
+def _ridge_key(vertices: np.ndarray, skip_a: int, skip_b: int) -> int:
     """The four vertex indices of ``vertices`` (6,) other than slots skip_a and skip_b,
     sorted and packed into one integer (a sorting network: no allocation)."""
     a = b = c = d = 0
@@ -440,7 +465,8 @@ def _ridge_key(vertices, skip_a, skip_b):
 
 
 @jit
-def certified_upper(normal_rows, tangent_rows, mu, linf, u, allowance):
+def certified_upper(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray,
+                    linf: bool, u: np.ndarray, allowance: float) -> float:
     """An upper bound, valid despite rounding, on h(u / |u|), where ``allowance`` bounds
     the rounding of every contact's work (and, L-infinity, of their sum): 0 where every
     contact's work plus it is <= 0. Divided by a lower bound on |u|."""
@@ -460,7 +486,7 @@ def certified_upper(normal_rows, tangent_rows, mu, linf, u, allowance):
 
 
 @jit
-def _initial_simplex(points, n_points, tol, chosen):
+def _initial_simplex(points: np.ndarray, n_points: int, tol: float, chosen: np.ndarray) -> bool:
     """Seven affinely independent points among the first ``n_points`` (greedy: each
     next point is the farthest from the affine hull of those chosen). False if the
     points span less than 6 dimensions by ``tol``."""
@@ -501,8 +527,11 @@ def _initial_simplex(points, n_points, tol, chosen):
 
 
 @jit
-def _simplex_surface(points, chosen, reference, allowance, vertices, neighbours, normals,
-                     offsets, certified, alive, stuck, marks, matrix, normal):
+def _simplex_surface(points: np.ndarray, chosen: np.ndarray, reference: np.ndarray,
+                     allowance: float, vertices: np.ndarray, neighbours: np.ndarray,
+                     normals: np.ndarray, offsets: np.ndarray, certified: np.ndarray,
+                     alive: np.ndarray, stuck: np.ndarray, marks: np.ndarray,
+                     matrix: np.ndarray, normal: np.ndarray) -> bool:
     """The boundary of the simplex ``chosen`` (7,) as facets 0..6, oriented outward
     about ``reference`` (its centroid). False if an orientation is not certified."""
     for k in range(7):
@@ -525,7 +554,7 @@ def _simplex_surface(points, chosen, reference, allowance, vertices, neighbours,
 
 
 @jit
-def _least_facet(n_facets, alive, keys):
+def _least_facet(n_facets: int, alive: np.ndarray, keys: np.ndarray) -> int:
     """The alive facet with the least key (ties: the first)."""
     best, best_f = np.inf, -1
     for f in range(n_facets):
@@ -535,7 +564,9 @@ def _least_facet(n_facets, alive, keys):
 
 
 @jit
-def _query(normal_rows, tangent_rows, mu, linf, allowance, direction, point, best, best_dir):
+def _query(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray, linf: bool,
+           allowance: float, direction: np.ndarray, point: np.ndarray, best: float,
+           best_dir: np.ndarray) -> tuple[float, float]:
     """Support point in ``direction`` (to ``point``); returns (h, certified upper bound),
     and keeps the direction in ``best_dir`` if it improves on ``best``."""
     h = support(normal_rows, tangent_rows, mu, linf, direction, point)
@@ -547,10 +578,14 @@ def _query(normal_rows, tangent_rows, mu, linf, allowance, direction, point, bes
 
 
 @jit
-def _seed_surface(normal_rows, tangent_rows, mu, linf, allowance, tol, contain_tol, seeds,
-                  n_seeds, points, vertices, neighbours, normals, offsets, certified, alive,
-                  stuck, marks, scratch_int, scratch_new, matrix, normal, direction, reference,
-                  upper):
+def _seed_surface(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray,
+                  linf: bool, allowance: float, tol: float, contain_tol: float,
+                  seeds: np.ndarray, n_seeds: int, points: np.ndarray, vertices: np.ndarray,
+                  neighbours: np.ndarray, normals: np.ndarray, offsets: np.ndarray,
+                  certified: np.ndarray, alive: np.ndarray, stuck: np.ndarray,
+                  marks: np.ndarray, scratch_int: np.ndarray, scratch_new: np.ndarray,
+                  matrix: np.ndarray, normal: np.ndarray, direction: np.ndarray,
+                  reference: np.ndarray, upper: float) -> tuple[int, int, float]:
     """The first surface: the hull of the support points in the first ``n_seeds``
     directions of ``seeds``, oriented about their simplex's centroid (``reference``).
     Returns (facets, insertions so far, upper), facets 0 if the points span less than
@@ -591,9 +626,13 @@ def _seed_surface(normal_rows, tangent_rows, mu, linf, allowance, tol, contain_t
 
 
 @jit
-def _epsilon_one(normal_rows, tangent_rows, mu, scale, linf, rtol, seeds, max_points,
-                 points, vertices, neighbours, normals, offsets, certified, alive, stuck,
-                 marks, scratch_int, scratch_new, matrix, normal, direction):
+def _epsilon_one(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray,
+                 scale: float, linf: bool, rtol: float, seeds: np.ndarray, max_points: int,
+                 points: np.ndarray, vertices: np.ndarray, neighbours: np.ndarray,
+                 normals: np.ndarray, offsets: np.ndarray, certified: np.ndarray,
+                 alive: np.ndarray, stuck: np.ndarray, marks: np.ndarray,
+                 scratch_int: np.ndarray, scratch_new: np.ndarray, matrix: np.ndarray,
+                 normal: np.ndarray, direction: np.ndarray) -> tuple[float, float, int, int]:
     """Certified bounds on one grasp's epsilon. Returns (lower, upper, points used,
     status); ``direction`` (6,) <- the direction certifying upper.
 
@@ -662,7 +701,7 @@ def _epsilon_one(normal_rows, tangent_rows, mu, scale, linf, rtol, seeds, max_po
     return 0.0, upper, n_points, STUCK
 
 
-def workspace(max_points: int, max_facets: int) -> tuple:
+def workspace(max_points: int, max_facets: int) -> Workspace:
     """The arrays of one search (a grasp's surface and scratch), for :func:`epsilon_batch`:
     reused from grasp to grasp and, by the caller, from call to call. Nothing in them
     needs clearing: every facet is written in full when it is made."""
@@ -679,7 +718,10 @@ def workspace(max_points: int, max_facets: int) -> tuple:
 
 
 @jit
-def epsilon_batch(normal_rows, tangent_rows, mu, scale, linf, rtol, seeds, arrays):
+def epsilon_batch(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray,
+                  scale: np.ndarray, linf: bool, rtol: float, seeds: np.ndarray,
+                  arrays: Workspace
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`_epsilon_one` for every grasp of a batch.
 
     Parameters
@@ -740,20 +782,20 @@ _LOG_MARGIN = 1e-9
 
 
 @jit
-def _two_sum(a, b):
+def _two_sum(a: float, b: float) -> DoubleDouble:
     s = a + b
     bb = s - a
     return s, (a - (s - bb)) + (b - bb)
 
 
 @jit
-def _quick_two_sum(a, b):
+def _quick_two_sum(a: float, b: float) -> DoubleDouble:
     s = a + b
     return s, b - (s - a)
 
 
 @jit
-def _two_prod(a, b):
+def _two_prod(a: float, b: float) -> DoubleDouble:
     p = a * b
     c = _SPLITTER * a
     a_hi = c - (c - a)
@@ -765,7 +807,7 @@ def _two_prod(a, b):
 
 
 @jit
-def _dd_add(a_hi, a_lo, b_hi, b_lo):
+def _dd_add(a_hi: float, a_lo: float, b_hi: float, b_lo: float) -> DoubleDouble:
     s, e = _two_sum(a_hi, b_hi)
     t, f = _two_sum(a_lo, b_lo)
     e += t
@@ -775,14 +817,14 @@ def _dd_add(a_hi, a_lo, b_hi, b_lo):
 
 
 @jit
-def _dd_mul(a_hi, a_lo, b_hi, b_lo):
+def _dd_mul(a_hi: float, a_lo: float, b_hi: float, b_lo: float) -> DoubleDouble:
     p, e = _two_prod(a_hi, b_hi)
     e += a_hi * b_lo + a_lo * b_hi
     return _quick_two_sum(p, e)
 
 
 @jit
-def _dd_div(a_hi, a_lo, b_hi, b_lo):
+def _dd_div(a_hi: float, a_lo: float, b_hi: float, b_lo: float) -> DoubleDouble:
     q = a_hi / b_hi
     p_hi, p_lo = _dd_mul(q, 0.0, b_hi, b_lo)
     r_hi, r_lo = _dd_add(a_hi, a_lo, -p_hi, -p_lo)
@@ -791,7 +833,7 @@ def _dd_div(a_hi, a_lo, b_hi, b_lo):
 
 
 @jit
-def _orientation_dd(points, vertices, reference):
+def _orientation_dd(points: np.ndarray, vertices: np.ndarray, reference: np.ndarray) -> bool:
     """True if det[v_1 - ref; ...; v_6 - ref] > 0 is certified in double-double
     arithmetic (the rows formed exactly, scaled by powers of two)."""
     hi, lo = np.empty((6, 6)), np.empty((6, 6))
@@ -846,14 +888,15 @@ def _orientation_dd(points, vertices, reference):
 
 
 @jit
-def _determinant_drift(kappa):
+def _determinant_drift(kappa: float) -> float:
     """(1 + kappa)^6 - 1 bounded above without cancellation (6 k + 18 k^2 >= it for
     k <= 0.1): how far a determinant with unit rows moves when each row moves by kappa."""
     return 6.0 * kappa * (1.0 + 3.0 * kappa) if kappa <= 0.1 else np.inf
 
 
 @jit
-def certified_upper_batch(normal_rows, tangent_rows, mu, scale, linf, directions):
+def certified_upper_batch(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray,
+                          scale: np.ndarray, linf: bool, directions: np.ndarray) -> np.ndarray:
     """:func:`certified_upper` of each grasp's direction (N, 6), with the rounding
     allowance of its wrench scale (N,)."""
     out = np.empty(directions.shape[0])
