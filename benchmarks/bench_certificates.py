@@ -10,6 +10,7 @@ own) once per setting: both off, certificates on, both on; and prints for each
 
 Usage: python benchmarks/bench_certificates.py [--batches B] [--batch-size S]
        [--queries Q] [--object NAME]
+       python benchmarks/bench_certificates.py --quick    # the smoke test's form
 """
 
 from __future__ import annotations
@@ -60,7 +61,11 @@ def main(argv=None) -> int:
     parser.add_argument("--batch-size", type=int, default=1000, help="grasps per batch")
     parser.add_argument("--queries", type=int, default=2000, help="single-grasp queries")
     parser.add_argument("--object", default="box", help="built-in object")
+    parser.add_argument("--quick", action="store_true",
+                        help="the smoke test's form: one batch of 40, 50 queries")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.batches, args.batch_size, args.queries = 1, 40, 50
     rng = np.random.default_rng(0)
     n = args.batch_size
     positions, normals = sample_grasps(make_object(args.object), (args.batches + 1) * n,

@@ -8,6 +8,7 @@ on top of this is ROS: taking and answering the messages (benchmarks/bench_ros.p
 
 Usage: python benchmarks/bench_pool.py [--batches B] [--batch-size S] [--rounds R]
        [--workers W]
+       python benchmarks/bench_pool.py --quick    # the smoke test's form
 """
 
 from __future__ import annotations
@@ -42,7 +43,11 @@ def main(argv=None) -> int:
     parser.add_argument("--batch-size", type=int, default=10_000)
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--quick", action="store_true",
+                        help="the smoke test's form: 2 batches of 300, 2 rounds, 2 workers")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.batches, args.batch_size, args.rounds, args.workers = 2, 300, 2, 2
     rng = np.random.default_rng(0)
     positions, normals = sample_grasps(make_object("box"), args.batches * args.batch_size,
                                        N_FINGERS, rng)

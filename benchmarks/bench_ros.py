@@ -23,6 +23,7 @@ namespace of its own, so other nodes on the same ROS domain do not interfere.
 
 Usage: python benchmarks/bench_ros.py [--queries N] [--batches B] [--batch-size S]
        [--rounds R] [--service-calls C] [--big-batch G] [--object NAME]
+       python benchmarks/bench_ros.py --quick    # the smoke test's form
 """
 
 from __future__ import annotations
@@ -318,7 +319,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--big-batch", type=int, default=100_000,
                         help="grasps of the batch decided while the service is timed")
     parser.add_argument("--object", default="box", help="built-in object")
+    parser.add_argument("--quick", action="store_true",
+                        help="the smoke test's form: 300 queries, 2 batches of 100, 20 "
+                             "service calls, a big batch of 20,000")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.queries, args.batches, args.batch_size = 300, 2, 100
+        args.service_calls, args.big_batch = 20, 20_000
 
     rng = np.random.default_rng(0)
     surface = make_object(args.object)

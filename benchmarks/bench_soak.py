@@ -10,6 +10,7 @@ node's resident memory (its process and its worker processes) over time, with th
 growth from the first sample after warm-up (a tenth of the run) to the last.
 
 Usage: python benchmarks/bench_soak.py [--minutes M] [--batch-size S] [--object NAME]
+       python benchmarks/bench_soak.py --quick    # the smoke test's form (~20 s)
 """
 
 from __future__ import annotations
@@ -79,7 +80,11 @@ def main(argv=None) -> int:
     parser.add_argument("--drain", type=float, default=120.0,
                         help="seconds to wait for the last answers")
     parser.add_argument("--object", default="box", help="built-in object")
+    parser.add_argument("--quick", action="store_true",
+                        help="the smoke test's form: 0.2 min of load, 60 s to drain")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.minutes, args.drain = 0.2, 60.0
 
     positions, normals = sample_grasps(make_object(args.object), 5000, N_FINGERS,
                                        np.random.default_rng(0))

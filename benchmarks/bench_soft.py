@@ -13,6 +13,7 @@
 
     python benchmarks/bench_soft.py                # 100,000 grasps, n = 3, 4, 6
     python benchmarks/bench_soft.py --grasps 2000 --cost-grasps 200   # seconds
+    python benchmarks/bench_soft.py --quick        # the smoke test's form
 """
 
 import os
@@ -99,7 +100,11 @@ def main(argv=None):
     parser.add_argument("--contacts", type=int, nargs="+", default=[3, 4, 6])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--quick", action="store_true",
+                        help="the smoke test's form: 3000 grasps, costs of 40 at n = 4")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.grasps, args.cost_grasps, args.contacts, args.repeats = 3000, 40, [4], 1
     rng = np.random.default_rng(args.seed)
     warm_up()
 
