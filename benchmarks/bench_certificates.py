@@ -16,6 +16,7 @@ Usage: python benchmarks/bench_certificates.py [--batches B] [--batch-size S]
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
 
 import numpy as np
 import rclpy
@@ -23,6 +24,7 @@ from rclpy.serialization import serialize_message
 
 from bench_ros import (
     N_FINGERS,
+    Batch,
     bench_batches,
     bench_single,
     start_node,
@@ -41,10 +43,11 @@ SETTINGS = {
 }
 
 
-def measure(tag, parameters, batches, positions, normals, n_queries):
+def measure(tag: str, parameters: list[str], batches: list[Batch], positions: np.ndarray,
+            normals: np.ndarray, n_queries: int) -> tuple[float, bool, float, float, bool, float]:
     node, client = start_node("cert_" + tag.replace("+", "_"), parameters)
     try:
-        warm = client.check_batch(*batches[0], timeout=600.0)
+        warm = client.check_batch(batches[0][0], batches[0][1], timeout=600.0)
         cpu = tree_cpu_s(node.pid)
         rate, complete = bench_batches(client, batches)
         cpu_per_grasp = (tree_cpu_s(node.pid) - cpu) / sum(len(p) for p, _ in batches)
@@ -55,7 +58,7 @@ def measure(tag, parameters, batches, positions, normals, n_queries):
     return rate, complete, cpu_per_grasp, single_rate, lossless, size / len(warm)
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--batches", type=int, default=5, help="timed batches per setting")
     parser.add_argument("--batch-size", type=int, default=1000, help="grasps per batch")

@@ -20,6 +20,8 @@ import os
 import sys
 import threading
 import time
+from collections.abc import Sequence
+from concurrent.futures import Future
 from pathlib import Path
 
 import numpy as np
@@ -50,19 +52,19 @@ def tree_rss_mib(pid: int) -> float:
 class Recorder:
     """Latencies per interface and the futures not answered yet (thread-safe)."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.lock = threading.Lock()
         self.latency_ms: dict[str, list[float]] = {"single": [], "batch": [], "service": []}
         self.sent = dict.fromkeys(self.latency_ms, 0)
-        self.pending: set = set()
+        self.pending: set[Future] = set()
 
-    def watch(self, kind: str, future, n_queries: int = 1):
+    def watch(self, kind: str, future: Future, n_queries: int = 1) -> None:
         start = time.perf_counter()
         with self.lock:
             self.sent[kind] += n_queries
             self.pending.add(future)
 
-        def done(f):
+        def done(f: Future) -> None:
             with self.lock:
                 self.pending.discard(f)
                 if not f.cancelled() and f.exception() is None:
@@ -71,7 +73,7 @@ class Recorder:
         future.add_done_callback(done)
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="soak benchmark of the force_closure node")
     parser.add_argument("--minutes", type=float, default=10.0, help="duration of the load")
     parser.add_argument("--batch-size", type=int, default=200, help="grasps per batch")
@@ -94,21 +96,21 @@ def main(argv=None) -> int:
     stop = threading.Event()
     rng = np.random.default_rng(1)
 
-    def singles():
+    def singles() -> None:
         i = 0
         while not stop.is_set():
             k = i % len(positions)
             record.watch("single", client.submit(positions[k], normals[k], timeout=REPLY_TIMEOUT_S))
             i += 1
 
-    def batches():
+    def batches() -> None:
         while not stop.is_set():
             pick = rng.integers(0, len(positions), args.batch_size)
             future = client.submit_batch(positions[pick], normals[pick])
             record.watch("batch", future, args.batch_size)
             future.result(REPLY_TIMEOUT_S)
 
-    def service():
+    def service() -> None:
         while not stop.is_set():
             k = int(rng.integers(0, len(positions)))
             start = time.perf_counter()
