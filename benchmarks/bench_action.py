@@ -16,6 +16,7 @@ of one run.
 
 Usage: python benchmarks/bench_action.py [--goal-grasps N] [--cancels C]
        [--cancel-after S] [--rounds R] [--object NAME]
+       python benchmarks/bench_action.py --quick    # the smoke test's form
 """
 
 from __future__ import annotations
@@ -137,7 +138,11 @@ def main(argv=None) -> int:
     parser.add_argument("--rounds", type=int, default=3,
                         help="alternating goal/batch rounds for the throughput")
     parser.add_argument("--object", default="box", help="built-in object")
+    parser.add_argument("--quick", action="store_true",
+                        help="the smoke test's form: 2 cancels 0.05 s in, one round")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.cancels, args.cancel_after, args.rounds = 2, 0.05, 1
 
     positions, normals = sample_grasps(make_object(args.object), min(N_UNIQUE, args.goal_grasps),
                                        N_FINGERS, np.random.default_rng(0))

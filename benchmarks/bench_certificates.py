@@ -10,11 +10,13 @@ own) once per setting: both off, certificates on, both on; and prints for each
 
 Usage: python benchmarks/bench_certificates.py [--batches B] [--batch-size S]
        [--queries Q] [--object NAME]
+       python benchmarks/bench_certificates.py --quick    # the smoke test's form
 """
 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
 
 import numpy as np
 import rclpy
@@ -22,6 +24,7 @@ from rclpy.serialization import serialize_message
 
 from bench_ros import (
     N_FINGERS,
+    Batch,
     bench_batches,
     bench_single,
     start_node,
@@ -40,10 +43,11 @@ SETTINGS = {
 }
 
 
-def measure(tag, parameters, batches, positions, normals, n_queries):
+def measure(tag: str, parameters: list[str], batches: list[Batch], positions: np.ndarray,
+            normals: np.ndarray, n_queries: int) -> tuple[float, bool, float, float, bool, float]:
     node, client = start_node("cert_" + tag.replace("+", "_"), parameters)
     try:
-        warm = client.check_batch(*batches[0], timeout=600.0)
+        warm = client.check_batch(batches[0][0], batches[0][1], timeout=600.0)
         cpu = tree_cpu_s(node.pid)
         rate, complete = bench_batches(client, batches)
         cpu_per_grasp = (tree_cpu_s(node.pid) - cpu) / sum(len(p) for p, _ in batches)
@@ -54,13 +58,17 @@ def measure(tag, parameters, batches, positions, normals, n_queries):
     return rate, complete, cpu_per_grasp, single_rate, lossless, size / len(warm)
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--batches", type=int, default=5, help="timed batches per setting")
     parser.add_argument("--batch-size", type=int, default=1000, help="grasps per batch")
     parser.add_argument("--queries", type=int, default=2000, help="single-grasp queries")
     parser.add_argument("--object", default="box", help="built-in object")
+    parser.add_argument("--quick", action="store_true",
+                        help="the smoke test's form: one batch of 40, 50 queries")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.batches, args.batch_size, args.queries = 1, 40, 50
     rng = np.random.default_rng(0)
     n = args.batch_size
     positions, normals = sample_grasps(make_object(args.object), (args.batches + 1) * n,

@@ -25,6 +25,8 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
+from collections.abc import Sequence  # noqa: E402
+from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -33,20 +35,26 @@ from grasp_fc_ros.core.grasp_input import prepare_grasps  # noqa: E402
 from grasp_fc_ros.core.pipeline import run_pipeline  # noqa: E402
 from grasp_fc_ros.core.torque_space_filter import passes_torque_filter  # noqa: E402
 from grasp_fc_ros.experiment.linearized_peer import linearized_force_closure  # noqa: E402
-from grasp_fc_ros.objects import OBJECT_NAMES, make_object, sample_grasps  # noqa: E402
+from grasp_fc_ros.objects import (  # noqa: E402
+    OBJECT_NAMES,
+    ContactSurface,
+    make_object,
+    sample_grasps,
+)
 from timing import MU_PAPER, median_seconds  # noqa: E402
 
 MU = MU_PAPER
 
 
-def measure(surface, n_fingers, n_grasps, exact_grasps, repeats, rng):
+def measure(surface: ContactSurface, n_fingers: int, n_grasps: int, exact_grasps: int,
+            repeats: int, rng: np.random.Generator) -> dict[str, Any]:
     positions, normals = sample_grasps(surface, n_grasps, n_fingers, rng)
     grasps = prepare_grasps(positions, normals, MU)
     subset = prepare_grasps(positions[:exact_grasps], normals[:exact_grasps], MU)
 
     filter_s = median_seconds(lambda: passes_torque_filter(grasps), repeats)
     exact_s = median_seconds(lambda: run_pipeline(subset, use_filter=False), repeats)
-    timings = []
+    timings: list[dict[str, float]] = []
     pipeline_s = median_seconds(
         lambda: timings.append(run_pipeline(subset, use_filter=True).timing), repeats)
     result = check_force_closure(positions[:exact_grasps], normals[:exact_grasps], MU,
@@ -66,7 +74,8 @@ def measure(surface, n_fingers, n_grasps, exact_grasps, repeats, rng):
     }
 
 
-def peer_ratio(surface, n_grasps, peer_grasps, repeats, rng):
+def peer_ratio(surface: ContactSurface, n_grasps: int, peer_grasps: int, repeats: int,
+               rng: np.random.Generator) -> tuple[float, float, float]:
     """The linearized peer (inscribed 8-sided pyramids, Qhull) on ``peer_grasps``
     six-finger grasps against the paper's filtered pipeline and the exact test alone on
     ``n_grasps``; ms per grasp. Returns (peer, filtered, exact)."""
@@ -79,7 +88,8 @@ def peer_ratio(surface, n_grasps, peer_grasps, repeats, rng):
     return (1e3 * peer_s / peer_grasps, 1e3 * filtered_s / n_grasps, 1e3 * exact_s / n_grasps)
 
 
-def one_grasp_per_call(surface, n_fingers, n_grasps, calls, repeats, rng):
+def one_grasp_per_call(surface: ContactSurface, n_fingers: int, n_grasps: int, calls: int,
+                       repeats: int, rng: np.random.Generator) -> dict[str, Any]:
     """``check_force_closure`` (default settings) on ``calls`` grasps one at a time
     against the same call on all ``n_grasps`` of the batch, CPU time, alternating,
     medians of ``repeats``; grasps/s of each, and the lone results that differ from the
@@ -89,11 +99,12 @@ def one_grasp_per_call(surface, n_fingers, n_grasps, calls, repeats, rng):
     batch = check_force_closure(positions, normals, MU)
     results = [check_force_closure(p, n, MU) for p, n in lone]
 
-    def one_at_a_time():
+    def one_at_a_time() -> None:
         for p, n in lone:            # as a planner would: each result used, then dropped
             check_force_closure(p, n, MU)
 
-    one_s, batch_s = [], []
+    one_s: list[float] = []
+    batch_s: list[float] = []
     for _ in range(repeats):
         start = time.process_time()
         one_at_a_time()
@@ -111,7 +122,7 @@ def one_grasp_per_call(surface, n_fingers, n_grasps, calls, repeats, rng):
                                    for g, r in enumerate(results))}
 
 
-def print_one_grasp_table(rows, repeats):
+def print_one_grasp_table(rows: Sequence[dict[str, Any]], repeats: int) -> None:
     print(f"\none grasp per check_force_closure call (default settings) vs the batched call; "
           f"CPU time, alternating, medians of {repeats}; target ratio >= 0.25")
     header = (f"{'n':>3} {'one/s':>9} {'batched/s':>10} {'ratio':>6} {'calls':>6} "
@@ -124,7 +135,8 @@ def print_one_grasp_table(rows, repeats):
               f"{r['verdicts_differ']:>16d} {r['statuses_differ']:>16d}")
 
 
-def print_table(rows, object_name, six_finger_grasps, sweep_grasps):
+def print_table(rows: Sequence[dict[str, Any]], object_name: str, six_finger_grasps: int,
+                sweep_grasps: int) -> None:
     print(f"\nobject {object_name!r}, mu = tan(10 deg) = {MU:.4f}; {six_finger_grasps} "
           f"six-finger grasps, {sweep_grasps} for other n; medians, one core")
     header = (f"{'n':>3} {'filter/s':>10} {'exact/s':>9} {'pipeline/s':>11} "
@@ -139,7 +151,7 @@ def print_table(rows, object_name, six_finger_grasps, sweep_grasps):
               f"{100 * r['rejected']:>8.1f}% {100 * r['force_closure']:>5.1f}%")
 
 
-def main(argv=None):
+def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--object", default="box", choices=OBJECT_NAMES)
     parser.add_argument("--grasps", type=int, default=100_000,

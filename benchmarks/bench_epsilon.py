@@ -32,12 +32,13 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMB
 import argparse  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
-from collections.abc import Callable  # noqa: E402
+from collections.abc import Callable, Sequence  # noqa: E402
 from functools import partial  # noqa: E402
+from typing import Any, TypeVar  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from grasp_fc_ros.core import epsilon_quality  # noqa: E402
+from grasp_fc_ros.core import EpsilonResult, epsilon_quality  # noqa: E402
 from grasp_fc_ros.experiment.epsilon_study import pyramid_q1_batch  # noqa: E402
 from grasp_fc_ros.objects import OBJECT_NAMES, make_object, sample_grasps  # noqa: E402
 from timing import MU_PAPER, ratio_or_nan  # noqa: E402
@@ -50,7 +51,11 @@ PEER_EDGES = 8
 TARGET_RATIO = 10.0
 
 
-def cell_grasps(n_fingers: int, per_object: int, objects, seed: int):
+Result = TypeVar("Result")
+
+
+def cell_grasps(n_fingers: int, per_object: int, objects: Sequence[str],
+                seed: int) -> tuple[np.ndarray, np.ndarray]:
     """The same random grasps for every friction of a finger count: (positions,
     normals), each (N, n, 3), drawn object by object."""
     rng = np.random.default_rng(seed + n_fingers)
@@ -58,25 +63,30 @@ def cell_grasps(n_fingers: int, per_object: int, objects, seed: int):
     return (np.concatenate([p for p, _ in drawn]), np.concatenate([n for _, n in drawn]))
 
 
-def cpu_seconds(function: Callable[[], object]) -> tuple[float, object]:
+def cpu_seconds(function: Callable[[], Result]) -> tuple[float, Result]:
     start = time.process_time()
     result = function()
     return time.process_time() - start, result
 
 
-def measure(positions, normals, mu, rtol, repeats):
+def measure(positions: np.ndarray, normals: np.ndarray, mu: float, rtol: float,
+            repeats: int) -> dict[str, Any]:
     """One cell: medians of our and the peer's CPU seconds (interleaved), and counts."""
     centre = np.zeros(3)
     epsilon_quality(positions[:2], normals[:2], mu, rtol=rtol)   # compile or load the cache
-    ours, peer = [], []
-    result, q1 = None, None
+    ours: list[float] = []
+    peer: list[float] = []
+    result: EpsilonResult | None = None
+    q1: np.ndarray | None = None
     for _ in range(repeats):
-        seconds, result = cpu_seconds(partial(epsilon_quality, positions, normals, mu,
-                                              center=centre, rtol=rtol))
+        seconds, found = cpu_seconds(partial(epsilon_quality, positions, normals, mu,
+                                             center=centre, rtol=rtol))
         ours.append(seconds)
         seconds, q1 = cpu_seconds(partial(pyramid_q1_batch, positions, normals, mu, centre,
-                                          result.torque_scale, PEER_EDGES))
+                                          found.torque_scale, PEER_EDGES))
         peer.append(seconds)
+        result = found
+    assert result is not None and q1 is not None, "repeats must be at least 1"
     fc = result.force_closure
     inconsistent = int(np.sum((result.lower > 0) & ~fc) + np.sum(fc & ~(result.upper > 0)))
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -95,7 +105,7 @@ def measure(positions, normals, mu, rtol, repeats):
     }
 
 
-def print_rows(rows, rtol):
+def print_rows(rows: Sequence[dict[str, Any]], rtol: float) -> None:
     print(f"epsilon_quality (rtol {rtol:g}) vs the {PEER_EDGES}-edge pyramid Qhull Q1; "
           "CPU time, one thread; medians")
     header = (f"{'n':>2} {'mu':>6} {'grasps':>6} {'fc':>5} {'ours/s':>8} {'peer/s':>7} "
@@ -117,7 +127,7 @@ def print_rows(rows, rtol):
           "mean support points per force-closure grasp)")
 
 
-def main(argv=None):
+def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--per-object", type=int, default=100,
                         help="grasps per object and cell")

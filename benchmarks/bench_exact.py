@@ -36,7 +36,10 @@ import sys  # noqa: E402
 import tarfile  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
+from collections.abc import Callable, Sequence  # noqa: E402
 from pathlib import Path  # noqa: E402
+from types import ModuleType  # noqa: E402
+from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -45,13 +48,14 @@ from grasp_fc_ros.core.certificates import normalise_positions  # noqa: E402
 from grasp_fc_ros.core.exact_test import solve_exact  # noqa: E402
 from grasp_fc_ros.core.grasp_input import prepare_grasps  # noqa: E402
 from grasp_fc_ros.core.interior_point import UNDECIDED, solve_fast  # noqa: E402
-from grasp_fc_ros.objects import make_object, sample_grasps  # noqa: E402
+from grasp_fc_ros.objects import ContactSurface, make_object, sample_grasps  # noqa: E402
 from timing import MU_PAPER, median_seconds  # noqa: E402
 
 MUS = (MU_PAPER, 0.5)
 
 
-def measure_cell(surface, n_fingers, mu, n_grasps, repeats, rng):
+def measure_cell(surface: ContactSurface, n_fingers: int, mu: float, n_grasps: int,
+                 repeats: int, rng: np.random.Generator) -> dict[str, Any]:
     positions, normals = sample_grasps(surface, n_grasps, n_fingers, rng)
     grasps = prepare_grasps(positions, normals, mu)
     clarabel_s = median_seconds(lambda: solve_exact(grasps, fast=False), repeats)
@@ -71,9 +75,10 @@ def measure_cell(surface, n_fingers, mu, n_grasps, repeats, rng):
             "fc_share": float(reference.force_closure.mean())}
 
 
-def one_grasp_latency(surface, rng, calls, **options):
+def one_grasp_latency(surface: ContactSurface, rng: np.random.Generator, calls: int,
+                      **options: Any) -> float:
     positions, normals = sample_grasps(surface, calls, 6, rng)
-    times = []
+    times: list[float] = []
     for g in range(calls):
         start = time.perf_counter()
         check_force_closure(positions[g], normals[g], MUS[0], **options)
@@ -81,7 +86,7 @@ def one_grasp_latency(surface, rng, calls, **options):
     return statistics.median(times)
 
 
-def old_core(commit, where):
+def old_core(commit: str, where: str) -> ModuleType | str:
     """``grasp_fc_ros/core`` of ``commit`` from the git history of this checkout,
     unpacked under ``where`` and imported as the package ``core_<commit>``; or the reason
     it is not available (a str)."""
@@ -99,19 +104,22 @@ def old_core(commit, where):
     package = Path(where) / "grasp_fc_ros" / "core"
     spec = importlib.util.spec_from_file_location(
         name, package / "__init__.py", submodule_search_locations=[str(package)])
+    if spec is None or spec.loader is None:
+        return f"{package}: not an importable package"
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module
     spec.loader.exec_module(module)
     return module
 
 
-def cpu_seconds(function):
+def cpu_seconds(function: Callable[[], object]) -> float:
     start = time.process_time()
     function()
     return time.process_time() - start
 
 
-def against_cell(old, surface, n_fingers, mu, n_grasps, repeats, rng):
+def against_cell(old: ModuleType, surface: ContactSurface, n_fingers: int, mu: float,
+                 n_grasps: int, repeats: int, rng: np.random.Generator) -> dict[str, Any]:
     """This core's exact stage against the old commit's exact_force_closure on the same
     grasps, alternating, grasps/s (CPU): ``exact_force_closure`` (verdicts) and the exact
     stage with the margin certified to 1e-8 (``check_force_closure``'s default)."""
@@ -119,7 +127,7 @@ def against_cell(old, surface, n_fingers, mu, n_grasps, repeats, rng):
     old_verdicts = old.exact_force_closure(positions, normals, mu)
     new_verdicts = exact_force_closure(positions, normals, mu)
     margin_verdicts = solve_exact(prepare_grasps(positions, normals, mu)).force_closure
-    times = {"old": [], "new": [], "margin": []}
+    times: dict[str, list[float]] = {"old": [], "new": [], "margin": []}
     for _ in range(repeats):
         times["old"].append(cpu_seconds(lambda: old.exact_force_closure(positions, normals, mu)))
         times["new"].append(cpu_seconds(lambda: exact_force_closure(positions, normals, mu)))
@@ -132,7 +140,7 @@ def against_cell(old, surface, n_fingers, mu, n_grasps, repeats, rng):
             "fc_share": float(np.mean(old_verdicts))}
 
 
-def run_against(commit, n_grasps, repeats, seed):
+def run_against(commit: str, n_grasps: int, repeats: int, seed: int) -> None:
     with tempfile.TemporaryDirectory() as where:
         old = old_core(commit, where)
         if isinstance(old, str):
@@ -157,7 +165,7 @@ def run_against(commit, n_grasps, repeats, seed):
                       flush=True)
 
 
-def main(argv=None):
+def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="500 grasps per cell")
     parser.add_argument("--grasps", type=int, default=4000)

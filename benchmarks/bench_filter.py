@@ -24,6 +24,9 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+from collections.abc import Sequence  # noqa: E402
+from functools import partial  # noqa: E402
+from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -31,7 +34,12 @@ from grasp_fc_ros.core import positive_span  # noqa: E402
 from grasp_fc_ros.core.grasp_input import prepare_grasps  # noqa: E402
 from grasp_fc_ros.core.pipeline import run_pipeline  # noqa: E402
 from grasp_fc_ros.core.torque_space_filter import passes_torque_filter  # noqa: E402
-from grasp_fc_ros.objects import OBJECT_NAMES, make_object, sample_grasps  # noqa: E402
+from grasp_fc_ros.objects import (  # noqa: E402
+    OBJECT_NAMES,
+    ContactSurface,
+    make_object,
+    sample_grasps,
+)
 from timing import MU_PAPER, median_seconds  # noqa: E402
 
 MUS = (0.01, MU_PAPER, 0.5)
@@ -39,13 +47,14 @@ CONTACTS = (3, 4, 5, 6, 8, 10, 12, 14, 16, 20, 24, 32, 48, 64)
 QUICK_CONTACTS = (4, 6, 8, 12, 16, 32)
 
 
-def grasp_counts(n_contacts, scale):
+def grasp_counts(n_contacts: int, scale: float) -> tuple[int, int]:
     """Grasps for the filter and for the exact test: fewer as n grows (cost ~ n)."""
     return (max(64, int(scale * 4000 * 6 / n_contacts)),
             max(16, int(scale * 400 * 6 / n_contacts)))
 
 
-def measure(surface, n_contacts, mu, scale, repeats, origins, rng):
+def measure(surface: ContactSurface, n_contacts: int, mu: float, scale: float, repeats: int,
+            origins: str, rng: np.random.Generator) -> dict[str, Any]:
     """One cell: filter and exact cost per grasp (ms), hit rate, saving (ms)."""
     filter_grasps, exact_grasps = grasp_counts(n_contacts, scale)
     positions, normals = sample_grasps(surface, filter_grasps, n_contacts, rng)
@@ -61,35 +70,37 @@ def measure(surface, n_contacts, mu, scale, repeats, origins, rng):
             "hit_rate": hit_rate, "saving_ms": hit_rate * exact_ms - filter_ms}
 
 
-def measure_paths(surface, contacts, mu, scale, repeats, rng):
+def measure_paths(surface: ContactSurface, contacts: Sequence[int], mu: float, scale: float,
+                  repeats: int, rng: np.random.Generator) -> list[tuple[int, float, float]]:
     """Filter cost per grasp (ms) with the pair test and with the hull test."""
-    rows = []
+    rows: list[tuple[int, float, float]] = []
     for n_contacts in contacts:
         filter_grasps, _ = grasp_counts(n_contacts, scale)
         positions, normals = sample_grasps(surface, filter_grasps, n_contacts, rng)
         grasps = prepare_grasps(positions, normals, mu)
-        cost = {}
+        cost: dict[str, float] = {}
         for name, hull_from in (("pair", 10**9), ("hull", 0)):
             positive_span.HULL_MIN_VECTORS = hull_from
-            cost[name] = 1e3 * median_seconds(lambda grasps=grasps: passes_torque_filter(grasps),
+            cost[name] = 1e3 * median_seconds(partial(passes_torque_filter, grasps),
                                               repeats) / filter_grasps
         rows.append((n_contacts, cost["pair"], cost["hull"]))
     return rows
 
 
-def measure_large(surface, contacts, rng):
+def measure_large(surface: ContactSurface, contacts: Sequence[int],
+                  rng: np.random.Generator) -> list[tuple[int, float, float]]:
     """One grasp per n: filter (seed origins, mu = 0.01) and exact test, seconds."""
     rows = []
     for n_contacts in contacts:
         positions, normals = sample_grasps(surface, 1, n_contacts, rng)
         grasps = prepare_grasps(positions, normals, 0.01)
-        filter_s = median_seconds(lambda grasps=grasps: passes_torque_filter(grasps), 1)
-        exact_s = median_seconds(lambda grasps=grasps: run_pipeline(grasps, use_filter=False), 1)
+        filter_s = median_seconds(partial(passes_torque_filter, grasps), 1)
+        exact_s = median_seconds(partial(run_pipeline, grasps, use_filter=False), 1)
         rows.append((n_contacts, filter_s, exact_s))
     return rows
 
 
-def main(argv=None):
+def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="fewer sizes and grasps")
     parser.add_argument("--object", default="box", choices=OBJECT_NAMES)
@@ -117,7 +128,7 @@ def main(argv=None):
               f"{'saving ms':>10} {'pays':>5}")
     print(header)
     print("-" * len(header))
-    pays_up_to = {}
+    pays_up_to: dict[float, list[tuple[int, bool]]] = {}
     for n_contacts in contacts:
         for mu in MUS:
             r = measure(surface, n_contacts, mu, scale, args.repeats, args.origins, rng)

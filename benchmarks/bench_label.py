@@ -19,6 +19,8 @@ writing); worker start-up is left out. Only loopback addresses are used.
     python benchmarks/bench_label.py --quick      # seconds (smoke test)
 """
 
+from __future__ import annotations
+
 import os
 
 # One core per process, as the targets are stated (Dask's workers do the same).
@@ -32,7 +34,9 @@ import statistics  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 import zipfile  # noqa: E402
+from collections.abc import Sequence  # noqa: E402
 from pathlib import Path  # noqa: E402
+from typing import TYPE_CHECKING  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -40,14 +44,18 @@ from grasp_fc_ros.core import check_force_closure  # noqa: E402
 from grasp_fc_ros.labelling import Plan, dask_client, open_input, run  # noqa: E402
 from grasp_fc_ros.objects import make_object, sample_grasps  # noqa: E402
 
+if TYPE_CHECKING:
+    from distributed import Client
+
 MU = float(np.tan(np.radians(10.0)))
 
 
-def write_npz_by_chunks(path, n_grasps, n_fingers, chunk, seed):
+def write_npz_by_chunks(path: Path, n_grasps: int, n_fingers: int, chunk: int,
+                        seed: int) -> None:
     """An uncompressed .npz of random box grasps, written chunk by chunk (bounded memory)."""
     surface = make_object("box")
 
-    def draw(c):
+    def draw(c: int) -> tuple[np.ndarray, np.ndarray]:
         size = min(chunk, n_grasps - c * chunk)
         return sample_grasps(surface, size, n_fingers, np.random.default_rng([seed, c]))
 
@@ -60,10 +68,10 @@ def write_npz_by_chunks(path, n_grasps, n_fingers, chunk, seed):
                 for c in range(-(-n_grasps // chunk)):
                     member.write(np.ascontiguousarray(draw(c)[which]).tobytes())
         with archive.open("mu.npy", "w") as member:
-            np.lib.format.write_array(member, np.float64(MU))
+            np.lib.format.write_array(member, np.asarray(MU, dtype=np.float64))
 
 
-def core_in_process(path, chunk):
+def core_in_process(path: Path, chunk: int) -> tuple[float, float]:
     """Grasps per wall second and per CPU second of check_force_closure over the file's
     chunks, in this process."""
     source = open_input(path)
@@ -75,29 +83,29 @@ def core_in_process(path, chunk):
             source.n_grasps / (time.process_time() - cpu))
 
 
-def _warm_up():
+def _warm_up() -> None:
     from grasp_fc_ros.core import check_force_closure as check
 
     p = np.array([[1.0, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0]])
     check(np.stack([p] * 8), -np.stack([p] * 8), MU)
 
 
-def _peak_rss_mib():
+def _peak_rss_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def _cpu_seconds():
+def _cpu_seconds() -> float:
     return time.process_time()
 
 
-def back_to_back(client, path, chunk, repeats=3):
+def back_to_back(client: Client, path: Path, chunk: int, repeats: int = 3) -> float:
     """CPU seconds of one chunk in this process and on a worker, alternately: the median
     ratio (worker / in-process) is the worker's overhead, measured under the same load."""
     from grasp_fc_ros.labelling.tasks import label_chunk
 
     source = open_input(path)
     stop = min(chunk, source.n_grasps)
-    ratios = []
+    ratios: list[float] = []
     for _ in range(repeats):
         cpu = time.process_time()
         label_chunk(source, 0, stop, True, "seed")
@@ -108,7 +116,8 @@ def back_to_back(client, path, chunk, repeats=3):
     return statistics.median(ratios)
 
 
-def on_cluster(path, chunk, workers, out):
+def on_cluster(path: Path, chunk: int, workers: int,
+               out: Path) -> tuple[float, float, float, list[float], float | None]:
     """One labelling run on a fresh cluster: grasps per wall second, seconds, grasps per
     worker CPU second (all workers' CPU time added up), peak RSS MiB of each worker."""
     plan = Plan([open_input(path)], chunk_size=chunk)
@@ -126,7 +135,7 @@ def on_cluster(path, chunk, workers, out):
             overhead)
 
 
-def main(argv=None):
+def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--grasps", type=int, default=200_000,
                         help="six-finger grasps of the scaling runs (default 200,000)")

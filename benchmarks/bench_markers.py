@@ -14,6 +14,7 @@
 
     .venv/bin/python benchmarks/bench_markers.py [--queries 200] [--rounds 6]
     .venv/bin/python benchmarks/bench_markers.py --no-node     # only 1.
+    .venv/bin/python benchmarks/bench_markers.py --quick       # the smoke test's form
 """
 
 from __future__ import annotations
@@ -237,7 +238,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rounds", type=int, default=6, help="rounds, alternating off/on")
     parser.add_argument("--no-node", action="store_true", help="skip the node measurement")
     parser.add_argument("--listen", metavar="TOPIC", help=argparse.SUPPRESS)
+    parser.add_argument("--quick", action="store_true",
+                        help="the smoke test's form: 2 rounds of 20 queries")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.queries, args.rounds = 20, 2
     if args.listen:
         return listen(args.listen)
     bench_build()

@@ -8,6 +8,7 @@ on top of this is ROS: taking and answering the messages (benchmarks/bench_ros.p
 
 Usage: python benchmarks/bench_pool.py [--batches B] [--batch-size S] [--rounds R]
        [--workers W]
+       python benchmarks/bench_pool.py --quick    # the smoke test's form
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import argparse
 import os
 import sys
 import time
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -36,13 +38,17 @@ def packed(positions: np.ndarray, normals: np.ndarray) -> PackedGrasps:
                         normals=normals.reshape(-1, 3), mu=np.full(n_grasps * n_contacts, MU))
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="the node's worker pool without ROS")
     parser.add_argument("--batches", type=int, default=10)
     parser.add_argument("--batch-size", type=int, default=10_000)
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--quick", action="store_true",
+                        help="the smoke test's form: 2 batches of 300, 2 rounds, 2 workers")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.batches, args.batch_size, args.rounds, args.workers = 2, 300, 2, 2
     rng = np.random.default_rng(0)
     positions, normals = sample_grasps(make_object("box"), args.batches * args.batch_size,
                                        N_FINGERS, rng)
@@ -57,19 +63,19 @@ def main(argv=None) -> int:
         bench_core(batches[:1])
         print(f"{args.batches} batches of {args.batch_size} {N_FINGERS}-finger grasps, "
               f"{args.workers} workers, {os.cpu_count()} CPUs")
-        ratios = []
+        ratios: list[float] = []
         for _ in range(args.rounds):
             core, _ = bench_core(batches)
             ceiling = bench_core_everywhere(everywhere, taken, args.workers)
             pids = pool.worker_pids()
-            owner, workers = time.process_time(), [tree_cpu_s(pid) for pid in pids]
+            owner_cpu, workers_cpu = time.process_time(), [tree_cpu_s(pid) for pid in pids]
             start = time.perf_counter()
             for decision in [pool.start(request, Settings()) for request in requests]:
                 decision.result()
             rate = n_grasps / (time.perf_counter() - start)
-            owner = (time.process_time() - owner) / n_grasps
+            owner = (time.process_time() - owner_cpu) / n_grasps
             workers = sum(tree_cpu_s(pid) - c
-                          for pid, c in zip(pids, workers, strict=True)) / n_grasps
+                          for pid, c in zip(pids, workers_cpu, strict=True)) / n_grasps
             ratios.append(rate / core)
             print(f"core {core:8.0f} grasps/s; core in {args.workers} processes "
                   f"{ceiling:8.0f} ({ceiling / core:.2f}x); pool {rate:8.0f} "

@@ -24,6 +24,8 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMB
 import argparse  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
+from collections.abc import Callable, Sequence  # noqa: E402
+from typing import Any, TypeVar  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -33,12 +35,19 @@ from grasp_fc_ros.core.grasp_forces import optimal_contact_forces  # noqa: E402
 from grasp_fc_ros.core.grasp_input import prepare_grasps  # noqa: E402
 from grasp_fc_ros.core.minimum_friction import minimum_friction_bounds  # noqa: E402
 from grasp_fc_ros.core.tolerances import MARGIN_TOL  # noqa: E402
-from grasp_fc_ros.objects import OBJECT_NAMES, make_object, sample_grasps  # noqa: E402
+from grasp_fc_ros.objects import (  # noqa: E402
+    OBJECT_NAMES,
+    ContactSurface,
+    make_object,
+    sample_grasps,
+)
 
 MU = 0.5
 
+Result = TypeVar("Result")
 
-def median_seconds(function, repeats):
+
+def median_seconds(function: Callable[[], Result], repeats: int) -> tuple[float, Result]:
     """Median CPU time of ``repeats`` calls after one untimed warm-up; and the last result."""
     result = function()
     times = []
@@ -49,13 +58,18 @@ def median_seconds(function, repeats):
     return statistics.median(times), result
 
 
-def clarabel_share(function):
+def clarabel_share(function: Callable[[], object]) -> int:
     """Grasps that ``function`` (an untimed call) sends to s*'s Clarabel stage: those the
     fast stage did not decide."""
-    counted = []
+    counted: list[int] = []
     stage = grasp_forces._clarabel_stage
-    grasp_forces._clarabel_stage = lambda gmap, *args: (counted.append(gmap.shape[0]),
-                                                        stage(gmap, *args))[1]
+
+    def counting(gmap: np.ndarray, *args: Any) -> Any:
+        counted.append(gmap.shape[0])
+        return stage(gmap, *args)
+
+    # The same call, counted (the stage's full signature passes through *args).
+    grasp_forces._clarabel_stage = counting  # type: ignore[assignment]
     try:
         function()
     finally:
@@ -63,9 +77,9 @@ def clarabel_share(function):
     return sum(counted)
 
 
-def without_fast_stage(function):
+def without_fast_stage(function: Callable[[], Result]) -> Callable[[], Result]:
     """``function`` run with s*'s fast stage deciding nothing: the Clarabel stage alone."""
-    def run():
+    def run() -> Result:
         stage = grasp_forces._fast_stage
         grasp_forces._fast_stage = lambda unit, *args: (
             np.zeros(unit.shape[0]), np.zeros(unit.shape[:2] + (3,)),
@@ -77,7 +91,8 @@ def without_fast_stage(function):
     return run
 
 
-def measure(surface, n_fingers, n_grasps, repeats, rng):
+def measure(surface: ContactSurface, n_fingers: int, n_grasps: int, repeats: int,
+            rng: np.random.Generator) -> dict[str, Any]:
     positions, normals = sample_grasps(surface, n_grasps, n_fingers, rng)
     wrench = rng.normal(size=(n_grasps, 6))
     wrench /= np.linalg.norm(wrench, axis=1, keepdims=True)
@@ -112,7 +127,7 @@ def measure(surface, n_fingers, n_grasps, repeats, rng):
     }
 
 
-def print_rows(rows, object_name):
+def print_rows(rows: Sequence[dict[str, Any]], object_name: str) -> None:
     print(f"\nobject {object_name!r}; medians of CPU time, one thread (exact test and s* at "
           f"mu = {MU})")
     header = (f"{'n':>3} {'grasps':>7} {'exact ms':>9} {'mu* ms':>8} {'mu*/s':>7} {'x exact':>8} "
@@ -139,7 +154,7 @@ def print_rows(rows, object_name):
               f"relative difference of finite s* {r['differ']:.1e}")
 
 
-def main(argv=None):
+def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--object", default="box", choices=OBJECT_NAMES)
     parser.add_argument("--grasps", type=int, default=2000)

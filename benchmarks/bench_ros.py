@@ -23,6 +23,7 @@ namespace of its own, so other nodes on the same ROS domain do not interfere.
 
 Usage: python benchmarks/bench_ros.py [--queries N] [--batches B] [--batch-size S]
        [--rounds R] [--service-calls C] [--big-batch G] [--object NAME]
+       python benchmarks/bench_ros.py --quick    # the smoke test's form
 """
 
 from __future__ import annotations
@@ -36,9 +37,10 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 import numpy as np
 import rclpy
@@ -48,6 +50,12 @@ from grasp_fc_ros.core import check_force_closure, warm_up
 from grasp_fc_ros.engine.chunking import CHUNK_CONTACTS
 from grasp_fc_ros.objects import make_object, sample_grasps
 from timing import ratio_or_nan
+
+if TYPE_CHECKING:
+    from multiprocessing.sharedctypes import Synchronized
+
+#: A batch of grasps: positions and normals, each (N, n, 3).
+Batch: TypeAlias = tuple[np.ndarray, np.ndarray]
 
 N_FINGERS = 6
 CONNECT_TIMEOUT_S = 30.0
@@ -100,10 +108,10 @@ class GcTimer:
     """Seconds this process spent in Python's cyclic garbage collector while entered,
     and how many full (generation 2) collections that took."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.seconds, self.full, self._start = 0.0, 0, 0.0
 
-    def _callback(self, phase: str, info: dict):
+    def _callback(self, phase: str, info: dict[str, int]) -> None:
         if phase == "start":
             self._start = time.perf_counter()
         else:
@@ -114,12 +122,12 @@ class GcTimer:
         gc.callbacks.append(self._callback)
         return self
 
-    def __exit__(self, *exc_info):
+    def __exit__(self, *exc_info: object) -> None:
         gc.callbacks.remove(self._callback)
 
 
-def bench_single(client: GraspClient, positions, normals, n_queries: int,
-                 gc_timer: GcTimer | None = None):
+def bench_single(client: GraspClient, positions: np.ndarray, normals: np.ndarray,
+                 n_queries: int, gc_timer: GcTimer | None = None) -> tuple[float, bool]:
     """Queries/s for ``n_queries`` submitted back to back; (rate, lossless)."""
     before = client.next_diagnostics()
     start = time.perf_counter()
@@ -135,10 +143,11 @@ def bench_single(client: GraspClient, positions, normals, n_queries: int,
     return n_queries / elapsed, lossless
 
 
-def bench_batches(client: GraspClient, batches):
+def bench_batches(client: GraspClient, batches: Sequence[Batch]) -> tuple[float, bool]:
     """Grasps/s through the node with BATCHES_IN_FLIGHT batches outstanding."""
     start = time.perf_counter()
-    pending, complete = [], True
+    pending: list[Future] = []
+    complete = True
     for p, n in batches:
         if len(pending) >= BATCHES_IN_FLIGHT:
             complete &= len(pending.pop(0).result(REPLY_TIMEOUT_S)) > 0
@@ -173,7 +182,7 @@ def print_batch_cpu(per_grasp: dict[str, float], core_cpu: float, n_cpus: int) -
           f"{n_cpus * core_cpu / total:.2f}x the core alone on {n_cpus} cores")
 
 
-def bench_core(batches):
+def bench_core(batches: Sequence[Batch]) -> tuple[float, float]:
     """(grasps/s, CPU s per grasp) of the core alone in this process."""
     start, cpu = time.perf_counter(), time.process_time()
     for p, n in batches:
@@ -186,10 +195,10 @@ def bench_core(batches):
 CEILING_CHUNK = CHUNK_CONTACTS // N_FINGERS
 # What each core-only process of the ceiling rounds holds: the grasps in chunks, and
 # the shared count of chunks taken (set by _core_process).
-_CEILING: dict = {}
+_CEILING: dict[str, Any] = {}
 
 
-def _core_process(chunks, taken) -> None:
+def _core_process(chunks: list[Batch], taken: Synchronized[int]) -> None:
     """Initializer of a core-only process: keep the chunks, load the compiled stage."""
     warm_up()
     _CEILING.update(chunks=chunks, taken=taken)
@@ -214,7 +223,8 @@ def _core_share(start_at: float) -> tuple[float, float, int]:
         n_grasps += len(p)
 
 
-def ceiling_pool(batches, n_processes: int) -> tuple[ProcessPoolExecutor, object]:
+def ceiling_pool(batches: Sequence[Batch],
+                 n_processes: int) -> tuple[ProcessPoolExecutor, Synchronized[int]]:
     """(``n_processes`` core-only processes holding ``batches`` in chunks, their shared
     count of chunks taken) for :func:`bench_core_everywhere`; started and warm."""
     spawn = multiprocessing.get_context("spawn")
@@ -227,7 +237,8 @@ def ceiling_pool(batches, n_processes: int) -> tuple[ProcessPoolExecutor, object
     return pool, taken
 
 
-def bench_core_everywhere(pool: ProcessPoolExecutor, taken, n_processes: int) -> float:
+def bench_core_everywhere(pool: ProcessPoolExecutor, taken: Synchronized[int],
+                          n_processes: int) -> float:
     """Grasps/s of the core alone in ``n_processes`` processes at once, sharing the
     chunks as they go (as the node's workers do): what the machine gives without ROS,
     messages or a node."""
@@ -239,7 +250,8 @@ def bench_core_everywhere(pool: ProcessPoolExecutor, taken, n_processes: int) ->
     return sum(n for _, _, n in results) / elapsed
 
 
-def bench_service(client: GraspClient, positions, normals, n_calls: int, until=None):
+def bench_service(client: GraspClient, positions: np.ndarray, normals: np.ndarray,
+                  n_calls: int, until: Callable[[], bool] | None = None) -> np.ndarray:
     """Round-trip times (ms) of one-grasp service calls: ``n_calls``, or while ``until()``."""
     times = []
     i = 0
@@ -254,7 +266,7 @@ def bench_service(client: GraspClient, positions, normals, n_calls: int, until=N
     return np.array(times) * 1e3
 
 
-def percentiles(times_ms) -> str:
+def percentiles(times_ms: np.ndarray) -> str:
     if not len(times_ms):
         return "no calls"
     return (f"p50 {np.percentile(times_ms, 50):.2f} ms, p99 {np.percentile(times_ms, 99):.2f} ms"
@@ -273,7 +285,8 @@ def verdict(ok: bool) -> str:
     return "meets target" if ok else "BELOW target"
 
 
-def start_node(tag: str, parameters: Sequence[str] = ()):
+def start_node(tag: str,
+               parameters: Sequence[str] = ()) -> tuple[subprocess.Popen[bytes], GraspClient]:
     """(node process, connected client) for a node in a namespace of its own, started
     with extra ``--ros-args`` ``parameters`` (e.g. ``["-p", "certificates:=true"]``)."""
     namespace = f"/grasp_fc_{tag}_{os.getpid()}"
@@ -286,7 +299,7 @@ def start_node(tag: str, parameters: Sequence[str] = ()):
     return node, client
 
 
-def stop_node(node: subprocess.Popen, client: GraspClient):
+def stop_node(node: subprocess.Popen[bytes], client: GraspClient) -> None:
     client.close()
     node.send_signal(signal.SIGINT)
     try:
@@ -295,7 +308,7 @@ def stop_node(node: subprocess.Popen, client: GraspClient):
         node.kill()
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="ROS benchmark of the force_closure node")
     parser.add_argument("--queries", type=int, default=10_000, help="single-grasp topic queries")
     parser.add_argument("--batches", type=int, default=10, help="number of batches")
@@ -306,7 +319,13 @@ def main(argv=None) -> int:
     parser.add_argument("--big-batch", type=int, default=100_000,
                         help="grasps of the batch decided while the service is timed")
     parser.add_argument("--object", default="box", help="built-in object")
+    parser.add_argument("--quick", action="store_true",
+                        help="the smoke test's form: 300 queries, 2 batches of 100, 20 "
+                             "service calls, a big batch of 20,000")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.queries, args.batches, args.batch_size = 300, 2, 100
+        args.service_calls, args.big_batch = 20, 20_000
 
     rng = np.random.default_rng(0)
     surface = make_object(args.object)
@@ -334,10 +353,10 @@ def main(argv=None) -> int:
               f"[target >= {TARGET_SINGLE_PER_S}/s: "
               f"{verdict(lossless and rate >= TARGET_SINGLE_PER_S)}]")
         print(f"    node CPU per query {1e3 * single_cpu:.3f} ms (node and workers) -> at most "
-              f"{ratio_or_nan(os.cpu_count(), single_cpu):.0f} queries/s on "
-              f"{os.cpu_count()} idle cores; "
+              f"{ratio_or_nan(n_cpus, single_cpu):.0f} queries/s on "
+              f"{n_cpus} idle cores; "
               f"client (this process) {1e3 * client_cpu:.3f} ms -> both on these cores at most "
-              f"{ratio_or_nan(os.cpu_count(), single_cpu + client_cpu):.0f} queries/s")
+              f"{ratio_or_nan(n_cpus, single_cpu + client_cpu):.0f} queries/s")
         print(f"    of the client's CPU per query, {1e3 * gc_timer.seconds / args.queries:.3f} ms "
               f"in Python's garbage collector ({gc_timer.full} full collections: each "
               f"scans every live object, the futures kept and everything imported)")

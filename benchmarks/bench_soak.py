@@ -10,6 +10,7 @@ node's resident memory (its process and its worker processes) over time, with th
 growth from the first sample after warm-up (a tenth of the run) to the last.
 
 Usage: python benchmarks/bench_soak.py [--minutes M] [--batch-size S] [--object NAME]
+       python benchmarks/bench_soak.py --quick    # the smoke test's form (~20 s)
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ import os
 import sys
 import threading
 import time
+from collections.abc import Sequence
+from concurrent.futures import Future
 from pathlib import Path
 
 import numpy as np
@@ -49,19 +52,19 @@ def tree_rss_mib(pid: int) -> float:
 class Recorder:
     """Latencies per interface and the futures not answered yet (thread-safe)."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.lock = threading.Lock()
         self.latency_ms: dict[str, list[float]] = {"single": [], "batch": [], "service": []}
         self.sent = dict.fromkeys(self.latency_ms, 0)
-        self.pending: set = set()
+        self.pending: set[Future] = set()
 
-    def watch(self, kind: str, future, n_queries: int = 1):
+    def watch(self, kind: str, future: Future, n_queries: int = 1) -> None:
         start = time.perf_counter()
         with self.lock:
             self.sent[kind] += n_queries
             self.pending.add(future)
 
-        def done(f):
+        def done(f: Future) -> None:
             with self.lock:
                 self.pending.discard(f)
                 if not f.cancelled() and f.exception() is None:
@@ -70,7 +73,7 @@ class Recorder:
         future.add_done_callback(done)
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="soak benchmark of the force_closure node")
     parser.add_argument("--minutes", type=float, default=10.0, help="duration of the load")
     parser.add_argument("--batch-size", type=int, default=200, help="grasps per batch")
@@ -79,7 +82,11 @@ def main(argv=None) -> int:
     parser.add_argument("--drain", type=float, default=120.0,
                         help="seconds to wait for the last answers")
     parser.add_argument("--object", default="box", help="built-in object")
+    parser.add_argument("--quick", action="store_true",
+                        help="the smoke test's form: 0.2 min of load, 60 s to drain")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.minutes, args.drain = 0.2, 60.0
 
     positions, normals = sample_grasps(make_object(args.object), 5000, N_FINGERS,
                                        np.random.default_rng(0))
@@ -89,21 +96,21 @@ def main(argv=None) -> int:
     stop = threading.Event()
     rng = np.random.default_rng(1)
 
-    def singles():
+    def singles() -> None:
         i = 0
         while not stop.is_set():
             k = i % len(positions)
             record.watch("single", client.submit(positions[k], normals[k], timeout=REPLY_TIMEOUT_S))
             i += 1
 
-    def batches():
+    def batches() -> None:
         while not stop.is_set():
             pick = rng.integers(0, len(positions), args.batch_size)
             future = client.submit_batch(positions[pick], normals[pick])
             record.watch("batch", future, args.batch_size)
             future.result(REPLY_TIMEOUT_S)
 
-    def service():
+    def service() -> None:
         while not stop.is_set():
             k = int(rng.integers(0, len(positions)))
             start = time.perf_counter()

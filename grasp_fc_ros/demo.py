@@ -27,18 +27,19 @@ import os
 import sys
 import threading
 import time
+from collections.abc import Sequence
 from concurrent.futures import TimeoutError as FutureTimeout
 
 import numpy as np
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
 from grasp_fc_ros.client import GraspClient
 from grasp_fc_ros.core import Status, check_force_closure
 from grasp_fc_ros.interface.names import NODE_NAME
 from grasp_fc_ros.node import ForceClosureNode, shutdown_rclpy
-from grasp_fc_ros.objects import OBJECT_NAMES, make_object, sample_grasps
+from grasp_fc_ros.objects import OBJECT_NAMES, ContactSurface, make_object, sample_grasps
 
 N_FINGERS = 6
 SINGLE_QUERIES = 20
@@ -52,7 +53,7 @@ CONNECT_TIMEOUT_S = 20.0
 REPLY_TIMEOUT_S = 120.0
 
 
-def parse_args(argv=None):
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="grasp-fc-demo", description=__doc__.split("\n")[0])
     parser.add_argument("--grasps", type=int,
                         default=int(os.environ.get("GRASP_FC_DEMO_GRASPS", "2000")),
@@ -91,10 +92,11 @@ def _table(status: np.ndarray, elapsed_s: float, object_name: str) -> str:
     return "\n".join(f"  {name:<{width}}  {value:>12}" for name, value in rows)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     """Stream the grasps to the node through a GraspClient; print the table."""
     node_name = args.node_name
-    fc_node = spinner = None
+    fc_node: ForceClosureNode | None = None
+    spinner: SingleThreadedExecutor | None = None
     if node_name is None:
         namespace = f"/grasp_fc_demo_{os.getpid()}"
         # A node without the parameter warns that it ignores it; the demo goes on.
@@ -120,6 +122,7 @@ def run(args) -> int:
             # Stop spinning before the node goes away: destroying a node that an
             # executor thread is still waiting on aborts the process.
             spinner.shutdown()
+        if fc_node is not None:
             fc_node.destroy_node()
 
 
@@ -136,7 +139,7 @@ def _markers_note(fc_node: ForceClosureNode | None, node_name: str) -> str:
     return "markers: none published (this node has no publish_markers parameter)"
 
 
-def _stream(client: GraspClient, args, node_name: str) -> int:
+def _stream(client: GraspClient, args: argparse.Namespace, node_name: str) -> int:
     surface = make_object(args.object)
     positions, normals = sample_grasps(surface, args.grasps, N_FINGERS,
                                        np.random.default_rng(args.seed))
@@ -176,7 +179,8 @@ def _stream(client: GraspClient, args, node_name: str) -> int:
     return 0
 
 
-def _write_markers_png(path: str, surface, positions, normals, status, margin):
+def _write_markers_png(path: str, surface: ContactSurface, positions: np.ndarray,
+                       normals: np.ndarray, status: np.ndarray, margin: np.ndarray) -> None:
     """Draw the markers of the first grasp of each verdict to ``path``; say where.
 
     Separating wrenches come from the core on those few grasps (the node sends them
@@ -192,6 +196,7 @@ def _write_markers_png(path: str, surface, positions, normals, status, margin):
         return
     local = check_force_closure(positions[chosen], normals[chosen], DEMO_MU,
                                 certificates=True)
+    assert local.separating_wrench is not None  # certificates=True
     wrench = np.where((local.status == status[chosen])[:, None], local.separating_wrench,
                       np.nan)
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
@@ -203,14 +208,14 @@ def _write_markers_png(path: str, surface, positions, normals, status, margin):
           f"markers to {os.path.abspath(path)}")
 
 
-def _spin_quietly(executor):
+def _spin_quietly(executor: Executor) -> None:
     try:
         executor.spin()
     except (ExternalShutdownException, RuntimeError):
         pass  # shut down while spinning
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     rclpy.init()
     try:

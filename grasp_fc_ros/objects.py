@@ -12,11 +12,16 @@ level; trimesh is imported lazily, for mesh and PLY files only.
 Lengths are in metres.
 """
 
+from __future__ import annotations
+
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeAlias, cast
 
 import numpy as np
+import numpy.typing as npt
 
 __all__ = [
     "ContactSurface",
@@ -36,6 +41,12 @@ _MIN_NORMAL_LENGTH = 1e-12
 # First oversampling factor for shapes whose samplers reject candidates.
 _OVERSAMPLE = 1.5
 _MAX_OVERSAMPLE_ROUNDS = 8
+
+#: Points (k, 3) and unit inward normals (k, 3).
+Contacts: TypeAlias = tuple[np.ndarray, np.ndarray]
+
+#: A patch's sampler: (rng, k) -> up to k contacts.
+Sampler: TypeAlias = Callable[[np.random.Generator, int], Contacts]
 
 _MESH_SUFFIXES = (".obj", ".stl", ".ply")
 _CLOUD_SUFFIXES = (".npz", ".ply")
@@ -62,7 +73,7 @@ class ContactSurface:
     points: np.ndarray
     normals: np.ndarray
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         points = np.array(self.points, dtype=np.float64)
         normals = np.array(self.normals, dtype=np.float64)
         if points.ndim != 2 or points.shape[1] != 3 or points.shape[0] == 0:
@@ -85,7 +96,7 @@ class ContactSurface:
         object.__setattr__(self, "points", points)
         object.__setattr__(self, "normals", normals)
 
-    def __len__(self):
+    def __len__(self) -> int:
         return self.points.shape[0]
 
 
@@ -100,13 +111,14 @@ class ContactSurface:
 @dataclass(frozen=True)
 class _Patch:
     nominal_area: float
-    sample: Callable  # (rng, k) -> (points (k', 3), inward normals (k', 3)), k' <= k
+    sample: Sampler  # (rng, k) -> (points (k', 3), inward normals (k', 3)), k' <= k
 
 
-def _disk_patch(radius, z, normal_z, inner_radius=0.0, center=(0.0, 0.0)):
+def _disk_patch(radius: float, z: float, normal_z: float, inner_radius: float = 0.0,
+                center: tuple[float, float] = (0.0, 0.0)) -> _Patch:
     """Flat disk or annulus at height z, normal (0, 0, normal_z)."""
 
-    def sample(rng, k):
+    def sample(rng: np.random.Generator, k: int) -> Contacts:
         r = np.sqrt(inner_radius**2 + rng.random(k) * (radius**2 - inner_radius**2))
         t = rng.random(k) * 2.0 * np.pi
         pts = np.column_stack([center[0] + r * np.cos(t), center[1] + r * np.sin(t),
@@ -117,10 +129,10 @@ def _disk_patch(radius, z, normal_z, inner_radius=0.0, center=(0.0, 0.0)):
     return _Patch(np.pi * (radius**2 - inner_radius**2), sample)
 
 
-def _tube_patch(radius, z0, z1, inward_sign):
+def _tube_patch(radius: float, z0: float, z1: float, inward_sign: float) -> _Patch:
     """Cylindrical wall about the z axis; inward_sign -1: material inside the wall radius."""
 
-    def sample(rng, k):
+    def sample(rng: np.random.Generator, k: int) -> Contacts:
         t = rng.random(k) * 2.0 * np.pi
         radial = np.column_stack([np.cos(t), np.sin(t), np.zeros(k)])
         pts = radial * radius
@@ -130,7 +142,7 @@ def _tube_patch(radius, z0, z1, inward_sign):
     return _Patch(2.0 * np.pi * radius * (z1 - z0), sample)
 
 
-def _in_polygon(xy, polygon):
+def _in_polygon(xy: np.ndarray, polygon: np.ndarray) -> np.ndarray:
     """Even-odd rule point-in-polygon test, vectorised. xy (k, 2), polygon (V, 2)."""
     x, y = xy[:, 0:1], xy[:, 1:2]
     ax, ay = polygon[:, 0], polygon[:, 1]
@@ -141,38 +153,41 @@ def _in_polygon(xy, polygon):
     return np.count_nonzero(straddles & (x < x_cross), axis=1) % 2 == 1
 
 
-def _prism_patches(polygon, height):
+def _prism_patches(polygon: npt.ArrayLike, height: float) -> list[_Patch]:
     """Boundary of a simple polygon (counter-clockwise, (V, 2)) extruded over z in [0, height]."""
     polygon = np.asarray(polygon, dtype=np.float64)
-    patches = []
+    patches: list[_Patch] = []
     for a, b in zip(polygon, np.roll(polygon, -1, axis=0), strict=True):
         edge = b - a
         length = float(np.hypot(*edge))
         # counter-clockwise boundary: the interior is on the left of each edge
         inward = np.array([-edge[1], edge[0], 0.0]) / length
 
-        def sample(rng, k, a=a, edge=edge, inward=inward):
+        def side(rng: np.random.Generator, k: int, a: np.ndarray = a, edge: np.ndarray = edge,
+                 inward: np.ndarray = inward) -> Contacts:
             s = rng.random(k)
             pts = np.column_stack([a[0] + s * edge[0], a[1] + s * edge[1],
                                    rng.random(k) * height])
             return pts, np.tile(inward, (k, 1))
 
-        patches.append(_Patch(length * height, sample))
+        patches.append(_Patch(length * height, side))
 
     lo, hi = polygon.min(axis=0), polygon.max(axis=0)
     for z, normal_z in ((0.0, 1.0), (height, -1.0)):
 
-        def sample(rng, k, z=z, normal_z=normal_z):
+        def cap(rng: np.random.Generator, k: int, z: float = z,
+                normal_z: float = normal_z) -> Contacts:
             xy = lo + rng.random((k, 2)) * (hi - lo)
             xy = xy[_in_polygon(xy, polygon)]
             pts = np.column_stack([xy, np.full(len(xy), z)])
             return pts, np.tile([0.0, 0.0, normal_z], (len(xy), 1))
 
-        patches.append(_Patch(float(np.prod(hi - lo)), sample))
+        patches.append(_Patch(float(np.prod(hi - lo)), cap))
     return patches
 
 
-def _torus_frame_sample(rng, k, major, minor):
+def _torus_frame_sample(rng: np.random.Generator, k: int, major: float,
+                        minor: float) -> Contacts:
     """Area-uniform samples of a torus about the z axis through the origin.
 
     Returns points and OUTWARD normals (the caller flips or clips).
@@ -187,7 +202,7 @@ def _torus_frame_sample(rng, k, major, minor):
     return centre_line + minor * outward, outward
 
 
-def _torus_area_bound(major, minor):
+def _torus_area_bound(major: float, minor: float) -> float:
     return 4.0 * np.pi**2 * minor * (major + minor)
 
 
@@ -207,27 +222,27 @@ _STAR = (5, 0.05, 0.022, 0.03)  # points, outer radius, inner radius, height
 _MUG = (0.04, 0.035, 0.09, 0.006, 0.025, 0.007)
 
 
-def _star_polygon(n_tips, outer, inner):
+def _star_polygon(n_tips: int, outer: float, inner: float) -> np.ndarray:
     angles = np.pi / 2 + np.arange(2 * n_tips) * np.pi / n_tips
     radii = np.where(np.arange(2 * n_tips) % 2 == 0, outer, inner)
     return np.column_stack([radii * np.cos(angles), radii * np.sin(angles)])
 
 
-def _box_patches():
+def _box_patches() -> list[_Patch]:
     x, y, z = _BOX
     return _prism_patches([(0, 0), (x, 0), (x, y), (0, y)], z)
 
 
-def _cylinder_patches():
+def _cylinder_patches() -> list[_Patch]:
     radius, height = _CYLINDER
     return [_tube_patch(radius, 0.0, height, -1.0),
             _disk_patch(radius, 0.0, 1.0), _disk_patch(radius, height, -1.0)]
 
 
-def _ellipsoid_patches():
+def _ellipsoid_patches() -> list[_Patch]:
     axes = np.array(_ELLIPSOID)
 
-    def sample(rng, k):
+    def sample(rng: np.random.Generator, k: int) -> Contacts:
         u = rng.standard_normal((k, 3))
         u /= np.linalg.norm(u, axis=1, keepdims=True)
         # the map u -> axes*u stretches area by prod(axes)*|u/axes|; keep by that weight
@@ -240,32 +255,32 @@ def _ellipsoid_patches():
     return [_Patch(4.0 * np.pi * np.prod(axes) / axes.min(), sample)]
 
 
-def _torus_patches():
+def _torus_patches() -> list[_Patch]:
     major, minor = _TORUS
 
-    def sample(rng, k):
+    def sample(rng: np.random.Generator, k: int) -> Contacts:
         pts, outward = _torus_frame_sample(rng, k, major, minor)
         return pts, -outward
 
     return [_Patch(_torus_area_bound(major, minor), sample)]
 
 
-def _l_block_patches():
+def _l_block_patches() -> list[_Patch]:
     polygon, height = _L_BLOCK
     return _prism_patches(polygon, height)
 
 
-def _star_prism_patches():
+def _star_prism_patches() -> list[_Patch]:
     n_tips, outer, inner, height = _STAR
     return _prism_patches(_star_polygon(n_tips, outer, inner), height)
 
 
-def _mug_handle_centre():
+def _mug_handle_centre() -> np.ndarray:
     r_out, _, height, _, handle_major, _ = _MUG
     return np.array([r_out + 0.3 * handle_major, 0.0, 0.5 * height])
 
 
-def _distance_to_handle_core(points):
+def _distance_to_handle_core(points: np.ndarray) -> np.ndarray:
     """Distance from points to the centre circle of the handle (a circle in the x-z plane)."""
     _, _, _, _, handle_major, _ = _MUG
     rel = points - _mug_handle_centre()
@@ -273,17 +288,17 @@ def _distance_to_handle_core(points):
     return np.hypot(in_plane - handle_major, rel[:, 1])
 
 
-def _mug_patches():
+def _mug_patches() -> list[_Patch]:
     r_out, r_in, height, bottom, handle_major, handle_minor = _MUG
     wall = _tube_patch(r_out, 0.0, height, -1.0)
 
-    def outer_wall(rng, k):
+    def outer_wall(rng: np.random.Generator, k: int) -> Contacts:
         # drop the wall where the handle's tube enters it
         pts, nrm = wall.sample(rng, k)
         keep = _distance_to_handle_core(pts) > handle_minor
         return pts[keep], nrm[keep]
 
-    def handle(rng, k):
+    def handle(rng: np.random.Generator, k: int) -> Contacts:
         pts, outward = _torus_frame_sample(rng, k, handle_major, handle_minor)
         # torus about z -> torus about y (handle in the x-z plane), then move it
         pts = pts[:, [0, 2, 1]] + _mug_handle_centre()
@@ -315,7 +330,7 @@ OBJECT_NAMES = tuple(_BUILDERS)
 """Names accepted by :func:`make_object`. torus, l_block, star_prism and mug are non-convex."""
 
 
-def _sample_patches(patches, n_points, rng):
+def _sample_patches(patches: list[_Patch], n_points: int, rng: np.random.Generator) -> Contacts:
     """Uniform-by-area sample of n_points from the union of patches."""
     nominal = np.array([p.nominal_area for p in patches])
     factor = _OVERSAMPLE
@@ -358,7 +373,7 @@ def make_object(name: str, n_points: int = DEFAULT_N_POINTS, seed: int = 0) -> C
     return ContactSurface(name, points, normals)
 
 
-def _bbox_centre(name):
+def _bbox_centre(name: str) -> np.ndarray:
     """Centre of the shape's bounding box in its construction frame."""
     if name == "box":
         return 0.5 * np.array(_BOX)
@@ -369,8 +384,8 @@ def _bbox_centre(name):
         return np.append(0.5 * (np.min(polygon, axis=0) + np.max(polygon, axis=0)), 0.5 * height)
     if name == "star_prism":
         n_tips, outer, inner, height = _STAR
-        polygon = _star_polygon(n_tips, outer, inner)
-        return np.append(0.5 * (polygon.min(axis=0) + polygon.max(axis=0)), 0.5 * height)
+        star = _star_polygon(n_tips, outer, inner)
+        return np.append(0.5 * (star.min(axis=0) + star.max(axis=0)), 0.5 * height)
     if name == "mug":
         r_out, _, height, _, handle_major, handle_minor = _MUG
         x_max = _mug_handle_centre()[0] + handle_major + handle_minor
@@ -378,7 +393,7 @@ def _bbox_centre(name):
     return np.zeros(3)  # ellipsoid and torus are built centred
 
 
-def _inside(name, points):
+def _inside(name: str, points: npt.ArrayLike) -> np.ndarray:
     """True where points (k, 3) lie in the interior of built-in object `name`.
 
     An independent (solid, not surface) description of each shape, used by the
@@ -416,7 +431,7 @@ def _inside(name, points):
 # --------------------------------------------------------------------------
 
 
-def load_surface(path, n_points: int = DEFAULT_N_POINTS, seed: int = 0,
+def load_surface(path: str | os.PathLike[str], n_points: int = DEFAULT_N_POINTS, seed: int = 0,
                  cloud_normals: str = "outward") -> ContactSurface:
     """Load an object from a mesh file or a point cloud with normals.
 
@@ -474,7 +489,7 @@ def load_surface(path, n_points: int = DEFAULT_N_POINTS, seed: int = 0,
     return _sample_mesh(path, n_points, seed)
 
 
-def _read_npz(path):
+def _read_npz(path: Path) -> Contacts:
     with np.load(path) as data:
         missing = [key for key in ("points", "normals") if key not in data.files]
         if missing:
@@ -484,7 +499,7 @@ def _read_npz(path):
         return data["points"], data["normals"]
 
 
-def _read_ply_cloud(path):
+def _read_ply_cloud(path: Path) -> Contacts | None:
     """(points, normals) if the PLY file is a point cloud, None if it has faces."""
     from trimesh.exchange.ply import load_ply  # heavy import, PLY files only
 
@@ -503,11 +518,11 @@ def _read_ply_cloud(path):
     return content["vertices"], normals
 
 
-def _sample_mesh(path, n_points, seed):
+def _sample_mesh(path: Path, n_points: int, seed: int) -> ContactSurface:
     import trimesh  # heavy import, mesh files only
 
     try:
-        mesh = trimesh.load(path, force="mesh")
+        mesh = cast("trimesh.Trimesh", trimesh.load(path, force="mesh"))
     except Exception as error:  # trimesh raises several types on malformed files
         raise ValueError(f"{path}: cannot load mesh: {error}") from error
     if len(mesh.faces) == 0 or mesh.area <= 0.0:
@@ -525,7 +540,7 @@ def _sample_mesh(path, n_points, seed):
 
 
 def sample_grasps(surface: ContactSurface, n_grasps: int, n_fingers: int,
-                  rng: np.random.Generator):
+                  rng: np.random.Generator) -> Contacts:
     """Draw random grasps: n_fingers distinct contacts of the surface per grasp.
 
     Parameters
@@ -556,7 +571,8 @@ def sample_grasps(surface: ContactSurface, n_grasps: int, n_fingers: int,
     return surface.points[index], surface.normals[index]
 
 
-def _distinct_rows(n_rows, n_cols, n_values, rng):
+def _distinct_rows(n_rows: int, n_cols: int, n_values: int,
+                   rng: np.random.Generator) -> np.ndarray:
     """(n_rows, n_cols) integers in [0, n_values), distinct within each row.
 
     Rows are drawn independently and uniformly; rows with a repeat are redrawn
@@ -574,6 +590,6 @@ def _distinct_rows(n_rows, n_cols, n_values, rng):
     return index
 
 
-def _rows_with_repeats(index):
+def _rows_with_repeats(index: np.ndarray) -> np.ndarray:
     ordered = np.sort(index, axis=1)
     return np.flatnonzero(np.any(ordered[:, 1:] == ordered[:, :-1], axis=1))

@@ -71,8 +71,8 @@ MIN_RTOL = 1e-9
 #: still valid): far above what random grasps need at rtol 1e-6 (docs/epsilon.md#cost).
 MAX_SUPPORT_POINTS = 2000
 
-#: Facets per grasp before the search gives up (the surface grows by ~50-100 facets
-#: per support point in six dimensions). With MAX_SUPPORT_POINTS it sizes the search's
+#: Facets per grasp before the search gives up (how fast the surface grows:
+#: docs/epsilon.md#how-it-is-computed). With MAX_SUPPORT_POINTS it sizes the search's
 #: arrays (~11 MB, kept per thread).
 MAX_FACETS = 1 << 16
 

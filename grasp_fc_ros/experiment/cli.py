@@ -8,17 +8,30 @@ Example::
     grasp-fc-experiment --epsilon-only --epsilon-grasps 1000 --out bench_out/epsilon
 """
 
+from __future__ import annotations
+
 import argparse
 import math
 import sys
 import time
+from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from grasp_fc_ros.cli_arguments import positive_float, positive_int
-from grasp_fc_ros.objects import OBJECT_NAMES, load_surface, make_object
+from grasp_fc_ros.objects import (
+    OBJECT_NAMES,
+    Contacts,
+    ContactSurface,
+    load_surface,
+    make_object,
+)
+
+if TYPE_CHECKING:
+    from .measure import ObjectResult
 
 DEFAULT_OBJECTS = ("box", "ellipsoid", "torus", "l_block", "star_prism", "mug")
 DEFAULT_MU = math.tan(math.radians(10.0))
@@ -38,14 +51,14 @@ QUICK = {"grasps": 300, "points": 1000, "peer_grasps": 20, "sides_grasps": 4,
          "epsilon_grasps": 12}
 
 
-def _finger_count(text):
+def _finger_count(text: str) -> int:
     value = int(text)
     if value < 2:
         raise argparse.ArgumentTypeError(f"a grasp needs at least 2 fingers, got {value}")
     return value
 
 
-def _int_list(text):
+def _int_list(text: str) -> list[int]:
     try:
         values = [int(part) for part in text.split(",") if part]
     except ValueError:
@@ -56,7 +69,7 @@ def _int_list(text):
     return values
 
 
-def build_parser():
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="grasp-fc-experiment",
         description="Reproduce the seed paper's experiment (Tables I and II): time the exact "
@@ -119,7 +132,7 @@ def build_parser():
     return parser
 
 
-def resolve_settings(args):
+def resolve_settings(args: argparse.Namespace) -> argparse.Namespace:
     """Fill the size options left unset from the full or the quick defaults."""
     defaults = QUICK if args.quick else FULL
     for key, value in defaults.items():
@@ -132,7 +145,7 @@ def resolve_settings(args):
     return args
 
 
-def load_objects(args):
+def load_objects(args: argparse.Namespace) -> list[ContactSurface]:
     surfaces = [make_object(name, n_points=args.points, seed=args.seed) for name in args.objects]
     for path in args.mesh:
         try:
@@ -146,12 +159,13 @@ def load_objects(args):
     return surfaces
 
 
-def _stream(seed, *keys):
+def _stream(seed: int, *keys: int) -> np.random.Generator:
     """Independent, reproducible random stream for one part of the experiment."""
     return np.random.default_rng([seed, *keys])
 
 
-def pick_example(surfaces, n_fingers, mu, seed):
+def pick_example(surfaces: Sequence[ContactSurface], n_fingers: int, mu: float,
+                 seed: int) -> tuple[ContactSurface, Contacts, Contacts] | None:
     """A surface with one force-closure grasp and one filter-rejected grasp, or None."""
     from grasp_fc_ros.core import check_force_closure
     from grasp_fc_ros.objects import sample_grasps
@@ -169,7 +183,7 @@ def pick_example(surfaces, n_fingers, mu, seed):
     return None
 
 
-def _measure_one(surface, index, args):
+def _measure_one(surface: ContactSurface, index: int, args: argparse.Namespace) -> ObjectResult:
     from . import measure
 
     result = measure.measure_object(surface, args.fingers, args.mu, args.grasps,
@@ -181,7 +195,8 @@ def _measure_one(surface, index, args):
     return result
 
 
-def measure_objects(surfaces, args):
+def measure_objects(surfaces: Sequence[ContactSurface],
+                    args: argparse.Namespace) -> list[ObjectResult]:
     """Tables I and II for every surface, in args.jobs processes; results in input order."""
     print(f"{len(surfaces)} objects x {args.grasps:,} grasps, {args.jobs} job(s) ...",
           file=sys.stderr, flush=True)
@@ -192,7 +207,7 @@ def measure_objects(surfaces, args):
         return [future.result() for future in futures]
 
 
-def run(args):
+def run(args: argparse.Namespace) -> tuple[Path, list[str]]:
     """Run everything and write the outputs into args.out.
 
     Returns
@@ -254,7 +269,8 @@ def run(args):
     return path, problems
 
 
-def _epsilon_part(surfaces, args):
+def _epsilon_part(surfaces: Sequence[ContactSurface],
+                  args: argparse.Namespace) -> tuple[list[str], list[str]]:
     """The epsilon comparison: writes its CSV and plot into args.out; returns the report's
     markdown lines and the soundness problems (a pyramid Q1 above a certified upper
     bound)."""
@@ -274,7 +290,7 @@ def _epsilon_part(surfaces, args):
     return lines + [f"![epsilon against pyramid Q1]({report.PLOTS['epsilon']})", ""], problems
 
 
-def run_epsilon_only(args):
+def run_epsilon_only(args: argparse.Namespace) -> tuple[Path, list[str]]:
     """Only the epsilon comparison, with its own short report; returns (path, problems)."""
     from . import report
 
@@ -293,7 +309,7 @@ def run_epsilon_only(args):
     return path, problems
 
 
-def main(argv=None):
+def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; exit status 1 if the filter changed any verdict or a pyramid Q1
     exceeded a certified epsilon bound, else 0."""
     args = resolve_settings(build_parser().parse_args(argv))

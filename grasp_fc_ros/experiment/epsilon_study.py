@@ -11,8 +11,12 @@ pyramid scores 0. Torques are about the object's centre (its frame's origin) div
 each grasp's largest |p_i - c|, for both.
 """
 
+from __future__ import annotations
+
 import time
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
@@ -149,12 +153,12 @@ def compare_object(surface: ContactSurface, n_grasps: int, n_fingers: int, mu: f
                              result.lower, result.upper, pyramid, exact_s, pyramid_s)
 
 
-def compare_objects(surfaces, n_grasps: int, n_fingers: int, mu: float,
+def compare_objects(surfaces: Iterable[ContactSurface], n_grasps: int, n_fingers: int, mu: float,
                     rng: np.random.Generator) -> list[EpsilonComparison]:
     return [compare_object(s, n_grasps, n_fingers, mu, rng) for s in surfaces]
 
 
-def summary_rows(comparisons) -> list[dict]:
+def summary_rows(comparisons: Sequence[EpsilonComparison]) -> list[dict[str, Any]]:
     """One row per object and edge count (and an "all" row per edge count)."""
     rows = []
     for edges in EDGE_COUNTS:
@@ -164,13 +168,14 @@ def summary_rows(comparisons) -> list[dict]:
     return rows
 
 
-def _summary(name: str, comparisons, edges: int) -> dict:
+def _summary(name: str, comparisons: Sequence[EpsilonComparison],
+             edges: int) -> dict[str, Any]:
     errors = np.concatenate([c.relative_errors(edges) for c in comparisons])
     flips = np.sum([c.order_flips(edges) for c in comparisons], axis=0)
     fc = sum(int(c.force_closure.sum()) for c in comparisons)
     grasps = sum(c.force_closure.size for c in comparisons)
 
-    def quantile(q):
+    def quantile(q: float) -> float:
         return float(np.quantile(errors, q)) if errors.size else float("nan")
 
     return {

@@ -11,7 +11,10 @@ Used only by the experiment, as the baseline our filter-then-exact pipeline is
 compared with; scipy is imported here and never by grasp_fc_ros.core.
 """
 
+from __future__ import annotations
+
 import numpy as np
+import numpy.typing as npt
 from scipy.spatial import ConvexHull, QhullError
 
 DEFAULT_SIDES = 8
@@ -21,7 +24,7 @@ DEFAULT_SIDES = 8
 INSIDE_MARGIN = 1e-9
 
 
-def pyramid_edges(normals, mu, sides=DEFAULT_SIDES):
+def pyramid_edges(normals: npt.ArrayLike, mu: float, sides: int = DEFAULT_SIDES) -> np.ndarray:
     """Edge directions of the pyramids inscribed in the friction cones.
 
     Parameters
@@ -38,21 +41,22 @@ def pyramid_edges(normals, mu, sides=DEFAULT_SIDES):
     numpy.ndarray, shape (n, m, 3)
         Unit force directions on the cone boundary, evenly spaced around the normal.
     """
-    normals = np.asarray(normals, dtype=np.float64)
-    normals = normals / np.linalg.norm(normals, axis=-1, keepdims=True)
+    unit = np.asarray(normals, dtype=np.float64)
+    unit = unit / np.linalg.norm(unit, axis=-1, keepdims=True)
     # a tangent not parallel to n: cross with the coordinate axis least aligned with n
-    helper = np.eye(3)[np.argmin(np.abs(normals), axis=-1)]
-    t1 = np.cross(normals, helper)
+    helper = np.eye(3)[np.argmin(np.abs(unit), axis=-1)]
+    t1 = np.cross(unit, helper)
     t1 /= np.linalg.norm(t1, axis=-1, keepdims=True)
-    t2 = np.cross(normals, t1)
+    t2 = np.cross(unit, t1)
     angles = 2.0 * np.pi * np.arange(sides) / sides
-    edges = (normals[:, None, :]
+    edges = (unit[:, None, :]
              + mu * (np.cos(angles)[None, :, None] * t1[:, None, :]
                      + np.sin(angles)[None, :, None] * t2[:, None, :]))
     return edges / np.linalg.norm(edges, axis=-1, keepdims=True)
 
 
-def primitive_wrenches(positions, normals, mu, sides=DEFAULT_SIDES):
+def primitive_wrenches(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: float,
+                       sides: int = DEFAULT_SIDES) -> np.ndarray:
     """The n*m primitive wrenches (force, torque / length scale) of one grasp.
 
     Torques are taken about the contacts' centroid and divided by the largest
@@ -74,7 +78,8 @@ def primitive_wrenches(positions, normals, mu, sides=DEFAULT_SIDES):
     return np.concatenate([forces, torques], axis=-1).reshape(-1, 6)
 
 
-def linearized_margin(positions, normals, mu, sides=DEFAULT_SIDES):
+def linearized_margin(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: float,
+                      sides: int = DEFAULT_SIDES) -> float:
     """Distance from the origin to the boundary of the primitive wrenches' hull.
 
     Positive when the origin is inside the hull (Qhull facet equations
@@ -89,7 +94,8 @@ def linearized_margin(positions, normals, mu, sides=DEFAULT_SIDES):
     return float(-hull.equations[:, -1].max())
 
 
-def linearized_force_closure(positions, normals, mu, sides=DEFAULT_SIDES):
+def linearized_force_closure(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: float,
+                             sides: int = DEFAULT_SIDES) -> np.ndarray | np.bool_:
     """Linearized force-closure verdicts.
 
     Parameters

@@ -5,7 +5,10 @@ extrapolated. Times are wall-clock seconds from time.perf_counter around the
 public calls, so they include input validation and batching overheads.
 """
 
+from __future__ import annotations
+
 import time
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,7 +34,8 @@ class PipelineRun:
     solver_failures: int
 
 
-def run_pipeline(positions, normals, mu, use_filter, origins="seed"):
+def run_pipeline(positions: np.ndarray, normals: np.ndarray, mu: float, use_filter: bool,
+                 origins: str = "seed") -> PipelineRun:
     """Time check_force_closure on a batch (N, n, 3)."""
     start = time.perf_counter()
     result = check_force_closure(positions, normals, mu, use_filter=use_filter, origins=origins)
@@ -46,7 +50,7 @@ def run_pipeline(positions, normals, mu, use_filter, origins="seed"):
     )
 
 
-def warm_up(surface, n_fingers, mu):
+def warm_up(surface: ContactSurface, n_fingers: int, mu: float) -> None:
     """Run both pipelines once on a few grasps so one-off costs stay out of the timings."""
     positions, normals = sample_grasps(surface, WARMUP_GRASPS, n_fingers,
                                        np.random.default_rng(0))
@@ -103,11 +107,12 @@ class PeerStats:
     false_fc: int  # exact says not force closure, peer says it is
 
     @property
-    def ms_per_grasp(self):
+    def ms_per_grasp(self) -> float:
         return 1e3 * self.seconds / self.grasps if self.grasps else float("nan")
 
 
-def run_peer(positions, normals, mu, sides, exact_fc) -> PeerStats:
+def run_peer(positions: np.ndarray, normals: np.ndarray, mu: float, sides: int,
+             exact_fc: np.ndarray) -> PeerStats:
     """Time the linearized test on the given grasps and compare with exact verdicts."""
     start = time.perf_counter()
     verdict = linearized_force_closure(positions, normals, mu, sides)
@@ -136,20 +141,21 @@ class ObjectResult:
     peer: PeerStats
 
     @property
-    def force_closure(self):
+    def force_closure(self) -> int:
         return int(np.count_nonzero(self.unfiltered.force_closure))
 
     @property
-    def speedup(self):
+    def speedup(self) -> float:
         return self.unfiltered.wall_s / self.seed.wall_s
 
     @property
-    def speedup_all(self):
+    def speedup_all(self) -> float:
         return self.unfiltered.wall_s / self.all_origins.wall_s
 
 
-def measure_object(surface: ContactSurface, n_fingers, mu, n_grasps, rng, peer_grasps,
-                   peer_sides) -> ObjectResult:
+def measure_object(surface: ContactSurface, n_fingers: int, mu: float, n_grasps: int,
+                   rng: np.random.Generator, peer_grasps: int,
+                   peer_sides: int) -> ObjectResult:
     """Tables I and II, and the peer, for one object.
 
     The same N grasps go through the exact test alone (unfiltered), the filter
@@ -181,15 +187,16 @@ class FingerSweepRow:
     specificity: float
 
     @property
-    def unfiltered_per_s(self):
+    def unfiltered_per_s(self) -> float:
         return self.grasps / self.unfiltered_s
 
     @property
-    def filtered_per_s(self):
+    def filtered_per_s(self) -> float:
         return self.grasps / self.filtered_s
 
 
-def finger_sweep(surfaces, finger_counts, mu, grasps_per_object, rng):
+def finger_sweep(surfaces: Sequence[ContactSurface], finger_counts: Iterable[int], mu: float,
+                 grasps_per_object: int, rng: np.random.Generator) -> list[FingerSweepRow]:
     """Throughput (grasps/s) of the unfiltered and filtered pipelines against n."""
     rows = []
     for n_fingers in finger_counts:
@@ -227,19 +234,21 @@ class SidesSweepRow:
     false_fc: int
 
     @property
-    def grasps(self):
+    def grasps(self) -> int:
         return self.fc_grasps + self.other_grasps
 
     @property
-    def ms_per_grasp(self):
+    def ms_per_grasp(self) -> float:
         return 1e3 * self.seconds / self.grasps
 
     @property
-    def missed_share(self):
+    def missed_share(self) -> float:
         return self.missed_fc / self.fc_grasps if self.fc_grasps else float("nan")
 
 
-def sides_sweep(surfaces, n_fingers, mu, sides_list, fc_per_object, pool_per_object, rng):
+def sides_sweep(surfaces: Iterable[ContactSurface], n_fingers: int, mu: float,
+                sides_list: Iterable[int], fc_per_object: int, pool_per_object: int,
+                rng: np.random.Generator) -> list[SidesSweepRow]:
     """Peer time and disagreement with the exact test against the pyramid's sides.
 
     An inscribed pyramid can only lose force closure, so the interesting

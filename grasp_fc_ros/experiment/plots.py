@@ -1,5 +1,11 @@
 """PNG plots of the experiment (matplotlib, Agg backend: no display needed)."""
 
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any, TypeAlias
+
 import matplotlib
 
 matplotlib.use("Agg")
@@ -7,6 +13,18 @@ import matplotlib.pyplot as plt  # noqa: E402  (after choosing the backend)
 import numpy as np  # noqa: E402
 
 from .paper import PAPER_AVG_SPECIFICITY, PAPER_AVG_SPEEDUP  # noqa: E402
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
+    from ..objects import Contacts, ContactSurface
+    from .epsilon_study import EpsilonComparison
+    from .measure import FingerSweepRow, ObjectResult, SidesSweepRow
+    from .quality import FrictionLabels, SoftRow
+
+#: Where a PNG goes.
+PlotPath: TypeAlias = str | os.PathLike[str]
 
 DPI = 120
 SEED_COLOUR = "#1f77b4"
@@ -19,13 +37,14 @@ LIGHT_DIRECTION = np.array([-0.4, -0.5, 0.77])
 CONE_LENGTH_FRACTION = 0.22
 
 
-def _save(fig, path):
+def _save(fig: Figure, path: PlotPath) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=DPI)
     plt.close(fig)
 
 
-def _grouped_bars(ax, names, seed_values, all_values):
+def _grouped_bars(ax: Axes, names: list[str], seed_values: list[float],
+                  all_values: list[float]) -> None:
     x = np.arange(len(names))
     width = 0.38
     ax.bar(x - width / 2, seed_values, width, label='origins="seed" (paper)', color=SEED_COLOUR)
@@ -33,7 +52,7 @@ def _grouped_bars(ax, names, seed_values, all_values):
     ax.set_xticks(x, names, rotation=20)
 
 
-def plot_speedup(results, path):
+def plot_speedup(results: Sequence[ObjectResult], path: PlotPath) -> None:
     """Unfiltered time / filtered time per object."""
     fig, ax = plt.subplots(figsize=(7, 4))
     _grouped_bars(ax, [r.name for r in results], [r.speedup for r in results],
@@ -51,7 +70,7 @@ def plot_speedup(results, path):
     _save(fig, path)
 
 
-def plot_specificity(results, path):
+def plot_specificity(results: Sequence[ObjectResult], path: PlotPath) -> None:
     """Share of non-force-closure grasps the filter rejects, per object."""
     fig, ax = plt.subplots(figsize=(7, 4))
     _grouped_bars(ax, [r.name for r in results], [r.seed.specificity for r in results],
@@ -66,7 +85,7 @@ def plot_specificity(results, path):
     _save(fig, path)
 
 
-def plot_finger_sweep(rows, path):
+def plot_finger_sweep(rows: Sequence[FingerSweepRow], path: PlotPath) -> None:
     """Throughput of both pipelines, and the filter's specificity, against n."""
     n = [r.n_fingers for r in rows]
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 6), sharex=True,
@@ -91,7 +110,7 @@ def plot_finger_sweep(rows, path):
     _save(fig, path)
 
 
-def plot_peer_sides(rows, path):
+def plot_peer_sides(rows: Sequence[SidesSweepRow], path: PlotPath) -> None:
     """Linearized peer: missed force-closure grasps and time against pyramid sides."""
     sides = [r.sides for r in rows]
     fig, ax = plt.subplots(figsize=(7, 4))
@@ -114,7 +133,8 @@ def plot_peer_sides(rows, path):
     _save(fig, path)
 
 
-def _cone_mesh(apex, axis, half_angle, length, segments=24):
+def _cone_mesh(apex: np.ndarray, axis: np.ndarray, half_angle: float, length: float,
+               segments: int = 24) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Surface grid of a circular cone opening from apex along axis."""
     axis = axis / np.linalg.norm(axis)
     helper = np.eye(3)[np.argmin(np.abs(axis))]
@@ -129,7 +149,9 @@ def _cone_mesh(apex, axis, half_angle, length, segments=24):
     return grid[..., 0], grid[..., 1], grid[..., 2]
 
 
-def _draw_grasp(ax, surface, positions, normals, mu, colour, title):
+# ax: a 3-D Axes (mpl_toolkits.mplot3d, which has no type information).
+def _draw_grasp(ax: Any, surface: ContactSurface, positions: np.ndarray, normals: np.ndarray,
+                mu: float, colour: str, title: str) -> None:
     # shade the points by their outward normal against a light from above-front,
     # a cheap depth cue for a point cloud
     brightness = 0.5 + 0.4 * (-surface.normals @ LIGHT_DIRECTION)
@@ -154,7 +176,8 @@ def _draw_grasp(ax, surface, positions, normals, mu, colour, title):
     ax.set_title(title, fontsize=10)
 
 
-def plot_grasp_example(surface, fc_grasp, rejected_grasp, mu, path):
+def plot_grasp_example(surface: ContactSurface, fc_grasp: Contacts, rejected_grasp: Contacts,
+                       mu: float, path: PlotPath) -> None:
     """An object with one force-closure grasp and one grasp the filter rejects."""
     fig = plt.figure(figsize=(11, 5.5))
     for index, ((positions, normals), colour, title) in enumerate((
@@ -176,7 +199,7 @@ LABEL_MU_MAX = 1.2
 LABEL_BIN_WIDTH = 0.05
 
 
-def plot_friction_labels(labels, path):
+def plot_friction_labels(labels: Sequence[FrictionLabels], path: PlotPath) -> None:
     """Histogram of the minimum friction coefficient mu* per object."""
     columns = min(3, len(labels))
     rows = -(-len(labels) // columns)
@@ -197,7 +220,7 @@ def plot_friction_labels(labels, path):
     _save(fig, path)
 
 
-def plot_soft_sweep(rows, path):
+def plot_soft_sweep(rows: Sequence[SoftRow], path: PlotPath) -> None:
     """Force-closure share against the torsional friction, one line per finger count."""
     fig, ax = plt.subplots(figsize=(6, 4))
     for n_fingers in sorted({r.n_fingers for r in rows}):
@@ -213,7 +236,8 @@ def plot_soft_sweep(rows, path):
     _save(fig, path)
 
 
-def plot_epsilon_comparison(comparisons, edge_counts, path):
+def plot_epsilon_comparison(comparisons: Sequence[EpsilonComparison], edge_counts: Sequence[int],
+                            path: PlotPath) -> None:
     """Pyramid Q1 against the exact epsilon (left) and the relative error's cumulative
     distribution (right), over the force-closure grasps of all objects."""
     fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4))

@@ -7,7 +7,10 @@ force-closure grasps among the same random grasps with hard contacts (gamma = 0)
 soft ones, gamma growing as a fraction of the object's size.
 """
 
+from __future__ import annotations
+
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -70,7 +73,7 @@ def object_size(surface: ContactSurface) -> float:
     return float(np.linalg.norm(np.ptp(surface.points, axis=0)))
 
 
-def friction_labels(surfaces, n_grasps: int, rng: np.random.Generator,
+def friction_labels(surfaces: Iterable[ContactSurface], n_grasps: int, rng: np.random.Generator,
                     n_fingers: int = LABEL_FINGERS) -> list[FrictionLabels]:
     """mu* of ``n_grasps`` random grasps per surface, equal friction at every contact."""
     from grasp_fc_ros.core.minimum_friction import minimum_friction
@@ -85,9 +88,9 @@ def friction_labels(surfaces, n_grasps: int, rng: np.random.Generator,
     return labels
 
 
-def soft_sweep(surfaces, n_grasps: int, rng: np.random.Generator, mu: float = SOFT_SWEEP_MU,
-               finger_counts=SOFT_SWEEP_FINGERS,
-               gamma_fractions=SOFT_GAMMA_FRACTIONS) -> list[SoftRow]:
+def soft_sweep(surfaces: Iterable[ContactSurface], n_grasps: int, rng: np.random.Generator,
+               mu: float = SOFT_SWEEP_MU, finger_counts: Iterable[int] = SOFT_SWEEP_FINGERS,
+               gamma_fractions: Iterable[float] = SOFT_GAMMA_FRACTIONS) -> list[SoftRow]:
     """Force-closure counts of the same random grasps as the torsional friction grows."""
     from grasp_fc_ros.core import check_force_closure
 

@@ -1,12 +1,16 @@
 """CSV files and the markdown report of the experiment."""
 
+from __future__ import annotations
+
 import csv
 import os
 import platform
 import subprocess
 import sys
+from collections.abc import Iterable, Mapping, Sequence
 from importlib import metadata
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 import numpy as np
 
@@ -26,6 +30,14 @@ from .paper import (
     PAPER_TABLE_I,
     PAPER_TABLE_II,
 )
+
+if TYPE_CHECKING:
+    from .measure import FingerSweepRow, ObjectResult, SidesSweepRow
+    from .quality import FrictionLabels, SoftRow
+
+#: One CSV row (column name -> value), or one summary row of
+#: :func:`.epsilon_study.summary_rows`.
+Row: TypeAlias = dict[str, Any]
 
 RESULTS_CSV = "results.csv"
 FINGERS_CSV = "fingers.csv"
@@ -49,7 +61,7 @@ PLOTS = {
 LABEL_MU_LEVELS = (0.1, 0.2, 0.5, 1.0)
 
 
-def exact_ms_split(r):
+def exact_ms_split(r: ObjectResult) -> tuple[float, float]:
     """Exact-test ms per grasp on the grasps the filter passes and on those it rejects.
 
     Both runs time their exact stage: the filtered run's covers the passed grasps,
@@ -62,7 +74,7 @@ def exact_ms_split(r):
     return passed_ms, rejected_ms
 
 
-def result_row(r):
+def result_row(r: ObjectResult) -> Row:
     """One object's measurements as a flat CSV row (times in seconds)."""
     filter_ms = 1e3 * r.seed.filter_s / r.grasps
     exact_ms = 1e3 * r.unfiltered.exact_s / r.grasps
@@ -108,7 +120,7 @@ def result_row(r):
     }
 
 
-def finger_row(row):
+def finger_row(row: FingerSweepRow) -> Row:
     return {
         "fingers": row.n_fingers,
         "grasps": row.grasps,
@@ -121,7 +133,7 @@ def finger_row(row):
     }
 
 
-def sides_row(row):
+def sides_row(row: SidesSweepRow) -> Row:
     return {
         "sides": row.sides,
         "fc_grasps": row.fc_grasps,
@@ -133,25 +145,26 @@ def sides_row(row):
     }
 
 
-def friction_label_rows(labels):
+def friction_label_rows(labels: Iterable[FrictionLabels]) -> list[Row]:
     """One row per labelled grasp: the object and its mu*."""
     return [{"object": label.name, "fingers": label.n_fingers, "grasp": i, "mu_star": mu}
             for label in labels for i, mu in enumerate(label.mu_star.tolist())]
 
 
-def soft_row(row):
+def soft_row(row: SoftRow) -> Row:
     return {"object": row.name, "fingers": row.n_fingers,
             "gamma_over_size": row.gamma_fraction, "gamma": f"{row.gamma:.6g}",
             "grasps": row.grasps, "force_closure": row.force_closure}
 
 
-def quality_section(labels, soft_rows, soft_mu):
+def quality_section(labels: Sequence[FrictionLabels], soft_rows: Sequence[SoftRow],
+                    soft_mu: float) -> list[str]:
     """Markdown lines of the grasp-quality part: mu* labels and the soft-finger sweep."""
     levels = LABEL_MU_LEVELS
     fractions = sorted({r.gamma_fraction for r in soft_rows})
     fingers = sorted({r.n_fingers for r in soft_rows})
 
-    def share(n_fingers, fraction):
+    def share(n_fingers: int, fraction: float) -> float:
         mine = [r for r in soft_rows if r.n_fingers == n_fingers and r.gamma_fraction == fraction]
         return sum(r.force_closure for r in mine) / sum(r.grasps for r in mine)
 
@@ -181,17 +194,17 @@ def quality_section(labels, soft_rows, soft_mu):
     ]
 
 
-def epsilon_row(row):
+def epsilon_row(row: Row) -> Row:
     """A summary row of :func:`.epsilon_study.summary_rows` for the CSV (rounded)."""
     return {key: (f"{value:.6g}" if isinstance(value, float) else value)
             for key, value in row.items()}
 
 
-def epsilon_section(rows, n_fingers, mu):
+def epsilon_section(rows: Sequence[Row], n_fingers: int, mu: float) -> list[str]:
     """Markdown lines of the epsilon part: exact epsilon against the pyramid Q1."""
     from .epsilon_study import EXACT_RTOL
 
-    def share(value):
+    def share(value: float) -> str:
         return "-" if value != value else f"{100 * value:.1f}%"
 
     return [
@@ -216,14 +229,14 @@ def epsilon_section(rows, n_fingers, mu):
     ]
 
 
-def write_csv(path, rows):
+def write_csv(path: str | os.PathLike[str], rows: Sequence[Row]) -> None:
     with open(path, "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
 
 
-def machine_description():
+def machine_description() -> str:
     """One line naming the CPU, core count, OS and versions the run used."""
     cpu = platform.processor() or platform.machine()
     try:
@@ -243,7 +256,7 @@ def machine_description():
             f"{platform.release()}, Python {platform.python_version()}, {', '.join(versions)}")
 
 
-def code_version():
+def code_version() -> str:
     """The git commit of the package's checkout, marked '+ local changes' when dirty."""
     source = Path(__file__).resolve().parents[2]
     try:
@@ -257,18 +270,18 @@ def code_version():
     return f"git {commit}" + (" + local changes" if dirty else "")
 
 
-def _mean(values):
+def _mean(values: Iterable[float]) -> float:
     values = list(values)
     return sum(values) / len(values)
 
 
-def _table(header, rows):
+def _table(header: Sequence[str], rows: Iterable[Sequence[object]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
     lines += ["| " + " | ".join(str(cell) for cell in row) + " |" for row in rows]
     return "\n".join(lines)
 
 
-def soundness_problems(results):
+def soundness_problems(results: Iterable[ObjectResult]) -> list[str]:
     """Lines describing every object where the filter changed a verdict (empty if none)."""
     return [f"{r.name}, origins={stats.origins!r}: the filter rejected {stats.unsound} "
             f"force-closure grasps; {stats.verdict_mismatches} verdicts differ from the "
@@ -277,8 +290,10 @@ def soundness_problems(results):
             if stats.unsound or stats.verdict_mismatches]
 
 
-def markdown_report(results, finger_rows, sides_rows, settings, total_s, plots,
-                    quality_lines=()):
+def markdown_report(results: Sequence[ObjectResult], finger_rows: Sequence[FingerSweepRow],
+                    sides_rows: Sequence[SidesSweepRow], settings: Mapping[str, object],
+                    total_s: float, plots: Mapping[str, str],
+                    quality_lines: Sequence[str] = ()) -> str:
     """The report as markdown text; ``quality_lines`` (from :func:`quality_section`) go
     before the plots."""
     r0 = results[0]
@@ -440,5 +455,5 @@ def markdown_report(results, finger_rows, sides_rows, settings, total_s, plots,
     return "\n".join(out)
 
 
-def command_line():
+def command_line() -> str:
     return " ".join(["grasp-fc-experiment"] + sys.argv[1:])

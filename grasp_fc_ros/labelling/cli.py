@@ -16,11 +16,16 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 from grasp_fc_ros.cli_arguments import positive_float, positive_int
 from grasp_fc_ros.objects import DEFAULT_N_POINTS, OBJECT_NAMES
 
 from .runner import DEFAULT_CHUNK_SIZE
+
+if TYPE_CHECKING:
+    from .runner import Plan, Summary
 
 #: --filter's choices, as check_force_closure's use_filter.
 FILTER_CHOICES = {"auto": "auto", "on": True, "off": False}
@@ -93,7 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def make_plan(args):
+def make_plan(args: argparse.Namespace) -> Plan:
     """The :class:`~grasp_fc_ros.labelling.runner.Plan` of the parsed arguments.
 
     Raises
@@ -113,7 +118,7 @@ def make_plan(args):
                                args.mu, args.seed, args.points, args.chunk_size), **settings)
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     drawing = bool(args.mesh or args.objects)
@@ -151,7 +156,7 @@ def main(argv=None) -> int:
     return 0
 
 
-def _report(summary) -> None:
+def _report(summary: Summary) -> None:
     counts = ", ".join(f"{name} {n:,}" for name, n in summary.status_counts.items() if n)
     rate = summary.grasps_written / summary.seconds if summary.seconds else 0.0
     print(f"{PROG}: {summary.grasps_written:,} grasps labelled in {summary.chunks_written} "

@@ -12,9 +12,11 @@ file's size:
 
 from __future__ import annotations
 
+import os
 import struct
 import zipfile
 from dataclasses import dataclass
+from typing import BinaryIO
 
 import numpy as np
 
@@ -46,7 +48,7 @@ class NpyMember:
 
     path: str
     entry: str
-    shape: tuple
+    shape: tuple[int, ...]
     dtype: np.dtype
     compressed: bool
     header_length: int
@@ -75,7 +77,7 @@ class NpyMember:
         return np.frombuffer(data, self.dtype).reshape((stop - start,) + self.shape[1:]).copy()
 
 
-def read_members(path) -> dict[str, NpyMember]:
+def read_members(path: str | os.PathLike[str]) -> dict[str, NpyMember]:
     """Describe every ``.npy`` member of a ``.npz`` archive, without reading its data.
 
     Returns
@@ -104,7 +106,8 @@ def read_members(path) -> dict[str, NpyMember]:
     return members
 
 
-def _describe(path, archive, raw, info, name) -> NpyMember:
+def _describe(path: str, archive: zipfile.ZipFile, raw: BinaryIO, info: zipfile.ZipInfo,
+              name: str) -> NpyMember:
     if info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
         raise ValueError(f"{path}: array {name!r} uses an unsupported zip compression")
     with archive.open(info) as member:

@@ -13,9 +13,14 @@ import json
 import os
 import shutil
 import uuid
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import pyarrow.parquet as pq
+
+if TYPE_CHECKING:
+    import pyarrow as pa
 
 MANIFEST_NAME = "_grasp_fc_label.json"
 METADATA_KEY = b"grasp_fc_label"
@@ -27,7 +32,7 @@ class OutputConflict(Exception):
     """The output path holds something this run must not overwrite or mix with."""
 
 
-def _manifest_difference(stored: dict, wanted: dict) -> str:
+def _manifest_difference(stored: dict[str, Any], wanted: dict[str, Any]) -> str:
     keys = sorted(k for k in set(stored) | set(wanted) if stored.get(k) != wanted.get(k))
     return ", ".join(keys) or "layout"
 
@@ -44,7 +49,7 @@ class Output:
         times, chunk size, settings); parts are reused only under the same manifest.
     """
 
-    def __init__(self, out, manifest: dict):
+    def __init__(self, out: str | os.PathLike[str], manifest: dict[str, Any]) -> None:
         self.out = Path(out).resolve()
         self.single_file = self.out.suffix.lower() == ".parquet"
         self.parts_dir = (self.out.with_name(self.out.name + ".parts") if self.single_file
@@ -96,7 +101,7 @@ class Output:
         if not manifest_path.exists():
             _atomic_write(manifest_path, lambda tmp: tmp.write_text(self.text))
 
-    def write_part(self, name: str, table) -> None:
+    def write_part(self, name: str, table: pa.Table) -> None:
         """Write one chunk's table as part ``name``, atomically."""
         _atomic_write(self.parts_dir / name, lambda tmp: pq.write_table(table, tmp))
 
@@ -105,13 +110,13 @@ class Output:
         if self.single_file and self.parts_dir.is_dir():
             shutil.rmtree(self.parts_dir)
 
-    def finish(self, part_names: list[str], schema) -> Path:
+    def finish(self, part_names: list[str], schema: pa.Schema) -> Path:
         """Merge the parts into the single output file if asked for one; return the output."""
         if not self.single_file:
             return self.out
         schema = schema.with_metadata({METADATA_KEY: self.text.encode()})
 
-        def merge(tmp):
+        def merge(tmp: Path) -> None:
             with pq.ParquetWriter(tmp, schema) as writer:
                 for name in part_names:
                     writer.write_table(pq.read_table(self.parts_dir / name).cast(schema))
@@ -121,7 +126,7 @@ class Output:
         return self.out
 
 
-def _atomic_write(path: Path, write) -> None:
+def _atomic_write(path: Path, write: Callable[[Path], object]) -> None:
     """Run ``write(tmp)`` on a temporary file beside ``path``, flush it, rename it to ``path``."""
     tmp = path.with_name(f"{TEMP_PREFIX}{path.name}.{uuid.uuid4().hex}.tmp")
     try:

@@ -16,14 +16,22 @@ import os
 import sys
 import time
 import uuid
+from collections.abc import Callable, Hashable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
+from typing import IO, TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
 from .output import Output
 from .schema import STATUS_NAMES, output_schema
-from .sources import InputError, open_input
+from .sources import InputError, Source, open_input
 from .tasks import label_chunk, validate_chunk
+
+if TYPE_CHECKING:
+    import pyarrow as pa
+    from distributed import Client, Future
+
+Result = TypeVar("Result")
 
 # Grasps per chunk: large enough that the core's vectorised filter and batched exact test
 # run at full speed and the per-task overhead of Dask (~1 ms) is negligible, small enough
@@ -57,7 +65,7 @@ class Plan:
 
     Attributes
     ----------
-    sources : list
+    sources : sequence of Source
         :mod:`~grasp_fc_ros.labelling.sources` objects, in output order.
     chunk_size : int
         Grasps per chunk (the last chunk of a source may be smaller).
@@ -71,20 +79,20 @@ class Plan:
         (``--quality``); None: not.
     """
 
-    sources: list
+    sources: Sequence[Source]
     chunk_size: int = DEFAULT_CHUNK_SIZE
     use_filter: bool | str = "auto"
     origins: str = "seed"
     quality_rtol: float | None = None
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         drawn = {getattr(source, "chunk_size", self.chunk_size) for source in self.sources}
         if drawn - {self.chunk_size}:
             raise ValueError("grasps drawn on objects must be drawn with the plan's chunk "
                              f"size {self.chunk_size}, got {sorted(drawn)}")
 
     @classmethod
-    def from_files(cls, paths, **settings) -> Plan:
+    def from_files(cls, paths: Iterable[str | os.PathLike[str]], **settings: Any) -> Plan:
         """The plan of input files, ids defaulting to the running index across them all.
 
         Raises
@@ -92,7 +100,8 @@ class Plan:
         InputError
             A file with missing keys or wrong shapes (see :func:`open_input`).
         """
-        sources, offset = [], 0
+        sources: list[Source] = []
+        offset = 0
         for path in paths:
             sources.append(open_input(path, id_offset=offset))
             offset += sources[-1].n_grasps
@@ -109,12 +118,12 @@ class Plan:
         return sum(source.n_grasps for source in self.sources)
 
     @property
-    def schema(self):
+    def schema(self) -> pa.Schema:
         with_grasps = any(source.object_name is not None for source in self.sources)
         fingers = self.sources[0].n_contacts if self.sources else 0
         return output_schema(with_grasps, fingers, quality=self.quality_rtol is not None)
 
-    def manifest(self) -> dict:
+    def manifest(self) -> dict[str, Any]:
         # quality_rtol only when set: outputs of runs without it keep their manifest.
         quality = {} if self.quality_rtol is None else {"quality_rtol": self.quality_rtol}
         return {"format": MANIFEST_FORMAT, "chunk_size": self.chunk_size,
@@ -132,7 +141,7 @@ class Summary:
     chunks_skipped: int = 0
     grasps_written: int = 0
     seconds: float = 0.0
-    status_counts: dict = field(default_factory=dict)
+    status_counts: dict[str, int] = field(default_factory=dict)
 
 
 class TaskFailed(RuntimeError):
@@ -141,7 +150,7 @@ class TaskFailed(RuntimeError):
 
 @contextlib.contextmanager
 def dask_client(scheduler: str | None = None, workers: int | None = None,
-                scheduler_file: str | None = None):
+                scheduler_file: str | None = None) -> Iterator[Client]:
     """A Dask client: on ``scheduler`` (``tcp://HOST:PORT``), on the scheduler that
     ``scheduler_file`` names (``dask scheduler --scheduler-file``), or on a new local cluster.
 
@@ -163,7 +172,8 @@ def dask_client(scheduler: str | None = None, workers: int | None = None,
 class Progress:
     """A progress line on stderr: chunks and grasps done, rate, time left."""
 
-    def __init__(self, total_grasps: int, total_chunks: int, stream=None, enabled=True):
+    def __init__(self, total_grasps: int, total_chunks: int, stream: IO[str] | None = None,
+                 enabled: bool = True) -> None:
         self.stream = stream or sys.stderr
         self.enabled = enabled
         self.total_grasps, self.total_chunks = total_grasps, total_chunks
@@ -192,7 +202,8 @@ class Progress:
         self.stream.flush()
 
 
-def run(plan: Plan, out, client, progress: bool = True) -> Summary:
+def run(plan: Plan, out: str | os.PathLike[str], client: Client,
+        progress: bool = True) -> Summary:
     """Label every chunk of ``plan`` not yet in ``out``, on the Dask ``client``.
 
     Raises
@@ -231,7 +242,7 @@ def run(plan: Plan, out, client, progress: bool = True) -> Summary:
     bar = Progress(sum(chunk.size for chunk in todo), len(todo), enabled=progress)
     counts = np.zeros(len(STATUS_NAMES), dtype=np.int64)
 
-    def write(chunk, table):
+    def write(chunk: Chunk, table: pa.Table) -> None:
         output.write_part(chunk.part, table)
         counts[:] += np.bincount(table.column("status").to_numpy(), minlength=len(counts))
         summary.chunks_written += 1
@@ -248,12 +259,14 @@ def run(plan: Plan, out, client, progress: bool = True) -> Summary:
     return summary
 
 
-def _identity(value):
+def _identity(value: Source) -> Source:
     return value
 
 
-def _map_chunks(client, function, sources, chunks, extra_args, key_prefix, on_result=None,
-                stop_on=None):
+def _map_chunks(client: Client, function: Callable[..., Result], sources: Sequence[Future],
+                chunks: Iterable[Chunk], extra_args: tuple[object, ...], key_prefix: str,
+                on_result: Callable[[Chunk, Result], None] | None = None,
+                stop_on: Callable[[Result], bool] | None = None) -> list[tuple[Chunk, Result]]:
     """Run ``function(source, start, stop, *extra_args)`` per chunk on the cluster.
 
     ``sources`` are futures of the plan's sources.
@@ -265,7 +278,7 @@ def _map_chunks(client, function, sources, chunks, extra_args, key_prefix, on_re
     """
     from distributed import as_completed
 
-    pending = {}
+    pending: dict[Hashable, tuple[Chunk, Future]] = {}
     for chunk in chunks:
         future = client.submit(function, sources[chunk.source], chunk.start, chunk.stop,
                                *extra_args, key=f"grasp-fc-{key_prefix}-{chunk.part}")

@@ -38,10 +38,17 @@ Later columns (``min_friction``, certificates) are added as optional entries of
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import pyarrow as pa
 
 from grasp_fc_ros.core import Status
+
+if TYPE_CHECKING:
+    from grasp_fc_ros.core import EpsilonResult, ForceClosureResult
+
+    from .sources import GraspChunk
 
 STATUS_NAMES = [status.name for status in sorted(Status)]
 
@@ -76,7 +83,8 @@ def output_schema(with_grasps: bool, n_contacts: int, quality: bool = False) -> 
                      + (grasp_fields(n_contacts) if with_grasps else []))
 
 
-def label_table(chunk, result, object_name: str | None = None, epsilon=None) -> pa.Table:
+def label_table(chunk: GraspChunk, result: ForceClosureResult, object_name: str | None = None,
+                epsilon: EpsilonResult | None = None) -> pa.Table:
     """One chunk's labels (and grasps, when ``object_name`` is given) as an Arrow table.
 
     Parameters

@@ -20,12 +20,19 @@ from __future__ import annotations
 
 import functools
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 import numpy as np
 
-from .npz_members import read_members
+from .npz_members import NpyMember, read_members
+
+if TYPE_CHECKING:
+    import pyarrow as pa
+
+    from grasp_fc_ros.objects import ContactSurface
 
 REQUIRED_KEYS = ("positions", "normals", "mu")
 TORSIONAL_KEY = "torsional_friction"
@@ -62,7 +69,7 @@ class GraspChunk:
     rows: np.ndarray
 
 
-def _file_stamp(path: str) -> dict:
+def _file_stamp(path: str) -> dict[str, Any]:
     """What identifies a file's content for resumption: path, size, modification time."""
     stat = os.stat(path)
     return {"path": path, "size": stat.st_size, "mtime_ns": stat.st_mtime_ns}
@@ -80,7 +87,8 @@ def _checked_ids(ids: np.ndarray, path: str, key: str, start: int) -> np.ndarray
     return ids.astype(np.uint64)
 
 
-def _per_grasp_slice(array_or_member, shape, start, stop):
+def _per_grasp_slice(array_or_member: NpyMember, shape: tuple[int, ...], start: int,
+                     stop: int) -> np.ndarray:
     """Rows start:stop of an array that is scalar, (N,) or (N, n), as () or (k, n) or (k, 1)."""
     if not shape:
         return np.asarray(array_or_member.read(), dtype=np.float64)
@@ -96,10 +104,10 @@ class NpzSource:
     n_grasps: int
     n_contacts: int
     id_offset: int
-    members: dict = field(repr=False)
+    members: dict[str, NpyMember] = field(repr=False)
     object_name = None  # grasps read from a file: no object, no grasp columns
 
-    def describe(self) -> dict:
+    def describe(self) -> dict[str, Any]:
         return {"kind": "npz", **_file_stamp(self.path), "n_grasps": self.n_grasps}
 
     def read(self, start: int, stop: int) -> GraspChunk:
@@ -158,7 +166,7 @@ class ParquetSource:
     has_torsional: bool
     object_name = None
 
-    def describe(self) -> dict:
+    def describe(self) -> dict[str, Any]:
         return {"kind": "parquet", **_file_stamp(self.path), "n_grasps": self.n_grasps}
 
     def read(self, start: int, stop: int) -> GraspChunk:
@@ -186,13 +194,14 @@ class ParquetSource:
         return columns
 
 
-def _read_parquet_rows(path, start, stop, columns):
+def _read_parquet_rows(path: str, start: int, stop: int, columns: list[str]) -> pa.Table:
     """Rows start:stop of some columns, decoding one batch of a row group at a time."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     parquet = pq.ParquetFile(path)
-    groups, offset, first = [], 0, 0
+    groups: list[int] = []
+    offset, first = 0, 0
     for g in range(parquet.metadata.num_row_groups):
         rows = parquet.metadata.row_group(g).num_rows
         if offset + rows > start and offset < stop:
@@ -212,20 +221,21 @@ def _read_parquet_rows(path, start, stop, columns):
     return pa.Table.from_batches(batches, schema=schema)
 
 
-def _is_list(arrow_type) -> bool:
+def _is_list(arrow_type: pa.DataType) -> bool:
     import pyarrow as pa
 
     return (pa.types.is_list(arrow_type) or pa.types.is_large_list(arrow_type)
             or pa.types.is_fixed_size_list(arrow_type))
 
 
-def _combined(column):
+def _combined(column: pa.ChunkedArray | pa.Array) -> pa.Array:
     import pyarrow as pa
 
     return column.combine_chunks() if isinstance(column, pa.ChunkedArray) else column
 
 
-def _check_lengths(lists, want, path, key, start, rows_per_grasp=1):
+def _check_lengths(lists: pa.Array, want: int, path: str, key: str, start: int,
+                   rows_per_grasp: int = 1) -> None:
     """Raise naming the first grasp whose list is null or does not hold ``want`` items."""
     import pyarrow.compute as pc
 
@@ -238,7 +248,7 @@ def _check_lengths(lists, want, path, key, start, rows_per_grasp=1):
                          f"{got}, expected lists of {want}")
 
 
-def _numbers(values, path, key):
+def _numbers(values: pa.Array, path: str, key: str) -> np.ndarray:
     import pyarrow as pa
 
     if not (pa.types.is_floating(values.type) or pa.types.is_integer(values.type)):
@@ -247,7 +257,8 @@ def _numbers(values, path, key):
     return values.to_numpy(zero_copy_only=False).astype(np.float64)
 
 
-def _vector_column(column, k, n, path, key, start) -> np.ndarray:
+def _vector_column(column: pa.ChunkedArray, k: int, n: int, path: str, key: str,
+                   start: int) -> np.ndarray:
     """A positions/normals column -> (k, n, 3): 3n numbers per row, or n lists of 3."""
     lists = _combined(column)
     if not _is_list(lists.type):
@@ -264,7 +275,8 @@ def _vector_column(column, k, n, path, key, start) -> np.ndarray:
     return flat.reshape(k, n, 3)
 
 
-def _per_grasp_column(column, k, n, path, key, start) -> np.ndarray:
+def _per_grasp_column(column: pa.ChunkedArray, k: int, n: int, path: str, key: str,
+                      start: int) -> np.ndarray:
     """A mu-like column -> (k, 1) for one number per grasp, (k, n) for a list of n."""
     values = _combined(column)
     if _is_list(values.type):
@@ -273,7 +285,7 @@ def _per_grasp_column(column, k, n, path, key, start) -> np.ndarray:
     return _numbers(values, path, key).reshape(k, 1)
 
 
-def _integer_column(column, path, key, start) -> np.ndarray:
+def _integer_column(column: pa.ChunkedArray, path: str, key: str, start: int) -> np.ndarray:
     import pyarrow as pa
 
     values = _combined(column)
@@ -324,8 +336,8 @@ class SurfaceSource:
     grasps depend on the seed and the chunk size, never on the number of workers.
     """
 
-    surface: object = field(repr=False)  # grasp_fc_ros.objects.ContactSurface
-    description: dict = field(default_factory=dict)
+    surface: ContactSurface = field(repr=False)
+    description: dict[str, Any] = field(default_factory=dict)
     index: int = 0
     n_grasps: int = 0
     n_contacts: int = 0
@@ -341,9 +353,9 @@ class SurfaceSource:
 
     @property
     def path(self) -> str:
-        return self.description.get("path", self.surface.name)
+        return str(self.description.get("path", self.surface.name))
 
-    def describe(self) -> dict:
+    def describe(self) -> dict[str, Any]:
         return {**self.description, "n_grasps": self.n_grasps, "fingers": self.n_contacts,
                 "mu": self.mu, "seed": self.seed}
 
@@ -359,7 +371,7 @@ class SurfaceSource:
                           torsional=None, rows=np.arange(start, stop))
 
 
-def open_input(path, id_offset: int = 0):
+def open_input(path: str | os.PathLike[str], id_offset: int = 0) -> Source:
     """Check an input file's keys and shapes and return its source.
 
     Parameters
@@ -374,31 +386,37 @@ def open_input(path, id_offset: int = 0):
     InputError
         Unknown suffix, unreadable file, missing keys or wrong shapes, naming the file.
     """
-    path = str(Path(path).resolve())
-    if not os.path.isfile(path):
-        raise InputError(f"{path}: no such file")
-    suffix = Path(path).suffix.lower()
+    resolved = str(Path(path).resolve())
+    if not os.path.isfile(resolved):
+        raise InputError(f"{resolved}: no such file")
+    suffix = Path(resolved).suffix.lower()
     try:
         if suffix == ".npz":
-            return _open_npz(path, id_offset)
+            return _open_npz(resolved, id_offset)
         if suffix in (".parquet", ".pq"):
-            return _open_parquet(path, id_offset)
+            return _open_parquet(resolved, id_offset)
     except InputError:
         raise
     except (OSError, ValueError) as error:
-        raise InputError(str(error) if path in str(error) else f"{path}: {error}") from None
-    raise InputError(f"{path}: unsupported input (expected .npz or .parquet)")
+        raise InputError(str(error) if resolved in str(error)
+                         else f"{resolved}: {error}") from None
+    raise InputError(f"{resolved}: unsupported input (expected .npz or .parquet)")
+
+
+#: Any source of grasps: each reads its chunks with ``read(start, stop)``.
+Source: TypeAlias = NpzSource | ParquetSource | SurfaceSource
 
 
 @functools.cache
-def _builtin(name: str, points: int, seed: int):
+def _builtin(name: str, points: int, seed: int) -> ContactSurface:
     from grasp_fc_ros.objects import make_object
 
     return make_object(name, n_points=points, seed=seed)
 
 
-def object_sources(builtin_names, mesh_paths, grasps_per_object, fingers, mu, seed, points,
-                   chunk_size, id_offset=0) -> list[SurfaceSource]:
+def object_sources(builtin_names: Sequence[str], mesh_paths: Sequence[str],
+                   grasps_per_object: int, fingers: int, mu: float, seed: int, points: int,
+                   chunk_size: int, id_offset: int = 0) -> list[SurfaceSource]:
     """Sources of random grasps on built-in objects and on meshes/point clouds.
 
     Raises

@@ -6,12 +6,18 @@ the same rows, which is what makes retries and resumption lose and duplicate not
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from .sources import TORSIONAL_KEY, InputError
+from .sources import TORSIONAL_KEY, GraspChunk, InputError, Source
+
+if TYPE_CHECKING:
+    import pyarrow as pa
 
 
-def validate_chunk(source, start: int, stop: int) -> str | None:
+def validate_chunk(source: Source, start: int, stop: int) -> str | None:
     """The first problem of rows ``start:stop`` of ``source``, or None if all can be labelled.
 
     Returns
@@ -44,12 +50,12 @@ def validate_chunk(source, start: int, stop: int) -> str | None:
     return f"{where(g)}{detail}"
 
 
-def _grasp_names(path, chunk):
+def _grasp_names(path: str, chunk: GraspChunk) -> Callable[[int], str]:
     return lambda g: f"{path}: grasp {int(chunk.rows[g])} (id {int(chunk.ids[g])})"
 
 
-def label_chunk(source, start: int, stop: int, use_filter: bool | str, origins: str,
-                quality_rtol: float | None = None):
+def label_chunk(source: Source, start: int, stop: int, use_filter: bool | str, origins: str,
+                quality_rtol: float | None = None) -> pa.Table:
     """Labels of rows ``start:stop`` of ``source``, as a ``pyarrow.Table``; with
     ``quality_rtol``, their certified epsilon to that accuracy too.
 

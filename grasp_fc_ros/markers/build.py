@@ -204,9 +204,9 @@ def _points(vertices: np.ndarray) -> list[Point]:
     """geometry_msgs/Point per row of (..., 3) finite vertices.
 
     Fills the generated class's slots directly: its constructor's per-field checks cost
-    about 9 us a point (0.3 ms per cone at 12 segments), 5x this. The values are
+    several times as much (measured: docs/performance.md#markers). The values are
     Python floats from ``tolist()``, finite by construction, which is all those checks
-    verify; test/test_markers.py checks the points equal constructed ones.
+    verify; test/markers/test_markers.py checks the points equal constructed ones.
     """
     points = []
     for x, y, z in vertices.reshape(-1, 3).tolist():

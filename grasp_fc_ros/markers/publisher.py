@@ -50,8 +50,8 @@ from grasp_fc_ros.markers.build import DEFAULT_LIFETIME_S, delete_all_markers, g
 # Messages whose markers may wait to be built; beyond, the oldest are dropped. A few
 # seconds of work at most (a message holds at most MAX_MARKER_SAMPLE grasps).
 MARKER_QUEUE_LENGTH = 64
-# Upper bound of the marker_batch_sample parameter: one MarkerArray of 1,000 grasps is
-# ~1 s of marker work and ~10 MB of message.
+# Upper bound of the marker_batch_sample parameter: it bounds one MarkerArray's build
+# time and size (measured: docs/performance.md#markers).
 MAX_MARKER_SAMPLE = 1000
 DEFAULT_MARKER_SAMPLE = 10
 # The markers topic: reliable like RViz's MarkerArray display, a KEEP_LAST history so

@@ -1,0 +1,316 @@
+"""Every benchmark's quick form runs and prints its figures, sane (no timing asserted:
+speed targets belong to the benchmarks and docs/performance.md, not to tests).
+
+Every ``benchmarks/bench_*.py`` is run with ``--quick`` (found by glob: a new script is
+picked up without touching this file, and fails clearly if it has no ``--quick``). Each
+run must exit 0 and print none of the words a benchmark prints when it lost or
+miscounted something (:data:`FAILURE_WORDS`); :data:`EXPECTED` then lists, per script,
+the lines its output must contain, as regular expressions. Convention: every group a
+pattern captures is a figure, which must be a finite number > 0 (and below
+``Line.below``); figures that must be 0 are written into the pattern as literal zeros.
+:data:`OTHER_RUNS` checks a few options beyond the quick form. The scripts run two at a
+time (:class:`Runner`), each with a wall-time limit; their figures are never compared
+with a target, so sharing the machine changes nothing the test asserts.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from ros_domains import claim_domain_id
+
+BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
+SCRIPTS = sorted(path.stem for path in BENCHMARKS.glob("bench_*.py"))
+
+#: Wall-time limit of one run (most quick forms take seconds to half a minute).
+DEFAULT_TIMEOUT_S = 300.0
+
+#: Printed only when a benchmark lost, miscounted or crashed.
+FAILURE_WORDS = re.compile(r"Traceback|INCOMPLETE|LOST|LOSS|miscount|SOUNDNESS VIOLATION")
+
+#: A figure: digits with optional thousands separators and decimals, captured.
+N = r"(\d[\d,]*(?:\.\d+)?)"
+
+
+@dataclass(frozen=True)
+class Line:
+    """``count`` output lines match ``pattern`` (``re.search``); their captured figures
+    are finite, > 0 and < ``below``."""
+
+    pattern: str
+    count: int = 1
+    below: float = math.inf
+
+
+@dataclass(frozen=True)
+class Run:
+    """What one run of a script must print; ``skip_if``: a pattern by which the script
+    says it cannot measure here (the test is then skipped with that line)."""
+
+    lines: tuple[Line, ...] = ()
+    args: tuple[str, ...] = ("--quick",)
+    timeout_s: float = DEFAULT_TIMEOUT_S
+    skip_if: str | None = None
+
+
+def _rows(first_columns: list[str], rest: str) -> tuple[Line, ...]:
+    """One line per table row: its leading column(s), then ``rest``."""
+    return tuple(Line(rf"^\s*{first}\s+{rest}$") for first in first_columns)
+
+
+EXACT_CELLS = [rf"{n}\s+{mu}" for n in (4, 6, 8) for mu in (r"0\.176", r"0\.500")]
+ROUND_TRIP = rf"p50\s+{N} ms\s+p99\s+{N} ms"
+
+#: What the quick form of each script prints (scripts not listed get the generic checks).
+EXPECTED: dict[str, Run] = {
+    "bench_action": Run(lines=(
+        Line(rf"^feedback: {N} messages over {N} s = {N} per s, largest gap {N} s"),
+        Line(rf"^cancel latency over 2 cancels: median {N} ms, max {N} ms .*, "
+             r"0 lost, all equal the core$"),
+        Line(rf"^throughput \(medians of 1 alternating rounds\): action {N} grasps/s, "
+             rf"batch topic {N} grasps/s, ratio {N}$"),
+    ), timeout_s=240),
+    "bench_certificates": Run(lines=tuple(
+        Line(rf"^\s+{tag}\s+batch\s+{N} grasps/s .*; single\s+{N} queries/s .*; "
+             rf"verdict message\s+{N} B/grasp")
+        for tag in ("off", "certificates", r"certificates\+min_friction"))),
+    # --peer 3: the Qhull peer on three grasps as well (it costs ~20 ms a grasp).
+    "bench_core": Run(args=("--quick", "--peer", "3"), lines=(
+        Line(rf"^six fingers, 8-sided-pyramid Qhull peer {N} ms per grasp; filtered "
+             rf"pipeline {N} ms \({N}x faster"),
+        *_rows(["6", "3", "4", "8", "12"], rf"{N}\s+{N}\s+{N}\s+{N}\s+{N}\s+.*%"),
+        Line(rf"^six fingers: filter {N} grasps/s"),
+        # One grasp per call against the batch: no lone verdict or status differs.
+        *_rows(["3", "4", "6", "8"], rf"{N}\s+{N}\s+{N}\s+500\s+1000\s+0\s+0"),
+    )),
+    "bench_epsilon": Run(lines=(
+        # grasps, ours/s, peer/s; no violation, inconsistency or unconverged grasp.
+        *_rows([r"4\s+0\.500", r"4\s+0\.176", r"6\s+0\.500", r"6\s+0\.176"],
+               rf"24\s+[\d.]+\s+{N}\s+{N}\s+{N}\s+0\s+0\s+0\s+.*"),
+        Line(r"^least ratio .*; violations 0, inconsistencies 0$"),
+    )),
+    "bench_exact": Run(lines=(
+        # clarabel and fast grasps/s, their ratio, +margin and its ratio; 0 disagreements.
+        *_rows(EXACT_CELLS, rf"[\d.]+\s+{N}\s+{N}\s+{N}x\s+{N}\s+{N}x\s+\d+\s+0"),
+        Line(rf"^one 6-finger grasp through check_force_closure \(.*\): {N} ms median of 200$",
+             count=5),
+    ), timeout_s=600),
+    # As the test it replaces: bench_faults' own quick form is being shortened elsewhere.
+    "bench_faults": Run(lines=(
+        Line(r"^node,.*worker \d+ SIGKILLed .*; 0 failures, 0 verdicts differ from the "
+             r"core's"),
+        Line(r"^engine,.*worker \d+ SIGKILLed .*; 0 failures, 0 verdicts differ from the "
+             r"core's"),
+        Line(r"no grasp lost to a worker's death: meets target"),
+    )),
+    "bench_filter": Run(lines=(
+        # n, mu, filter ms, exact ms, hit rate in [0, 1], saving, pays.
+        Line(rf"^\s*\d+\s+[\d.]+\s+{N}\s+{N}\s+(?:0\.\d+|1\.0+)\s+-?[\d.]+\s+(?:yes|no)$",
+             count=18),
+        # At four contacts and mu = 0.01 the filter rejects most grasps.
+        Line(r"^\s*4\s+0\.0100\s+[\d.]+\s+[\d.]+\s+(?:0\.[5-9]\d*|1\.0+)\s"),
+        Line(r"^pays for every mu at n = "),
+    )),
+    "bench_label": Run(lines=(
+        Line(rf"^core in-process, 1 core\s+:\s+{N} grasps/s"),
+        Line(rf"1 worker\(s\) :\s+{N} grasps/s"),
+        Line(rf"2 worker\(s\) :\s+{N} grasps/s"),
+        Line(rf"^2 workers / 1 worker\s+:\s+{N}x"),
+        Line(r"^large input: 60,000 three-finger grasps"),
+        Line(rf"^large run .* worker peak RSS {N}, {N} MiB", below=4096),
+    )),
+    "bench_markers": Run(lines=(
+        Line(rf"^core \(check_force_closure\)\s+{N} ms\s+1\.00 x core$"),
+        Line(rf"^markers, 12 segments\s+{N} ms\s+{N} x core$"),
+        Line(rf"^markers, 8 segments\s+{N} ms\s+{N} x core$"),
+        Line(rf"^\s+topic\s+off: {ROUND_TRIP} \| on: {ROUND_TRIP} \| on/off p50\s+{N}"),
+        Line(rf"^\s+service\s+off: {ROUND_TRIP} \| on: {ROUND_TRIP} \| on/off p50\s+{N}"),
+        Line(r"^\s+marker arrays received by a listener process \d+ for 40 queries answered "
+             r"with markers on; node: markers_published \d+, markers_dropped \d+$"),
+    )),
+    "bench_pool": Run(lines=(
+        Line(rf"^core +{N} grasps/s; core in 2 processes +{N} \({N}x\); pool +{N} \({N}x\); "
+             r"CPU per grasp: owner \d+\.\d+ us, workers \d+\.\d+ us$", count=2),
+        Line(rf"^pool: median {N}x the core in one process$"),
+    )),
+    "bench_quality": Run(lines=(
+        *_rows(["6", "4"], rf"256\s+{N}\s+{N}\s+{N}\s+{N}\s+.*"),
+        Line(r"^n = 6: mu\* finite .*, unresolved 0;"),
+        Line(r"^n = 4: mu\* finite .*, unresolved 0;"),
+        Line(rf"^six fingers: mu\* {N} grasps/s"),
+    )),
+    "bench_ros": Run(lines=(
+        Line(rf"^single-grasp topic:\s+{N} queries/s over 300 queries, no loss, in order"),
+        Line(rf"^batches of 100: median of 3 rounds {N}x the core alone"),
+        Line(rf"^service round trip \(one grasp\): p50 {N} ms, p99 {N} ms over 20 calls"),
+        Line(r"^service round trip during a 20000-grasp batch: "),
+        Line(rf"^service round trip, no core work \(invalid query\): p50 {N} ms, p99 {N} ms "
+             r"over 20 calls$"),
+    ), timeout_s=240),
+    "bench_soak": Run(lines=(
+        Line(r"^sent: .*; lost \(never answered\): 0 "),
+        *(Line(rf"^\s+{kind}\s+latency p50\s+{N} ms, p99\s+{N} ms over {N}$")
+          for kind in ("single", "batch", "service")),
+        Line(rf"^node RSS: start {N} MiB, after warm-up {N} MiB, end {N} MiB, max {N} MiB "
+             r"-> growth -?[\d.]+%"),
+    )),
+    "bench_soft": Run(lines=(
+        Line(rf"^soundness: {N} random soft grasps .*, {N} filter rejections .*, "
+             r"force-closure grasps rejected: 0$"),
+        Line(r"^\s*4(?:\s+\d+\.\d+){9}$"),
+    )),
+}
+
+#: Runs beyond the quick forms: options whose output the quick form does not show.
+OTHER_RUNS: dict[str, tuple[str, Run]] = {
+    "bench_exact --against e89657b": ("bench_exact", Run(
+        args=("--against", "e89657b", "--grasps", "60", "--repeats", "1"),
+        lines=_rows(EXACT_CELLS, rf"[\d.]+\s+{N}\s+{N}\s+{N}x\s+{N}\s+{N}x\s+0"),
+        skip_if=r"git history not available", timeout_s=600)),
+    "bench_exact --against unknown": ("bench_exact", Run(
+        args=("--against", "0123456789abcdef", "--grasps", "60", "--repeats", "1"),
+        lines=(Line(r"^--against 0123456789abcdef: git history not available"),
+               Line(r"nothing measured")))),
+}
+
+
+#: Every run, by test id: the quick forms by script name, then :data:`OTHER_RUNS`.
+ALL_RUNS: dict[str, tuple[str, Run]] = {
+    **{script: (script, EXPECTED.get(script, Run())) for script in SCRIPTS}, **OTHER_RUNS}
+
+#: Runs going at once. A run mostly waits (a node or a cluster starting, discovery,
+#: the benchmarks' own pauses): two side by side take little longer than one.
+IN_FLIGHT = 2
+
+
+@dataclass
+class _Started:
+    process: subprocess.Popen
+    deadline: float
+    stdout: Path
+    stderr: Path
+
+
+class Runner:
+    """Runs the selected tests' scripts in the order the tests come, the next one
+    started while a test waits for its own; each in a process group of its own, killed
+    whole (nodes and workers too) on timeout or when the module ends."""
+
+    def __init__(self, order: list[str], environment: dict[str, str], folder: Path):
+        self.order, self.environment, self.folder = order, environment, folder
+        self.started: dict[str, _Started] = {}
+
+    def _start(self, key: str) -> None:
+        script, run = ALL_RUNS[key]
+        name = re.sub(r"\W+", "_", key)
+        stdout, stderr = self.folder / f"{name}.out", self.folder / f"{name}.err"
+        with open(stdout, "wb") as out, open(stderr, "wb") as err:
+            process = subprocess.Popen(
+                [sys.executable, str(BENCHMARKS / f"{script}.py"), *run.args],
+                stdout=out, stderr=err, env=self.environment, start_new_session=True)
+        self.started[key] = _Started(process, time.monotonic() + run.timeout_s, stdout,
+                                     stderr)
+
+    def result(self, key: str) -> tuple[int, str, str]:
+        """(exit status, standard output, standard error) of the run of test ``key``."""
+        position = self.order.index(key) if key in self.order else len(self.order)
+        for ahead in [key, *self.order[position + 1:position + IN_FLIGHT]]:
+            if ahead not in self.started:
+                self._start(ahead)
+        started = self.started[key]
+        try:
+            status = started.process.wait(max(started.deadline - time.monotonic(), 0.0))
+        except subprocess.TimeoutExpired:
+            self._kill(started)
+            pytest.fail(f"{key} did not finish within {ALL_RUNS[key][1].timeout_s:.0f} s:\n"
+                        + started.stdout.read_text(errors="replace")
+                        + started.stderr.read_text(errors="replace"))
+        return (status, started.stdout.read_text(errors="replace"),
+                started.stderr.read_text(errors="replace"))
+
+    @staticmethod
+    def _kill(started: _Started) -> None:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(started.process.pid, signal.SIGKILL)
+        started.process.wait()
+
+    def close(self) -> None:
+        for started in self.started.values():
+            if started.process.poll() is None:
+                self._kill(started)
+
+
+@pytest.fixture(scope="module")
+def runner(request, tmp_path_factory) -> Iterator[Runner]:
+    """The runner of this module's selected tests, on this run's own ROS_DOMAIN_ID (the
+    node benchmarks start nodes), discovery on this machine only."""
+    order = [item.callspec.id for item in request.session.items
+             if item.module is request.module and hasattr(item, "callspec")]
+    environment = {**os.environ, "ROS_DOMAIN_ID": str(claim_domain_id()),
+                   "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    runner = Runner(order, environment, tmp_path_factory.mktemp("benchmarks"))
+    yield runner
+    runner.close()
+
+
+def _output(runner: Runner, key: str) -> str:
+    """The run's standard output; fails the test, with its output, if the run does."""
+    script, run = ALL_RUNS[key]
+    status, stdout, stderr = runner.result(key)
+    if status == 2 and "unrecognized arguments: --quick" in stderr:
+        pytest.fail(f"benchmarks/{script}.py has no --quick form: give it one (the smoke "
+                    "test runs every benchmark with --quick; it should take well under a "
+                    "minute)")
+    output = stdout + stderr
+    assert status == 0, f"{' '.join([script, *run.args])} exited {status}:\n{output}"
+    failure = FAILURE_WORDS.search(output)
+    assert failure is None, f"{script} printed {failure.group()!r}:\n{output}"
+    return stdout
+
+
+def _check(script: str, run: Run, output: str) -> None:
+    lines = output.splitlines()
+    if run.skip_if is not None:
+        reason = next((line for line in lines if re.search(run.skip_if, line)), None)
+        if reason is not None:
+            pytest.skip(f"{script}: {reason}")
+    assert any(re.search(N, line) for line in lines), f"{script} printed no figure:\n{output}"
+    for expected in run.lines:
+        found = [m for m in map(re.compile(expected.pattern).search, lines) if m]
+        assert len(found) == expected.count, (
+            f"{script}: {len(found)} lines match {expected.pattern!r}, expected "
+            f"{expected.count}:\n{output}")
+        for match in found:
+            figures = [float(group.replace(",", "")) for group in match.groups()]
+            assert all(0 < f < expected.below for f in figures), (
+                f"{script}: figures {figures} of {match.group()!r} not in "
+                f"(0, {expected.below}):\n{output}")
+
+
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_quick_form_runs_and_prints_its_figures(script, runner):
+    _check(script, ALL_RUNS[script][1], _output(runner, script))
+
+
+@pytest.mark.parametrize("name", sorted(OTHER_RUNS))
+def test_other_options(name, runner):
+    script, run = OTHER_RUNS[name]
+    _check(script, run, _output(runner, name))
+
+
+def test_every_expectation_names_a_benchmark():
+    """A script renamed or removed must take its expectations with it."""
+    assert set(EXPECTED) <= set(SCRIPTS), sorted(set(EXPECTED) - set(SCRIPTS))
+    assert {script for script, _ in OTHER_RUNS.values()} <= set(SCRIPTS)
