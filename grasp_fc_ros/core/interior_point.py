@@ -63,12 +63,6 @@ from ._kernels.frames import normal_split, tangent_frames, work_at, wrench_rows
 from ._kernels.grasp_map import apply_grasp_map, certified_rank
 from ._kernels.jit import jit, kernel_array, row
 from ._kernels.linear_algebra import cholesky, cholesky_solve
-from .margin_polish import (
-    newton_step,
-    polished_forces,
-    read_states,
-    start_polish,
-)
 from .tolerances import (
     MARGIN_ACCURACY,
     MARGIN_TOL,
@@ -121,26 +115,6 @@ CHECK_GAP = 1e-7
 #: this (5 MARGIN_ACCURACY): about where they can close the interval, which is about half
 #: the gap wide. A speed heuristic only (tuned: docs/performance.md#exact-stage).
 AFFINE_CHECK_GAP = 5e-8
-
-#: With the optimum asked for, the polish (:mod:`.margin_polish`) is tried after every
-#: iteration whose mean complementarity sum_i z_i . s_i / n is below this: about where
-#: the contact states can be read from the iterate (tuned: docs/performance.md#exact-stage).
-POLISH_COMPLEMENTARITY = 5e-5
-
-#: Newton steps per polish at most: from where the states can be read, two or three
-#: reach the optimum to rounding.
-POLISH_STEPS = 4
-
-#: A polish is abandoned (the states were misread) when its first Newton step changes a
-#: variable by more than this, or a later one by more than POLISH_CONTRACTION times the
-#: step before: Newton's method near its root shrinks its steps far faster.
-POLISH_FIRST_STEP = 0.1
-POLISH_CONTRACTION = 0.25
-
-#: The certificates are checked after a Newton step only once it changed no variable by
-#: more than this: the point's error is then of the order of the step squared, small
-#: enough to close the interval (tuned: docs/performance.md#exact-stage).
-POLISH_CERTIFY_STEP = 1e-4
 
 #: The signed mode also stops where its gap is this fraction of the margin's distance
 #: from the level searched for: far from mu*, the search's next step and the
@@ -254,37 +228,12 @@ def _bound(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, w: np.ndarray,
 
 
 @jit
-def _certify(unit: np.ndarray, normals: np.ndarray, tangent: np.ndarray,
-             bitangent: np.ndarray, mu: np.ndarray, z: np.ndarray, w: np.ndarray,
-             sigma: float, gram_factor: np.ndarray, sigma_min: float, grasp_norm: float,
-             projected: np.ndarray, y: np.ndarray, check: np.ndarray, scratch: np.ndarray,
-             normal_work: np.ndarray, forces_out: np.ndarray, wrench_out: np.ndarray,
-             t_lo: float, t_hi: float, separated: bool) -> tuple[float, float, bool]:
-    """Both certificates of a candidate point (primal z (n, 3), wrench w (6,)): the
-    interval [t_lo, t_hi] narrowed by them, with the witness's forces in ``forces_out``
-    and the wrench in ``wrench_out`` where they are kept. Returns (t_lo, t_hi,
-    separated)."""
-    depth, total = _witness(unit, normals, tangent, bitangent, mu, z, sigma, gram_factor,
-                            sigma_min, grasp_norm, projected, y, check, scratch)
-    if depth > t_lo:
-        t_lo = depth
-        for i in range(unit.shape[0]):
-            for k in range(3):
-                forces_out[i, k] = projected[i, k] / total
-    bound, separating = _bound(unit, normals, mu, w, normal_work)
-    if (separating and not separated) or (bound < t_hi and not separated):
-        wrench_out[:] = w
-        separated = separating
-    return t_lo, min(t_hi, bound), separated
-
-
-@jit
 def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_optimum: bool,
                  want_wrench: bool, signed_gap: float, signed_level: float,
                  forces_out: np.ndarray, wrench_out: np.ndarray, work3: np.ndarray,
                  work6: np.ndarray, rows: np.ndarray, a_mat: np.ndarray, scalings: np.ndarray,
-                 mats: np.ndarray, work_n: np.ndarray, a_gram: np.ndarray,
-                 system: np.ndarray, states: np.ndarray) -> tuple[int, float, float, int]:
+                 mats: np.ndarray, work_n: np.ndarray,
+                 a_gram: np.ndarray) -> tuple[int, float, float, int]:
     """Decide one unit-size grasp. Returns (code, t_lo, t_hi, iterations).
 
     ``signed_gap`` > 0 selects the signed mode (for :mod:`.minimum_friction`): no verdict;
@@ -296,23 +245,20 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
     optimum's multipliers).
 
     The remaining arguments are scratch space of the batch, reused from grasp to grasp
-    (allocating it per grasp would cost a large share of the run time): work3 (14, n, 3),
-    work6 (15, 6), rows (3, n, 6), a_mat (n, 6, 3), scalings (n, 6), mats (4, 6, 6),
-    work_n (3, n), a_gram (n, 6, 6), system (6, 6, 6),
-    states (n,) int64.
+    (allocating it per grasp would cost a large share of the run time): work3 (12, n, 3),
+    work6 (14, 6), rows (3, n, 6), a_mat (n, 6, 3), scalings (n, 6), mats (4, 6, 6),
+    work_n (2, n), a_gram (n, 6, 6).
     """
     n = unit.shape[0]
     (tangent, bitangent, z, s, z_affine, jv, lam, dz, ds, u_aff, winv_q,
-     projected, z_polish, z_polished) = (
-        work3[0], work3[1], work3[2], work3[3], work3[4], work3[5], work3[6], work3[7],
-        work3[8], work3[9], work3[10], work3[11], work3[12], work3[13])
-    (d, trial, g_sum, solved, gg_d, y6, w, g, rhs, dw, scratch, check, y, w_affine,
-     w_polish) = (work6[0], work6[1], work6[2], work6[3], work6[4], work6[5], work6[6],
-                  work6[7], work6[8], work6[9], work6[10], work6[11], work6[12], work6[13],
-                  work6[14])
+     projected) = (work3[0], work3[1], work3[2], work3[3], work3[4], work3[5], work3[6],
+                   work3[7], work3[8], work3[9], work3[10], work3[11])
+    d, trial, g_sum, solved, gg_d, y6, w, g, rhs, dw, scratch, check, y, w_affine = (
+        work6[0], work6[1], work6[2], work6[3], work6[4], work6[5], work6[6], work6[7],
+        work6[8], work6[9], work6[10], work6[11], work6[12], work6[13])
     b_n, b_t1, b_t2 = rows[0], rows[1], rows[2]
     gram, gram_factor, hessian, factor = mats[0], mats[1], mats[2], mats[3]
-    inv_eta2, normal_work, multipliers = work_n[0], work_n[1], work_n[2]
+    inv_eta2, normal_work = work_n[0], work_n[1]
 
     sigma_min, grasp_norm = certified_rank(unit, gram, gram_factor, scratch)
     if not sigma_min > 0.0:
@@ -443,32 +389,6 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
                 return code, t_lo, t_hi, iteration
         if last or iteration == MAX_ITERATIONS:
             break
-        # With the optimum asked for and the iterates close to it: Newton's method on the
-        # optimality conditions of the contact states the iterate shows
-        # (:mod:`.margin_polish`), checked with the same certificates.
-        complementarity = (d_w + total_z0) / n
-        if want_optimum and not signed and complementarity < POLISH_COMPLEMENTARITY:
-            state_rows = read_states(z, s, complementarity, states)
-            if state_rows >= 0:
-                start_polish(z, s, w, states, w_polish, multipliers, z_polish)
-                previous = POLISH_FIRST_STEP
-                for _ in range(POLISH_STEPS):
-                    change = newton_step(a_mat, a_gram, d, states, w_polish, multipliers,
-                                         z_polish, system)
-                    if not change < previous:
-                        break         # not converging: the states were misread
-                    previous = POLISH_CONTRACTION * change
-                    if change > POLISH_CERTIFY_STEP:
-                        continue
-                    polished_forces(a_mat, states, w_polish, multipliers, z_polish,
-                                    z_polished)
-                    t_lo, t_hi, separated = _certify(
-                        unit, normals, tangent, bitangent, mu, z_polished, w_polish, sigma,
-                        gram_factor, sigma_min, grasp_norm, projected, y, check, scratch,
-                        normal_work, forces_out, wrench_out, t_lo, t_hi, separated)
-                    code = _verdict(t_lo, t_hi, separated, want_optimum, want_wrench)
-                    if code != UNDECIDED:
-                        return code, t_lo, t_hi, iteration
 
         # Newton system: H dw = rhs, H = sum A_i W_i^-2 A_i^T, with W_i^-2 = (2 (Jv)(Jv)^T
         # - J) / eta^2: A_i W_i^-2 A_i^T = (2 g g^T - A_i J A_i^T) / eta^2, g = A_i J v;
@@ -540,10 +460,19 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
                     z_affine[i, k] = z[i, k] + alpha_primal * (-z[i, k] - w2_ds[k])
             for r in range(6):
                 w_affine[r] = w[r] + alpha_dual * dw[r]
-            t_lo, t_hi, separated = _certify(
-                unit, normals, tangent, bitangent, mu, z_affine, w_affine, sigma, gram_factor,
-                sigma_min, grasp_norm, projected, y, check, scratch, normal_work, forces_out,
-                wrench_out, t_lo, t_hi, separated)
+            depth, total = _witness(unit, normals, tangent, bitangent, mu, z_affine, sigma,
+                                    gram_factor, sigma_min, grasp_norm, projected, y, check,
+                                    scratch)
+            if depth > t_lo:
+                t_lo = depth
+                for i in range(n):
+                    for k in range(3):
+                        forces_out[i, k] = projected[i, k] / total
+            bound, separating = _bound(unit, normals, mu, w_affine, normal_work)
+            if (separating and not separated) or (bound < t_hi and not separated):
+                wrench_out[:] = w_affine
+                separated = separating
+            t_hi = min(t_hi, bound)
             code = _verdict(t_lo, t_hi, separated, want_optimum, want_wrench)
             if code != UNDECIDED:
                 return code, t_lo, t_hi, iteration + 1
@@ -573,7 +502,7 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
                 rhs[r] -= (a_mat[i, r, 0] * winv_q[i, 0] + a_mat[i, r, 1] * winv_q[i, 1]
                            + a_mat[i, r, 2] * winv_q[i, 2])
         cholesky_solve(factor, rhs, dw, scratch)
-        step_z = step_s = NO_LIMIT
+        alpha = NO_LIMIT
         for i in range(n):
             for k in range(3):
                 acc = 0.0
@@ -583,20 +512,16 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
             w2_ds = inverse_square_apply(row(jv, i), inv_eta2[i], row(ds, i))
             for k in range(3):
                 dz[i, k] = winv_q[i, k] - z[i, k] - w2_ds[k]
-            step_z = min(step_z, max_step(row(z, i), row(dz, i)))
-            step_s = min(step_s, max_step(row(s, i), row(ds, i)))
-        step_z = min(1.0, STEP_FRACTION * step_z)
-        step_s = min(1.0, STEP_FRACTION * step_s)
-        if not want_optimum:
-            step_z = step_s = min(step_z, step_s)
-        if not min(step_z, step_s) > MIN_STEP:
+            alpha = min(alpha, max_step(row(z, i), row(dz, i)), max_step(row(s, i), row(ds, i)))
+        alpha = min(1.0, STEP_FRACTION * alpha)
+        if not alpha > MIN_STEP:
             last = True
             continue
         for i in range(n):
             for k in range(3):
-                z[i, k] += step_z * dz[i, k]
+                z[i, k] += alpha * dz[i, k]
         for r in range(6):
-            w[r] += step_s * dw[r]
+            w[r] += alpha * dw[r]
         iteration += 1
     if t_lo >= MARGIN_TOL and not signed:
         return FORCE_CLOSURE, t_lo, t_hi, iteration
@@ -616,27 +541,22 @@ def _solve_all(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_optim
     iterations = np.empty(n_grasps, dtype=np.int32)
     forces = np.full((n_grasps, n_contacts, 3), np.nan)
     wrench = np.full((n_grasps, 6), np.nan)
-    work3, work6, rows, a_mat, scalings, mats, work_n, a_gram, system, states = _workspace(
-        n_contacts)
+    work3, work6, rows, a_mat, scalings, mats, work_n, a_gram = _workspace(n_contacts)
     for g in range(n_grasps):
         codes[g], t_lo[g], t_hi[g], iterations[g] = _solve_grasp(
             unit[g], normals[g], mu[g], want_optimum, want_wrench, signed_gap, signed_level,
-            forces[g], wrench[g], work3, work6, rows, a_mat, scalings, mats, work_n, a_gram,
-            system, states)
+            forces[g], wrench[g], work3, work6, rows, a_mat, scalings, mats, work_n, a_gram)
     return codes, t_lo, t_hi, iterations, forces, wrench
 
 
 @jit
 def _workspace(n_contacts: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                         np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                         np.ndarray, np.ndarray]:
+                                         np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Scratch of :func:`_solve_grasp` for grasps of ``n_contacts`` contacts: work3,
-    work6, rows, a_mat, scalings, mats, work_n, a_gram, system, states."""
-    return (np.empty((14, n_contacts, 3)), np.empty((15, 6)), np.empty((3, n_contacts, 6)),
+    work6, rows, a_mat, scalings, mats, work_n, a_gram."""
+    return (np.empty((12, n_contacts, 3)), np.empty((14, 6)), np.empty((3, n_contacts, 6)),
             np.empty((n_contacts, 6, 3)), np.empty((n_contacts, 6)), np.empty((4, 6, 6)),
-            np.empty((3, n_contacts)), np.empty((n_contacts, 6, 6)),
-            np.empty((6, 6, 6)),
-            np.empty(n_contacts, dtype=np.int64))
+            np.empty((2, n_contacts)), np.empty((n_contacts, 6, 6)))
 
 
 @jit
@@ -656,12 +576,11 @@ def solve_one(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray,
     (int, float, float)
         code (FORCE_CLOSURE, NOT_FORCE_CLOSURE or UNDECIDED), t_lo, t_hi.
     """
-    work3, work6, rows, a_mat, scalings, mats, work_n, a_gram, system, states = _workspace(
-        unit.shape[0])
+    work3, work6, rows, a_mat, scalings, mats, work_n, a_gram = _workspace(unit.shape[0])
     forces, wrench = np.empty((unit.shape[0], 3)), np.empty(6)
     code, t_lo, t_hi, _ = _solve_grasp(unit, normals, mu, want_optimum, False, 0.0, 0.0,
                                        forces, wrench, work3, work6, rows, a_mat, scalings,
-                                       mats, work_n, a_gram, system, states)
+                                       mats, work_n, a_gram)
     return code, t_lo, t_hi
 
 
