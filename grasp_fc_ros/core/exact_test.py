@@ -166,7 +166,7 @@ def solve_exact(grasps: GraspBatch, margin: str = "optimum", certificates: bool 
     model = model_of(grasps.torsional)
     if fast and model is HARD:
         # The kernel normalises each grasp itself: a numpy pass over the batch costs a
-        # sizeable share of the fast stage (docs/performance.md#exact-stage); the
+        # measurable share of the fast stage (docs/performance.md#exact-stage); the
         # Clarabel path below normalises only when it has grasps to solve.
         codes, t_lo, t_hi, _, forces, wrench = solve_fast(
             grasps.positions, grasps.normals, grasps.mu, margin == "optimum", certificates,
