@@ -164,20 +164,26 @@ def solve_exact(grasps: GraspBatch, margin: str = "optimum", certificates: bool 
         raise ValueError(f"margin must be one of {MARGIN_CHOICES}, got {margin!r}")
     n_grasps, n_contacts = grasps.mu.shape
     model = model_of(grasps.torsional)
-    unit, _, size = normalise_positions(grasps.positions)
     if fast and model is HARD:
+        # The kernel normalises each grasp itself: a numpy pass over the batch costs a
+        # measurable share of the fast stage (docs/performance.md#exact-stage); the
+        # Clarabel path below normalises only when it has grasps to solve.
         codes, t_lo, t_hi, _, forces, wrench = solve_fast(
-            unit, grasps.normals, grasps.mu, margin == "optimum", certificates)
+            grasps.positions, grasps.normals, grasps.mu, margin == "optimum", certificates,
+            normalise=True)
     else:
         codes = np.full(n_grasps, UNDECIDED)
         t_lo, t_hi = np.full(n_grasps, -np.inf), np.full(n_grasps, np.inf)
         forces = np.full((n_grasps, n_contacts, model.components), np.nan)
         wrench = np.full((n_grasps, 6), np.nan)
-    # gamma in the unit grasp's length: torques scale with the grasp, forces do not.
-    torsional_unit = None if model is HARD else grasps.torsional / size[:, None]
     force_closure = codes == FORCE_CLOSURE
     failure = np.zeros(n_grasps, dtype=bool)
     slow = np.flatnonzero(codes == UNDECIDED)
+    torsional_unit = None
+    if slow.size or model is not HARD:
+        unit, _, size = normalise_positions(grasps.positions)
+        # gamma in the unit grasp's length: torques scale with the grasp, forces do not.
+        torsional_unit = None if model is HARD else grasps.torsional / size[:, None]
     if slow.size:
         (force_closure[slow], t_lo[slow], t_hi[slow], failure[slow], forces[slow],
          wrench[slow]) = _solve_clarabel(grasps, unit, slow, model, torsional_unit)

@@ -60,7 +60,7 @@ from ._kernels.cones import (
     scaling_of,
 )
 from ._kernels.frames import normal_split, tangent_frames, work_at, wrench_rows
-from ._kernels.grasp_map import apply_grasp_map, certified_rank
+from ._kernels.grasp_map import apply_grasp_map, certified_rank, normalise_grasp
 from ._kernels.jit import jit, kernel_array, row
 from ._kernels.linear_algebra import cholesky, cholesky_solve
 from .tolerances import (
@@ -531,10 +531,12 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
 
 
 @jit
-def _solve_all(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_optimum: bool,
-               want_wrench: bool, signed_gap: float, signed_level: float) -> FastResult:
+def _solve_all(positions: np.ndarray, normals: np.ndarray, mu: np.ndarray, normalise: bool,
+               want_optimum: bool, want_wrench: bool, signed_gap: float,
+               signed_level: float) -> FastResult:
     """:func:`solve_fast` on kernel arrays (:func:`._kernels.jit.kernel_array`)."""
     n_grasps, n_contacts = mu.shape
+    unit = np.empty((n_contacts, 3))
     codes = np.empty(n_grasps, dtype=np.int8)
     t_lo = np.empty(n_grasps)
     t_hi = np.empty(n_grasps)
@@ -543,8 +545,16 @@ def _solve_all(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_optim
     wrench = np.full((n_grasps, 6), np.nan)
     work3, work6, rows, a_mat, scalings, mats, work_n, a_gram = _workspace(n_contacts)
     for g in range(n_grasps):
+        grasp = positions[g]
+        if normalise:
+            peak = 0.0
+            for i in range(n_contacts):
+                for k in range(3):
+                    peak = max(peak, abs(grasp[i, k]))
+            normalise_grasp(grasp, peak, unit)
+            grasp = unit
         codes[g], t_lo[g], t_hi[g], iterations[g] = _solve_grasp(
-            unit[g], normals[g], mu[g], want_optimum, want_wrench, signed_gap, signed_level,
+            grasp, normals[g], mu[g], want_optimum, want_wrench, signed_gap, signed_level,
             forces[g], wrench[g], work3, work6, rows, a_mat, scalings, mats, work_n, a_gram)
     return codes, t_lo, t_hi, iterations, forces, wrench
 
@@ -587,13 +597,16 @@ def solve_one(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray,
 
 def solve_fast(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray,
                want_optimum: bool = False, want_wrench: bool = False,
-               signed_gap: float = 0.0, signed_level: float = 0.0) -> FastResult:
+               signed_gap: float = 0.0, signed_level: float = 0.0,
+               normalise: bool = False) -> FastResult:
     """Run the fast exact stage on unit-size grasps.
 
     Parameters
     ----------
     unit : ndarray, shape (N, n, 3)
-        Positions centred at the centroid and scaled to unit size.
+        Positions centred at the centroid and scaled to unit size; with ``normalise``,
+        positions in any length unit, normalised in the kernel as
+        :func:`.certificates.normalise_positions` does (no numpy pass over the batch).
     normals : ndarray, shape (N, n, 3)
         Unit inward normals.
     mu : ndarray, shape (N, n)
@@ -607,6 +620,8 @@ def solve_fast(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray,
         the signed depth of the witness, ``wrench`` the last iterate's); 0: verdicts.
     signed_level : float
         The signed mode's target margin: the gap may stay larger far from it.
+    normalise : bool
+        ``unit`` holds positions still to be normalised.
 
     Returns
     -------
@@ -620,8 +635,8 @@ def solve_fast(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray,
     wrench : ndarray, shape (N, 6)
         Wrench about the centroid of the unit-size grasp giving t_hi, NaN where none.
     """
-    return _solve_all(kernel_array(unit), kernel_array(normals),
-                      kernel_array(mu), bool(want_optimum), bool(want_wrench),
+    return _solve_all(kernel_array(unit), kernel_array(normals), kernel_array(mu),
+                      bool(normalise), bool(want_optimum), bool(want_wrench),
                       float(signed_gap), float(signed_level))
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import force_interior_point, interior_point, positive_span
+from ._kernels.grasp_map import normalise_grasp
 from ._kernels.jit import jit
 from .interior_point import UNDECIDED, solve_one
 from .one_grasp_filter import passes_filter
@@ -44,7 +45,7 @@ def _prepare_one(positions: np.ndarray, normals: np.ndarray, mu: float, unit: np
     peak = _validate_one(positions, normals, mu, directions, friction)
     if not peak >= 0.0:
         return False
-    _normalise_positions(positions, peak, unit)
+    normalise_grasp(positions, peak, unit)
     return True
 
 
@@ -80,30 +81,6 @@ def _validate_one(positions: np.ndarray, normals: np.ndarray, mu: float,
             directions[i, k] = directions[i, k] / length
         friction[i] = mu
     return peak
-
-
-@jit
-def _normalise_positions(positions: np.ndarray, peak: float, unit: np.ndarray) -> None:
-    """:func:`.certificates.normalise_positions` of one grasp (n, 3) into ``unit``, given
-    its largest |coordinate| ``peak``: scale by the peak, centre at the mean, scale to
-    unit size."""
-    n = positions.shape[0]
-    if not peak > 0.0:
-        peak = 1.0
-    size = 0.0
-    for k in range(3):
-        total = 0.0
-        for i in range(n):
-            total += positions[i, k] / peak
-        centre = total / n
-        for i in range(n):
-            unit[i, k] = positions[i, k] / peak - centre
-            size = max(size, abs(unit[i, k]))
-    if not size > 0.0:
-        size = 1.0
-    for i in range(n):
-        for k in range(3):
-            unit[i, k] = unit[i, k] / size
 
 
 @jit
@@ -145,7 +122,7 @@ def decide_one(positions: np.ndarray, normals: np.ndarray, mu: float, filter_ori
         if not passes_filter(positions, directions, sin_half_angle,
                              filter_origins == ALL_ORIGINS):
             return FILTERED_OUT, np.nan, np.nan
-    _normalise_positions(positions, peak, unit)
+    normalise_grasp(positions, peak, unit)
     code, t_lo, t_hi = solve_one(unit, directions, friction, want_optimum)
     if code == UNDECIDED:
         return GENERAL_PATH, np.nan, np.nan

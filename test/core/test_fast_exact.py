@@ -50,6 +50,22 @@ def test_fast_stage_agrees_with_clarabel_on_box_grasps(n_contacts, mu):
     assert np.allclose(fast.margin, reference.margin, atol=2e-8)
 
 
+@pytest.mark.parametrize("scale, offset", [(1.0, 0.0), (1e-6, 3e-6), (1e12, -7e12)])
+def test_the_kernel_normalises_grasps_as_numpy_does(scale, offset):
+    # solve_exact lets the kernel normalise each grasp; its results must be bit for bit
+    # those of the numpy normalisation, at any length unit and position.
+    positions, normals = ellipsoid_grasps(np.random.default_rng(5), 300, 6)
+    positions = positions * scale + offset
+    grasps = prepare_grasps(positions, normals, 0.5)
+    unit = normalise_positions(grasps.positions)[0]
+    for optimum in (False, True):
+        in_kernel = solve_fast(grasps.positions, grasps.normals, grasps.mu, optimum,
+                               normalise=True)
+        in_numpy = solve_fast(unit, grasps.normals, grasps.mu, optimum)
+        for ours, theirs in zip(in_kernel, in_numpy, strict=True):
+            assert np.array_equal(ours, theirs, equal_nan=True)
+
+
 def test_margin_bound_mode_gives_the_same_verdicts_with_a_certified_interval():
     positions, normals = ellipsoid_grasps(np.random.default_rng(21), 300, 6)
     bound, reference = _both(positions, normals, MU_PAPER, margin="bound")

@@ -15,6 +15,39 @@ from .linear_algebra import cholesky, triangular_inverse_norm2
 
 
 @jit
+def normalise_grasp(positions: np.ndarray, peak: float, unit: np.ndarray) -> None:
+    """:func:`..certificates.normalise_positions` of one grasp, with the same arithmetic:
+    scale by the largest |coordinate| ``peak``, centre at the mean, scale to unit size.
+
+    Parameters
+    ----------
+    positions : ndarray, shape (n, 3)
+        Contact positions (any length unit).
+    peak : float
+        max |positions|; 0 (all contacts at the origin) is taken as 1.
+    unit : ndarray, shape (n, 3)
+        Output: the unit-size grasp, every coordinate in [-1, 1].
+    """
+    n = positions.shape[0]
+    if not peak > 0.0:
+        peak = 1.0
+    size = 0.0
+    for k in range(3):
+        total = 0.0
+        for i in range(n):
+            total += positions[i, k] / peak
+        centre = total / n
+        for i in range(n):
+            unit[i, k] = positions[i, k] / peak - centre
+            size = max(size, abs(unit[i, k]))
+    if not size > 0.0:
+        size = 1.0
+    for i in range(n):
+        for k in range(3):
+            unit[i, k] = unit[i, k] / size
+
+
+@jit
 def gram(unit: np.ndarray, out: np.ndarray) -> None:
     """G G^T = [[n I, -sum [p]x], [sum [p]x, sum (|p|^2 I - p p^T)]].
 
