@@ -57,6 +57,11 @@ class Decision:
         self._futures = futures
         self._ready = ready
 
+    def done(self) -> bool:
+        """Whether every chunk has been decided (or dropped): :meth:`result` would not
+        wait."""
+        return all(future.done() for future in self._futures)
+
     def result(self, cancelled: Callable[[], bool] = lambda: False) -> tuple[Verdicts, dict]:
         """The verdicts, in order, and the seconds per stage summed over the chunks.
 
