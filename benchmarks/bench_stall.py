@@ -162,8 +162,8 @@ def main(argv: list[str] | None = None) -> int:
     node_name = f"/grasp_fc_stall_{os.getpid()}/force_closure"  # as start_node names it
     try:
         megabytes = args.grasps * args.contacts * 6 * 8 / 1e6  # positions, normals
-        print(f"{args.grasps} grasps of {args.contacts} contacts (~{megabytes:.0f} MB as one message"
-              f"), one {SERVICE_FINGERS}-finger service call every "
+        print(f"{args.grasps} grasps of {args.contacts} contacts (~{megabytes:.0f} MB as one "
+              f"message), one {SERVICE_FINGERS}-finger service call every "
               f"{1e3 * args.period:g} ms")
         calls = iter(range(IDLE_CALLS + 1))
         idle = time_calls(client, grasp, args.period, lambda: next(calls) == IDLE_CALLS)

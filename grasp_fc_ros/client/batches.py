@@ -42,7 +42,6 @@ from grasp_fc_ros.interface.names import (
     resolve,
 )
 
-
 # Longest the sending thread waits for the node to acknowledge a part before it sends the
 # next one anyway (s): a slow or vanished node delays a batch's parts by this much each,
 # never forever (tuned: docs/performance.md#big-batches).
@@ -160,7 +159,7 @@ class BatchQueries:
     def unanswered(self) -> list[ContactArrayBatch]:
         """The messages sent and not answered yet (to publish again)."""
         with self._lock:
-            return [msg for msg, _ in self._in_flight.values()]
+            return [msg for msg, _, _ in self._in_flight.values()]
 
     def _on_message(self, msg: ForceClosureVerdictArray) -> None:
         if msg.client_id == self._client_id:
