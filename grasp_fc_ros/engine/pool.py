@@ -141,6 +141,7 @@ class EvaluationPool:
                  worker_command: Sequence[str] | None = None,
                  log: Callable[[str], None] | None = None):
         self.workers = workers
+        self.worker_timeout_s = worker_timeout_s
         self._chunk_contacts = chunk_contacts
         self._crew = WorkerCrew(workers, WORKER_COMMAND if worker_command is None
                                 else worker_command, worker_timeout_s, start_timeout_s,
