@@ -23,7 +23,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, cast
 
 from rclpy.callback_groups import CallbackGroup
 from rclpy.client import Client
@@ -246,6 +246,12 @@ class SubscriptionLoop(_WaitSetThread):
         self.subscription: Subscription = node.create_subscription(
             msg_type, topic, on_messages, qos, raw=raw, callback_group=OwnThreadGroup(),
             **subscription_options)
+        # Its QoS events (message lost, incompatible QoS) are the node's executor's to
+        # handle: this loop takes only the messages. (rclpy annotates event_handlers as
+        # one EventHandler; it is a list.)
+        for handler in cast("list[Any]", self.subscription.event_handlers):
+            handler.callback_group = node.default_callback_group
+            node.default_callback_group.add_entity(handler)
         self._start(node.context, (1, 1, 0, 0, 0, 0), name)
 
     def _add_entities(self, wait_set: Any) -> None:
