@@ -121,7 +121,8 @@ DIAGNOSTIC_KEYS = (
     ("overloaded", "queries refused at once because the node's queues were full"),
     ("messages_lost", "messages (queries, batches) the middleware reports lost before the "
                       "node took them: a publisher whose KEEP_LAST history overwrote them; "
-                      "they get no answer (Fast DDS reports them; an rmw that does not "
+                      "they get no answer. The rmw's count, a lower bound (Fast DDS may "
+                      "count a run skipped at once as one; an rmw that reports none "
                       "leaves 0)"),
     ("pending_single_queries", "single topic queries waiting to be decided"),
     ("pending_batch_grasps", "batch grasps waiting to be decided"),

@@ -139,8 +139,9 @@ class LaneContext:
     def subscription_events(self, topic: str) -> SubscriptionEventCallbacks:
         """QoS event callbacks for the subscription to ``topic``: messages the middleware
         reports lost (where the rmw does: Fast DDS does, e.g. for a publisher whose
-        KEEP_LAST history overwrote queries not yet delivered) are counted for
-        /diagnostics (``messages_lost``) and logged (throttled)."""
+        KEEP_LAST history overwrote queries not yet delivered, though a run of them
+        skipped at once may count as one) are counted for /diagnostics
+        (``messages_lost``) and logged (throttled)."""
         def on_lost(info: object) -> None:
             lost = int(getattr(info, "total_count_change", 0))
             self.statistics.count_lost(lost)

@@ -73,5 +73,5 @@ def test_queries_overwritten_by_a_keep_last_publisher_are_counted_lost(ros):
     received = int(after["received"]) - int(before["received"])
     lost = int(after["messages_lost"]) - int(before["messages_lost"])
     assert received < BURST
-    assert lost > 0 and received + lost <= BURST
+    assert lost > 0 and received + lost <= BURST  # the rmw may count a run as one
     assert int(after["answered"]) - int(before["answered"]) == received
