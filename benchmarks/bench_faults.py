@@ -2,16 +2,21 @@
 through the node and on the worker pool alone; no grasp may be lost to it.
 
 1. node: the force_closure node in its own process (max_batch = the batch's size), one
-   batch of --grasps 6-finger grasps through grasp_fc_ros.client.GraspClient; once one
-   of the node's worker processes (children of the node, found through /proc) is busy
-   on it, that worker is SIGKILLed.
+   batch of --grasps 6-finger grasps through grasp_fc_ros.client.GraspClient; as soon as
+   one of the node's worker processes (children of the node, found through /proc) uses
+   CPU on it, that worker is SIGKILLed.
 2. engine: the same grasps on grasp_fc_ros.engine.pool.EvaluationPool in this process,
    a busy worker SIGKILLed the same way.
 
 Each prints the grasps answered SOLVER_FAILURE (target 0) and the verdicts that differ
 from the core's (check_force_closure in this process on the same grasps: status and
 force closure; target 0), whether the kill came while the request was still being
-decided, and the seconds from sending to the answer.
+decided (a kill after it tests nothing and fails the target), and the seconds from
+sending to the answer.
+
+The core's kernels are compiled (a fresh clone: numba's cache is empty) or loaded in this
+process first, so that the node and its workers load them from the cache and start
+within seconds.
 
 Usage: python benchmarks/bench_faults.py [--grasps N] [--quick]
 """
@@ -24,14 +29,13 @@ import signal
 import sys
 import time
 from collections.abc import Callable, Iterable
-from concurrent.futures import Future
 from pathlib import Path
 
 import numpy as np
 import rclpy
 
 from bench_ros import process_cpu_s, start_node, stop_node, verdict
-from grasp_fc_ros.core import Status, check_force_closure
+from grasp_fc_ros.core import Status, check_force_closure, warm_up
 from grasp_fc_ros.engine.packed import PackedGrasps, Settings, Verdicts
 from grasp_fc_ros.engine.pool import EvaluationPool
 from grasp_fc_ros.objects import make_object, sample_grasps
@@ -39,10 +43,14 @@ from grasp_fc_ros.objects import make_object, sample_grasps
 N_FINGERS = 6
 MU = 0.5  # the node's default friction
 GRASPS = 200_000
-QUICK_GRASPS = 20_000
-# A worker counts as busy on the request once it has used this much more CPU (s).
-BUSY_CPU_S = 0.1
+# Enough for several chunks per worker (engine.chunking.CHUNK_CONTACTS), so that a worker
+# seen busy still has chunks of the request to lose.
+QUICK_GRASPS = 40_000
+# A worker counts as busy on the request once it has used this much CPU (s) since the
+# request was sent: an idle worker uses none, and the kernel counts in ticks of 10 ms.
+BUSY_CPU_S = 0.02
 REPLY_TIMEOUT_S = 600.0
+QUICK_REPLY_TIMEOUT_S = 120.0
 WORKER_MODULE = "grasp_fc_ros.engine.worker"
 
 
@@ -63,31 +71,42 @@ def worker_pids(parent: int) -> list[int]:
     return found
 
 
-def kill_when_busy(pids: Iterable[int], answer: Future) -> tuple[int, bool]:
-    """SIGKILL the first of ``pids`` to use BUSY_CPU_S more CPU: (its pid, whether the
-    request was still being decided then)."""
-    start = {pid: process_cpu_s(pid) for pid in pids}
-    deadline = time.monotonic() + REPLY_TIMEOUT_S
-    while time.monotonic() < deadline:
-        for pid, used in start.items():
+def cpu_used(pids: Iterable[int]) -> dict[int, float]:
+    """CPU seconds used so far by each of ``pids``."""
+    return {pid: process_cpu_s(pid) for pid in pids}
+
+
+def kill_when_busy(before: dict[int, float], done: Callable[[], bool],
+                   timeout_s: float) -> tuple[int | None, bool]:
+    """SIGKILL the first worker to use BUSY_CPU_S more CPU than ``before`` (its pid: CPU
+    seconds, taken before the request was sent): (its pid, whether the request was still
+    being decided then, i.e. not ``done()``), or (None, False) if it was decided first."""
+    deadline = time.monotonic() + timeout_s
+    while not done():
+        for pid, used in before.items():
             if process_cpu_s(pid) - used >= BUSY_CPU_S:
-                pending = not answer.done()
+                pending = not done()
                 os.kill(pid, signal.SIGKILL)
                 return pid, pending
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"no worker got busy on the request within {timeout_s:g} s")
         time.sleep(0.002)
-    raise RuntimeError("no worker got busy on the request")
+    return None, False
 
 
-def report(where: str, verdicts: Verdicts, expected, killed: int, pending: bool,
+def report(where: str, verdicts: Verdicts, expected, killed: int | None, pending: bool,
            seconds: float) -> bool:
-    """Print the failures and disagreements with the core; whether both are 0."""
+    """Print the failures and disagreements with the core; whether both are 0 and the
+    kill came while the request was being decided."""
     failures = int(np.count_nonzero(verdicts.status == Status.SOLVER_FAILURE))
     differ = int(np.count_nonzero((verdicts.status != expected.status)
                                   | (verdicts.force_closure != expected.force_closure)))
     lost = len(expected.status) - len(verdicts)
-    ok = failures == 0 and differ == 0 and lost == 0
-    print(f"{where}: worker {killed} SIGKILLed "
-          f"{'mid-request' if pending else 'AFTER the request was decided'}; answered in "
+    ok = failures == 0 and differ == 0 and lost == 0 and pending
+    killing = ("no worker SIGKILLed: the request was decided before one got busy"
+               if killed is None else f"worker {killed} SIGKILLed "
+               f"{'mid-request' if pending else 'AFTER the request was decided'}")
+    print(f"{where}: {killing}; answered in "
           f"{seconds:.1f} s; {failures} failures, {differ} verdicts differ from the core's"
           f"{f', {lost} grasps missing' if lost else ''}  [target 0 and 0: {verdict(ok)}]")
     if failures:
@@ -96,30 +115,26 @@ def report(where: str, verdicts: Verdicts, expected, killed: int, pending: bool,
     return ok
 
 
-def through_node(positions: np.ndarray, normals: np.ndarray, expected) -> bool:
+def through_node(positions: np.ndarray, normals: np.ndarray, expected,
+                 timeout_s: float) -> bool:
     node, client = start_node("faults", ["-p", f"max_batch:={len(positions)}"])
     try:
+        # The node serves once its pool has started every worker.
+        before = cpu_used(worker_pids(node.pid))
+        if not before:
+            raise RuntimeError("the node has no worker processes")
         began = time.perf_counter()
         answer = client.submit_batch(positions, normals)
-        killed, pending = kill_when_busy(wait_for_workers(node.pid), answer)
-        verdicts = answer.result(REPLY_TIMEOUT_S)
+        killed, pending = kill_when_busy(before, answer.done, timeout_s)
+        verdicts = answer.result(timeout_s)
         return report(f"node, one {len(positions)}-grasp batch", verdicts, expected, killed,
                       pending, time.perf_counter() - began)
     finally:
         stop_node(node, client)
 
 
-def wait_for_workers(parent: int) -> list[int]:
-    deadline = time.monotonic() + REPLY_TIMEOUT_S
-    while not (pids := worker_pids(parent)):
-        if time.monotonic() > deadline:
-            raise RuntimeError("the node has no worker processes")
-        time.sleep(0.05)
-    return pids
-
-
 def on_pool(positions: np.ndarray, normals: np.ndarray, expected,
-            log: Callable[[str], None]) -> bool:
+            log: Callable[[str], None], timeout_s: float) -> bool:
     n_grasps = len(positions)
     request = PackedGrasps(ids=np.arange(n_grasps, dtype=np.uint64),
                            counts=np.full(n_grasps, N_FINGERS),
@@ -127,12 +142,11 @@ def on_pool(positions: np.ndarray, normals: np.ndarray, expected,
                            mu=np.full(n_grasps * N_FINGERS, MU))
     pool = EvaluationPool(os.cpu_count() or 1, log=log)
     try:
+        before = cpu_used(pool.worker_pids())
         began = time.perf_counter()
         decision = pool.start(request, Settings())
-        answer: Future = Future()  # done once the decision's result is in
-        killed, pending = kill_when_busy(pool.worker_pids(), answer)
+        killed, pending = kill_when_busy(before, decision.done, timeout_s)
         verdicts, _ = decision.result()
-        answer.set_result(None)
         return report(f"engine, one {n_grasps}-grasp request on {pool.workers} workers",
                       verdicts, expected, killed, pending, time.perf_counter() - began)
     finally:
@@ -148,16 +162,22 @@ def main(argv: list[str] | None = None) -> int:
     n_grasps = args.grasps or (QUICK_GRASPS if args.quick else GRASPS)
     positions, normals = sample_grasps(make_object("box"), n_grasps, N_FINGERS,
                                        np.random.default_rng(0))
+    timeout_s = QUICK_REPLY_TIMEOUT_S if args.quick else REPLY_TIMEOUT_S
+    began = time.perf_counter()
+    warm_up()
+    print(f"the core's kernels compiled or loaded from numba's cache in "
+          f"{time.perf_counter() - began:.1f} s")
     began = time.perf_counter()
     expected = check_force_closure(positions, normals, MU)
     print(f"{n_grasps} {N_FINGERS}-finger box grasps; the core alone decided them in "
           f"{time.perf_counter() - began:.1f} s; {os.cpu_count()} CPUs")
     rclpy.init()
     try:
-        node_ok = through_node(positions, normals, expected)
+        node_ok = through_node(positions, normals, expected, timeout_s)
     finally:
         rclpy.try_shutdown()
-    engine_ok = on_pool(positions, normals, expected, log=lambda line: print(f"    pool: {line}"))
+    engine_ok = on_pool(positions, normals, expected,
+                        lambda line: print(f"    pool: {line}"), timeout_s)
     print(f"no grasp lost to a worker's death: {verdict(node_ok and engine_ok)}")
     return 0
 

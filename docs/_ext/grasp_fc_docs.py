@@ -119,6 +119,11 @@ DIAGNOSTIC_KEYS = (
     ("solver_failures", "verdicts SOLVER_FAILURE, overload and shutdown answers included"),
     ("callback_errors", "internal errors caught in a callback (each logged)"),
     ("overloaded", "queries refused at once because the node's queues were full"),
+    ("messages_lost", "messages (queries, batches) the middleware reports lost before the "
+                      "node took them: a publisher whose KEEP_LAST history overwrote them; "
+                      "they get no answer. The rmw's count, a lower bound (Fast DDS may "
+                      "count a run skipped at once as one; an rmw that reports none "
+                      "leaves 0)"),
     ("pending_single_queries", "single topic queries waiting to be decided"),
     ("pending_batch_grasps", "batch grasps waiting to be decided"),
     ("action_goals_queued", "``label_grasps`` goals waiting for a goal thread"),
@@ -126,6 +131,8 @@ DIAGNOSTIC_KEYS = (
     ("markers_published", "grasps whose markers were published (with ``publish_markers``)"),
     ("markers_dropped", "grasps whose markers were dropped because marker work fell "
                         "behind (with ``publish_markers``)"),
+    ("worker_restarts", "worker processes replaced since start: died, or silent for longer "
+                        "than ``worker_timeout_s`` plus a time per contact and killed"),
     ("action_goals_received", "goals received"),
     ("action_goals_succeeded", "goals that ended with all their verdicts"),
     ("action_goals_canceled", "goals canceled (their result holds the decided prefix)"),

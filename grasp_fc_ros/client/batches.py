@@ -1,27 +1,63 @@
-"""The client's batches: one ContactArrayBatch on ``contacts_batch``, a Future of its
-:class:`~grasp_fc_ros.engine.packed.Verdicts` from ``verdicts_batch``."""
+"""The client's batches: ContactArrayBatch messages on ``contacts_batch``, a Future of
+their :class:`~grasp_fc_ros.engine.packed.Verdicts` from ``verdicts_batch``.
+
+A batch of more than :data:`~grasp_fc_ros.interface.names.MAX_MESSAGE_CONTACTS`
+contacts goes out as several messages (parts) of whole grasps, each with a request id
+of its own; its Future resolves once every part is answered, with their verdicts in
+order. The parts go out from a thread of their own, each once the node has
+acknowledged the one before (for at most :data:`PART_ACK_WAIT_S`): no message is then
+large enough, and no burst of them long enough, to hold up a service call of the node
+or of this process behind it (docs/performance.md#big-batches).
+"""
 
 from __future__ import annotations
 
+import queue
 import threading
 from collections.abc import Callable
 from concurrent.futures import Future
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from grasp_fc_msgs.msg import ContactArrayBatch, ForceClosureVerdictArray
 from numpy.typing import ArrayLike
+from rclpy.duration import Duration
 from rclpy.node import Node
 
 from grasp_fc_ros.engine.packed import Verdicts
 from grasp_fc_ros.interface import wire
-from grasp_fc_ros.interface.conversions import grasps_to_batch_msg, verdict_array_to_numpy
+from grasp_fc_ros.interface.conversions import (
+    BatchArrays,
+    batch_arrays,
+    batch_msg,
+    grasps_to_batch_msg,
+    verdict_array_to_numpy,
+)
 from grasp_fc_ros.interface.names import (
     CONTACTS_BATCH_TOPIC,
+    MAX_MESSAGE_CONTACTS,
     QUERY_QOS,
     VERDICTS_BATCH_TOPIC,
     resolve,
 )
+
+# Longest the sending thread waits for the node to acknowledge a part before it sends the
+# next one anyway (s): a slow or vanished node delays a batch's parts by this much each,
+# never forever (tuned: docs/performance.md#big-batches).
+PART_ACK_WAIT_S = 1.0
+
+
+@dataclass
+class _Batch:
+    """One submitted batch: its Future and its parts' verdicts as they come in."""
+
+    future: Future
+    parts: list[Verdicts | None]
+    missing: int = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.missing = len(self.parts)
 
 
 class BatchQueries:
@@ -44,7 +80,8 @@ class BatchQueries:
         self._node = node
         self._client_id = client_id
         self._lock = threading.Lock()
-        self._in_flight: dict[int, tuple[ContactArrayBatch, Future]] = {}
+        # request id -> (the part's message, its batch, its index in the batch)
+        self._in_flight: dict[int, tuple[ContactArrayBatch, _Batch, int]] = {}
         self._next_request = 1
         self.publisher = node.create_publisher(
             ContactArrayBatch, resolve(node_name, CONTACTS_BATCH_TOPIC), QUERY_QOS)
@@ -52,9 +89,15 @@ class BatchQueries:
         node.create_subscription(ForceClosureVerdictArray, self.verdict_topic,
                                  self._on_serialized if serialized else self._on_message,
                                  QUERY_QOS, raw=serialized)
+        # Parts of large batches, in order, for the sending thread; None ends it.
+        self._parts: queue.SimpleQueue[ContactArrayBatch | None] = queue.SimpleQueue()
+        self._sender = threading.Thread(target=self._send_parts, daemon=True,
+                                        name="grasp_client_batches")
+        self._sender.start()
 
     @property
     def in_flight(self) -> int:
+        """Messages (batches, or parts of one) sent and not answered yet."""
         with self._lock:
             return len(self._in_flight)
 
@@ -73,18 +116,50 @@ class BatchQueries:
         msg.header.stamp = self._node.get_clock().now().to_msg()
         return msg
 
-    def submit(self, msg: ContactArrayBatch) -> Future:
-        """Publish a batch made by :meth:`message`; a Future of its Verdicts."""
-        future: Future = Future()
-        with self._lock:
-            self._in_flight[msg.request_id] = (msg, future)
-        self.publisher.publish(msg)
-        return future
+    def submit(self, positions: ArrayLike, normals: ArrayLike, mu: ArrayLike | None,
+               counts: ArrayLike | None, ids: ArrayLike | None, frame_id: str = "",
+               torsional_friction: ArrayLike | None = None) -> Future:
+        """Publish a batch (arguments as :meth:`message`), in parts of at most
+        MAX_MESSAGE_CONTACTS contacts; a Future of all its Verdicts, in order."""
+        ids = np.arange(n_grasps_of(positions, counts)) if ids is None else ids
+        fields = batch_arrays(ids, positions, normals, mu, counts, torsional_friction)
+        parts = split_batch(fields, MAX_MESSAGE_CONTACTS)
+        batch = _Batch(Future(), [None] * len(parts))
+        stamp = self._node.get_clock().now().to_msg()
+        for index, part in enumerate(parts):
+            with self._lock:
+                request_id, self._next_request = self._next_request, self._next_request + 1
+            msg = batch_msg(part, client_id=self._client_id, request_id=request_id)
+            msg.header.frame_id = frame_id
+            msg.header.stamp = stamp
+            with self._lock:
+                self._in_flight[request_id] = (msg, batch, index)
+            if len(parts) == 1:
+                self.publisher.publish(msg)
+            else:
+                self._parts.put(msg)
+        return batch.future
+
+    def _send_parts(self) -> None:
+        """The sending thread: publish queued parts one at a time, each once the node
+        acknowledged the previous one (or PART_ACK_WAIT_S passed)."""
+        wait = Duration(seconds=PART_ACK_WAIT_S)
+        while (msg := self._parts.get()) is not None:
+            with self._lock:
+                wanted = msg.request_id in self._in_flight  # not answered, not closed
+            if not wanted:
+                continue
+            try:
+                self.publisher.publish(msg)
+                self.publisher.wait_for_all_acked(wait)
+            except Exception:  # noqa: BLE001 - closed or shut down: sent again on reconnect
+                if not self._node.context.ok():
+                    return
 
     def unanswered(self) -> list[ContactArrayBatch]:
-        """The batches sent and not answered yet (to publish again)."""
+        """The messages sent and not answered yet (to publish again)."""
         with self._lock:
-            return [msg for msg, _ in self._in_flight.values()]
+            return [msg for msg, _, _ in self._in_flight.values()]
 
     def _on_message(self, msg: ForceClosureVerdictArray) -> None:
         if msg.client_id == self._client_id:
@@ -102,17 +177,71 @@ class BatchQueries:
             entry = self._in_flight.pop(request_id, None)
         if entry is None:
             return
+        _, batch, index = entry
+        if batch.future.done():
+            return  # an earlier part failed to read
         try:
-            entry[1].set_result(read())
+            verdicts = read()
         except Exception as exc:  # noqa: BLE001 - the caller learns why, not a timeout
-            entry[1].set_exception(exc)
+            batch.future.set_exception(exc)
+            return
+        with self._lock:
+            batch.parts[index] = verdicts
+            batch.missing -= 1
+            complete = batch.missing == 0
+        if complete:
+            parts = [part for part in batch.parts if part is not None]
+            batch.future.set_result(parts[0] if len(parts) == 1
+                                    else Verdicts.concatenate(parts))
 
     def close(self) -> list[Future]:
-        """The futures still unanswered (for the caller to cancel)."""
+        """Stop sending parts; the futures still unanswered (for the caller to cancel)."""
+        self._parts.put(None)
         with self._lock:
-            pending = [future for _, future in self._in_flight.values()]
+            pending = {id(batch.future): batch.future
+                       for _, batch, _ in self._in_flight.values()}
             self._in_flight.clear()
-        return pending
+        return list(pending.values())
+
+
+def split_batch(fields: BatchArrays, max_contacts: int) -> list[BatchArrays]:
+    """``fields`` in parts of whole grasps, in order, each of at most ``max_contacts``
+    contacts (a larger grasp alone in its part); ``[fields]`` if it fits in one, or if
+    its arrays do not match its counts (the node then refuses it whole, saying why).
+
+    Parameters
+    ----------
+    fields : BatchArrays
+        A batch's arrays (:func:`~grasp_fc_ros.interface.conversions.batch_arrays`).
+    max_contacts : int
+        Contacts per part at most.
+
+    Returns
+    -------
+    list of BatchArrays
+        Views into ``fields``' arrays (no copies).
+    """
+    counts = fields.contact_counts.astype(np.int64)
+    total = int(counts.sum())
+    matching = (len(counts) == len(fields.ids) and len(fields.positions) == 3 * total
+                and len(fields.normals) == 3 * total
+                and all(len(values) in (0, total) for values in
+                        (fields.friction_coefficients, fields.torsional_friction)))
+    if total <= max_contacts or not matching:
+        return [fields]
+    ends = np.cumsum(counts)  # contacts up to and including grasp i
+    parts, first = [], 0
+    while first < len(counts):
+        base = int(ends[first - 1]) if first else 0
+        last = max(int(np.searchsorted(ends, base + max_contacts, side="right")), first + 1)
+        end = int(ends[last - 1])
+        per_contact = [values[base:end] if len(values) else values
+                       for values in (fields.friction_coefficients, fields.torsional_friction)]
+        parts.append(BatchArrays(fields.ids[first:last], fields.contact_counts[first:last],
+                                 fields.positions[3 * base:3 * end],
+                                 fields.normals[3 * base:3 * end], *per_contact))
+        first = last
+    return parts
 
 
 def n_grasps_of(positions: Any, counts: Any) -> int:

@@ -161,15 +161,16 @@ class GraspClient:
                      counts: ArrayLike | None = None, ids: ArrayLike | None = None,
                      frame_id: str = "", torsional_friction: ArrayLike | None = None
                      ) -> Future:
-        """Send grasps as one ContactArrayBatch; return a Future of their :class:`Verdicts`.
+        """Send grasps as ContactArrayBatch messages (one, or parts of whole grasps beyond
+        MAX_MESSAGE_CONTACTS contacts); return a Future of all their :class:`Verdicts`.
 
         ``positions``, ``normals``: (N, n, 3), or stacked (K, 3) with ``counts`` (N,);
         ``mu``: None (node default), a scalar or one value per contact; ``ids``: (N,),
         default 0..N-1; ``torsional_friction``: None (hard contacts), a scalar or one
         value per contact (m).
         """
-        return self._batches.submit(self._batches.message(
-            positions, normals, mu, counts, ids, frame_id, torsional_friction))
+        return self._batches.submit(positions, normals, mu, counts, ids, frame_id,
+                                    torsional_friction)
 
     def check_batch(self, positions: ArrayLike, normals: ArrayLike, mu: ArrayLike | None = None,
                     counts: ArrayLike | None = None, ids: ArrayLike | None = None,

@@ -57,6 +57,11 @@ class Decision:
         self._futures = futures
         self._ready = ready
 
+    def done(self) -> bool:
+        """Whether every chunk has been decided (or dropped): :meth:`result` would not
+        wait."""
+        return all(future.done() for future in self._futures)
+
     def result(self, cancelled: Callable[[], bool] = lambda: False) -> tuple[Verdicts, dict]:
         """The verdicts, in order, and the seconds per stage summed over the chunks.
 
@@ -136,6 +141,7 @@ class EvaluationPool:
                  worker_command: Sequence[str] | None = None,
                  log: Callable[[str], None] | None = None):
         self.workers = workers
+        self.worker_timeout_s = worker_timeout_s
         self._chunk_contacts = chunk_contacts
         self._crew = WorkerCrew(workers, WORKER_COMMAND if worker_command is None
                                 else worker_command, worker_timeout_s, start_timeout_s,

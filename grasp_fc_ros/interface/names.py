@@ -48,3 +48,12 @@ def resolve(node_name: str, name: str) -> str:
         return name
     namespace = node_name.rpartition("/")[0].strip("/")
     return f"/{namespace}/{name}" if namespace else f"/{name}"
+
+
+# Most contacts a client puts in one ContactArrayBatch: GraspClient sends a larger batch
+# as several messages (parts) of whole grasps, one after the other, and joins their
+# answers. A part with every per-contact field (64 bytes a contact) stays under Fast
+# DDS's default 512 KiB shared-memory segment: larger messages, or many sent at once,
+# overflowed it, and a service request sent meanwhile from the same process was lost
+# and repaired seconds later (tuned: docs/performance.md#big-batches).
+MAX_MESSAGE_CONTACTS = 6_144

@@ -23,7 +23,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, cast
 
 from rclpy.callback_groups import CallbackGroup
 from rclpy.client import Client
@@ -246,12 +246,27 @@ class SubscriptionLoop(_WaitSetThread):
         self.subscription: Subscription = node.create_subscription(
             msg_type, topic, on_messages, qos, raw=raw, callback_group=OwnThreadGroup(),
             **subscription_options)
-        self._start(node.context, (1, 1, 0, 0, 0, 0), name)
+        # Its QoS events (message lost, incompatible QoS) are handled here too: in the
+        # node's executor, their wait set woke the executor at every message (measured:
+        # docs/performance.md#single-topic). rclpy annotates event_handlers as one
+        # EventHandler; it is a list.
+        self._events: list[Any] = list(cast("list[Any]", self.subscription.event_handlers))
+        self._start(node.context, (1, 1, 0, 0, 0, len(self._events)), name)
 
     def _add_entities(self, wait_set: Any) -> None:
         wait_set.add_subscription(self.subscription.handle)
+        for event in self._events:
+            event.add_to_wait_set(wait_set)
 
     def _on_ready(self, wait_set: Any) -> None:
+        for event in self._events:
+            if event.is_ready(wait_set):
+                taken = event.take_data()
+                if taken:
+                    try:
+                        event.callback(taken)
+                    except Exception as exc:  # noqa: BLE001 - one event must not end the loop
+                        self._on_error(exc)
         handle = self.subscription.handle
         if handle.pointer not in wait_set.get_ready_entities("subscription"):
             return

@@ -85,7 +85,9 @@ class BatchLane:
         node.create_subscription(ContactArrayBatch, CONTACTS_BATCH_TOPIC,
                                  self._on_serialized if serialized else self._on_batch,
                                  copy.copy(QUERY_QOS), raw=serialized,
-                                 qos_overriding_options=QoSOverridingOptions.with_default_policies())
+                                 qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+                                 event_callbacks=context.subscription_events(
+                                     CONTACTS_BATCH_TOPIC))
         self._threads = [start_thread("next_batch", self._start_next, self.stopping, context),
                          start_thread("answer_batch", self._answer_oldest, self.stopping,
                                       context)]

@@ -3,7 +3,8 @@
 One ``diagnostic_msgs/DiagnosticStatus`` named ``<node's full name>: force-closure
 queries``: WARN while any solver failure or internal error has been counted, else OK;
 its key values are :meth:`~grasp_fc_ros.node.statistics.Statistics.key_values` plus
-every lane's :meth:`~grasp_fc_ros.node.lane.Lane.counts`. The same timer warns once when
+every lane's :meth:`~grasp_fc_ros.node.lane.Lane.counts` and the node's own counts
+(worker processes replaced, messages lost at its subscriptions). The same timer warns once when
 another node has this node's name.
 """
 
@@ -32,13 +33,17 @@ class Diagnostics:
         The lanes whose counts are reported (read at each publication).
     on_error : callable(what, exception)
         Told about a publication that failed (diagnostics never stop the node).
+    node_counts : callable () -> dict of str to int, optional
+        Counts of the node itself, beside the lanes' (read at each publication).
     """
 
     def __init__(self, node: Node, statistics: Statistics, lanes: Callable[[], Sequence[Lane]],
-                 on_error: Callable[[str, Exception], None]):
+                 on_error: Callable[[str, Exception], None],
+                 node_counts: Callable[[], dict[str, int]] = dict):
         self._node = node
         self._statistics = statistics
         self._lanes = lanes
+        self._node_counts = node_counts
         self._on_error = on_error
         self._duplicate_warned = False
         self._publisher = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
@@ -54,6 +59,7 @@ class Diagnostics:
         counts: dict[str, int] = {}
         for lane in self._lanes():
             counts.update(lane.counts())
+        counts.update(self._node_counts())
         return DiagnosticStatus(
             level=DiagnosticStatus.WARN if failures else DiagnosticStatus.OK,
             name=f"{self._node.get_fully_qualified_name()}: force-closure queries",

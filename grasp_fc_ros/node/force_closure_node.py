@@ -92,7 +92,9 @@ class ForceClosureNode(Node):
         self._own_pool = pool is None
         self.statistics = Statistics()
         self.parameters = LiveParameters(self)
-        self.pool = pool if pool is not None else EvaluationPool(self.parameters.workers)
+        self.pool = pool if pool is not None else EvaluationPool(
+            self.parameters.workers, worker_timeout_s=self.parameters.worker_timeout_s,
+            log=self.get_logger().warning)
         try:
             self._start_lanes()
         except BaseException:
@@ -123,11 +125,16 @@ class ForceClosureNode(Node):
         self.service_requests = self._add(ServiceLane(self, context, self.markers))
         self.label_action = self._add(LabelAction(self, context))
         self.diagnostics = Diagnostics(self, self.statistics, lambda: self._lanes,
-                                       context.internal_error)
+                                       context.internal_error, self._node_counts)
         self.get_logger().info(
             f"ready: topics contacts, contacts_batch; services check_force_closure, "
             f"compute_contact_forces, clear_markers; action label_grasps; "
             f"settings {self.parameters.settings}; workers {self.pool.workers}")
+
+    def _node_counts(self) -> dict[str, int]:
+        """What /diagnostics reports beside the lanes' counts: the worker processes
+        replaced since start (dead or hung)."""
+        return {"worker_restarts": self.pool.worker_restarts}
 
     def _add(self, lane: LaneT) -> LaneT:
         self._lanes.append(lane)

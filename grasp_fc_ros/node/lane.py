@@ -19,6 +19,7 @@ from typing import NamedTuple, Protocol
 
 import numpy as np
 from rclpy.context import Context
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.impl.rcutils_logger import RcutilsLogger
 
 from grasp_fc_ros.core import Status
@@ -134,6 +135,23 @@ class LaneContext:
         self.statistics.count_error()
         if self.may_log("internal error"):
             self.logger.error(f"internal error while answering {what}: {exc!r}")
+
+    def subscription_events(self, topic: str) -> SubscriptionEventCallbacks:
+        """QoS event callbacks for the subscription to ``topic``: messages the middleware
+        reports lost (where the rmw does: Fast DDS does, e.g. for a publisher whose
+        KEEP_LAST history overwrote queries not yet delivered, though a run of them
+        skipped at once may count as one) are counted for /diagnostics
+        (``messages_lost``) and logged (throttled)."""
+        def on_lost(info: object) -> None:
+            lost = int(getattr(info, "total_count_change", 0))
+            self.statistics.count_lost(lost)
+            if lost and self.may_log(f"lost {topic}"):
+                self.logger.warning(
+                    f"{lost} messages on {topic} lost before the node took them (their "
+                    "publisher's QoS history overwrote them; use RELIABLE KEEP_ALL, see "
+                    "grasp_fc_ros.interface.names.QUERY_QOS); they get no answer")
+
+        return SubscriptionEventCallbacks(message_lost=on_lost)
 
     def warn_invalid(self, verdicts: Verdicts) -> None:
         """Log (throttled) that some verdicts are INVALID_INPUT, with an example."""

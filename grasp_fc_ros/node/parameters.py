@@ -22,6 +22,7 @@ from rclpy.parameter import Parameter
 from grasp_fc_ros.core import ORIGIN_CHOICES
 from grasp_fc_ros.core.tolerances import MAX_FRICTION_COEFFICIENT
 from grasp_fc_ros.engine.packed import MIN_CONTACTS, Settings
+from grasp_fc_ros.engine.worker_crew import WORKER_TIMEOUT_S
 from grasp_fc_ros.markers.build import DEFAULT_LIFETIME_S
 from grasp_fc_ros.markers.publisher import (
     DEFAULT_MARKER_SAMPLE,
@@ -37,6 +38,11 @@ MAX_WORKERS = 64
 # Worker processes by default: the 2 cores of the machines this was measured on. A fixed
 # number, so that a params file and the docs say the same on every machine.
 DEFAULT_WORKERS = 2
+
+# Range of worker_timeout_s (s): below a second a loaded machine's scheduling alone would
+# count healthy workers as hung; an hour is beyond any chunk's time (docs/node.rst).
+MIN_WORKER_TIMEOUT_S = 1.0
+MAX_WORKER_TIMEOUT_S = 3600.0
 
 # Longest accepted marker_lifetime (s): a year; 0 already means forever.
 MAX_MARKER_LIFETIME_S = 365 * 24 * 3600.0
@@ -87,6 +93,13 @@ PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
     "workers": (DEFAULT_WORKERS, _int_descriptor(
         "Worker processes deciding large batches and service requests (0: none, decide "
         "in the node's threads); set at start-up", 0, MAX_WORKERS, read_only=True)),
+    "worker_timeout_s": (WORKER_TIMEOUT_S, ParameterDescriptor(
+        type=ParameterType.PARAMETER_DOUBLE, read_only=True,
+        description="Least seconds a worker process may take to answer a chunk (plus a "
+                    "time per contact of the chunk) before it counts as hung: it is then "
+                    "killed and replaced, and its chunk decided again; set at start-up",
+        floating_point_range=[FloatingPointRange(from_value=MIN_WORKER_TIMEOUT_S,
+                                                 to_value=MAX_WORKER_TIMEOUT_S)])),
     "publish_markers": (False, _bool_descriptor(
         "Publish visualization_msgs/MarkerArray on 'markers' for answered "
         "queries (built off the verdict path; dropped, never the verdicts, "
@@ -117,6 +130,10 @@ def check_parameter(name: str, value: Any) -> str:
                                             and 0 <= value <= MAX_MARKER_LIFETIME_S):
         return (f"marker_lifetime must be finite, >= 0 and <= {MAX_MARKER_LIFETIME_S:g} s, "
                 f"got {value}")
+    elif name == "worker_timeout_s" and not (
+            math.isfinite(value) and MIN_WORKER_TIMEOUT_S <= value <= MAX_WORKER_TIMEOUT_S):
+        return (f"worker_timeout_s must be finite, >= {MIN_WORKER_TIMEOUT_S:g} and <= "
+                f"{MAX_WORKER_TIMEOUT_S:g} s, got {value}")
     elif name == "filter_origins" and value not in ORIGIN_CHOICES:
         return f"filter_origins must be one of {ORIGIN_CHOICES}, got {value!r}"
     return ""
@@ -142,6 +159,7 @@ class LiveParameters:
         for name, (default, descriptor) in PARAMETERS.items():
             node.declare_parameter(name, default, descriptor)
         self.workers: int = node.get_parameter("workers").value
+        self.worker_timeout_s: float = node.get_parameter("worker_timeout_s").value
         self._warn_unknown_overrides(node)
 
     def on_marker_settings(self, listener: Callable[[MarkerSettings], None]) -> None:

@@ -107,7 +107,8 @@ class SingleQueryLane:
             node, ContactArray, CONTACTS_TOPIC, copy.copy(QUERY_QOS), self._on_queries,
             lambda exc: context.internal_error("single-grasp queries", exc),
             raw=serialized, max_take=MAX_TAKE, name="contacts",
-            qos_overriding_options=QoSOverridingOptions.with_default_policies())
+            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+            event_callbacks=context.subscription_events(CONTACTS_TOPIC))
         self._thread = start_thread("single_queries", self._answer_queued, self.stopping,
                                     context)
 

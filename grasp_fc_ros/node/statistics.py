@@ -27,6 +27,9 @@ class Statistics:
         self.answered = 0
         self.callback_errors = 0
         self.overloaded = 0
+        # Messages the middleware reports lost before the node's subscriptions took them
+        # (rclpy's message_lost QoS event; a publisher's KEEP_LAST history overwrote them).
+        self.messages_lost = 0
         self.seconds = {"conversion_s": 0.0, "validation_s": 0.0, "filter_s": 0.0,
                         "exact_s": 0.0}
         self.processing_s: deque[float] = deque(maxlen=TIMING_WINDOW)
@@ -82,6 +85,10 @@ class Statistics:
         with self._lock:
             self.callback_errors += 1
 
+    def count_lost(self, n_messages: int) -> None:
+        with self._lock:
+            self.messages_lost += n_messages
+
     def count_overloaded(self, n_queries: int) -> None:
         with self._lock:
             self.overloaded += n_queries
@@ -106,6 +113,7 @@ class Statistics:
                 "solver_failures": counts[Status.SOLVER_FAILURE],
                 "callback_errors": self.callback_errors,
                 "overloaded": self.overloaded,
+                "messages_lost": self.messages_lost,
                 **pending,
                 **{f"action_goals_{key}": value for key, value in self.goals.items()},
                 "action_grasps_undecided": self.goal_grasps_undecided,

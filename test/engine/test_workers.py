@@ -161,7 +161,9 @@ def test_started_requests_are_decided_side_by_side_and_collected_in_any_order(gr
     tiny = first.slice(0, 2)  # decided inline, at start
     pool, _ = make_pool(workers=1, chunk_contacts=120)  # 20 grasps a chunk, one worker
     decisions = [pool.start(part, Settings()) for part in (first, second, tiny)]
+    assert decisions[2].done()  # inline: decided before start returned
     results = [decision.result()[0] for decision in reversed(decisions)][::-1]
+    assert all(decision.done() for decision in decisions)
     for part, got in zip((first, second, tiny), results, strict=True):
         inline, _ = evaluate(part, Settings())
         np.testing.assert_array_equal(got.ids, inline.ids)

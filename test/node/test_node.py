@@ -324,6 +324,7 @@ def test_without_filter_nothing_is_filtered_and_verdicts_agree(client, fc_node, 
     ("max_contacts", 1, "out of range"),
     ("max_batch", 0, "out of range"),
     ("workers", 1, "read-only"),
+    ("worker_timeout_s", 60.0, "read-only"),
 ])
 def test_bad_parameter_values_are_rejected_with_a_reason(fc_node, name, value, why):
     before = fc_node.get_parameter(name).value
@@ -331,6 +332,18 @@ def test_bad_parameter_values_are_rejected_with_a_reason(fc_node, name, value, w
     assert not result.successful
     assert why in result.reason
     assert fc_node.get_parameter(name).value == before
+
+
+def test_worker_timeout_reaches_the_pool_and_is_checked_at_start(ros):
+    node = ForceClosureNode(parameter_overrides=[Parameter("workers", value=1),
+                                                 Parameter("worker_timeout_s", value=5.0)])
+    try:
+        assert node.pool.worker_timeout_s == 5.0
+    finally:
+        node.destroy_node()
+    with pytest.raises(Exception, match="worker_timeout_s"):
+        ForceClosureNode(parameter_overrides=[Parameter("workers", value=0),
+                                              Parameter("worker_timeout_s", value=0.5)])
 
 
 def test_good_parameter_values_are_accepted_and_used(client, fc_node, grasps):
@@ -389,7 +402,7 @@ def test_diagnostics_report_exact_counter_changes(client, grasps):
             "pending_single_queries", "pending_batch_grasps", "conversion_time_total_s",
             "validation_time_total_s", "filter_time_total_s", "exact_time_total_s",
             "processing_time_mean_ms", "processing_time_p99_ms",
-            "markers_published", "markers_dropped"}
+            "markers_published", "markers_dropped", "worker_restarts", "messages_lost"}
     # The label_grasps action's goal counters (test_action.py checks their values).
     keys |= {"action_goals_received", "action_goals_succeeded", "action_goals_canceled",
              "action_goals_aborted", "action_goals_queued", "action_goals_running",
@@ -413,6 +426,8 @@ def test_diagnostics_report_exact_counter_changes(client, grasps):
         **{key: 0 for key in keys if key.startswith("action_")},  # no goal was sent
         "markers_published": 0,  # publish_markers is off by default
         "markers_dropped": 0,
+        "worker_restarts": 0,
+        "messages_lost": 0,
     }
     for key in ("conversion_time_total_s", "validation_time_total_s", "filter_time_total_s",
                 "exact_time_total_s"):

@@ -145,10 +145,12 @@ def replaced(served, killed: int) -> None:
 def test_a_worker_killed_mid_batch_costs_no_grasp(grasps, served):
     client, workers = served
     positions, normals, expected = grasps
+    restarts = int(client.next_diagnostics()["worker_restarts"])
     answer = client.submit_batch(positions, normals)
     killed = kill_a_busy_worker(set(workers), answer)
     assert_as_core(answer.result(timeout=WAIT_S), expected)
     replaced(served, killed)
+    assert int(client.next_diagnostics()["worker_restarts"]) == restarts + 1
 
 
 def test_a_worker_killed_mid_goal_costs_no_grasp(grasps, served):

@@ -250,17 +250,18 @@ def test_client_resubmits_after_the_node_is_killed_and_restarted(ros, grasps):
         assert client.wait_for_node(30.0)
         big = 1000  # 100,000 grasps: seconds of work, so the kill lands mid-batch
         batch = client.submit_batch(np.tile(positions, (big, 1, 1)), np.tile(normals, (big, 1, 1)))
+        # The batch goes in parts (MAX_MESSAGE_CONTACTS): kill once the node has some.
         deadline = time.monotonic() + 60.0
-        while int(client.next_diagnostics()["received"]) < big * len(positions):
+        while int(client.next_diagnostics()["received"]) == 0:
             assert time.monotonic() < deadline, "the node never received the batch"
         singles = [client.submit(positions[i], normals[i]) for i in range(50)]
-        process.proc.kill()  # SIGKILL mid-batch: nothing is answered
+        process.proc.kill()  # SIGKILL mid-batch: the parts not answered are sent again
         process.proc.wait(timeout=10)
         assert not batch.done()
         process = NodeProcess(command)
         verdicts = batch.result(timeout=120.0)
         answers = [f.result(timeout=60.0) for f in singles]
-        assert client.resubmitted >= big * len(positions)
+        assert client.resubmitted > 0
     finally:
         client.close()
         process.stop(signal.SIGKILL)

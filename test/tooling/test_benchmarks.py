@@ -107,13 +107,20 @@ EXPECTED: dict[str, Run] = {
         Line(rf"^one 6-finger grasp through check_force_closure \(.*\): {N} ms median of 200$",
              count=5),
     ), timeout_s=600),
-    # As the test it replaces: bench_faults' own quick form is being shortened elsewhere.
+    # A worker SIGKILLed mid-request, through the node and on the pool alone.
     "bench_faults": Run(lines=(
         Line(r"^node,.*worker \d+ SIGKILLed .*; 0 failures, 0 verdicts differ from the "
              r"core's"),
         Line(r"^engine,.*worker \d+ SIGKILLed .*; 0 failures, 0 verdicts differ from the "
              r"core's"),
         Line(r"no grasp lost to a worker's death: meets target"),
+    )),
+    # Service calls beside a 12-contact batch from another process and this one; the
+    # batch answered in full both times.
+    "bench_stall": Run(lines=(
+        *(Line(rf"batch from {source}: p50 {N} ms, p99 {N} ms, max {N} ms over {N} calls")
+          for source in ("another process", "this process")),
+        Line(r"the batch answered in [\d.]+ s, (\d+) of \1 grasps", count=2),
     )),
     "bench_filter": Run(lines=(
         # n, mu, filter ms, exact ms, hit rate in [0, 1], saving, pays.

@@ -1,0 +1,94 @@
+"""GraspClient sends a large batch in parts of at most MAX_MESSAGE_CONTACTS contacts and
+joins their answers; a service call made meanwhile is answered (no timing asserted:
+bench_stall.py measures the latency)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from grasp_fc_msgs.msg import ContactArrayBatch
+
+from grasp_fc_ros.client import GraspClient
+from grasp_fc_ros.client.batches import split_batch
+from grasp_fc_ros.core import check_force_closure
+from grasp_fc_ros.interface.conversions import batch_arrays
+from grasp_fc_ros.interface.names import MAX_MESSAGE_CONTACTS, QUERY_QOS
+from grasp_fc_ros.objects import make_object, sample_grasps
+
+pytestmark = pytest.mark.timeout(180)
+
+REPLY_TIMEOUT_S = 120.0
+
+
+def mixed_batch(n_grasps: int, seed: int):
+    """(positions (K, 3), normals (K, 3), counts (N,), mu (K,)): grasps of 3-12 contacts."""
+    rng = np.random.default_rng(seed)
+    counts = rng.integers(3, 13, n_grasps)
+    surface = make_object("box")
+    grasps = [sample_grasps(surface, 1, int(n), rng) for n in counts]
+    positions = np.concatenate([p[0] for p, _ in grasps])
+    normals = np.concatenate([n[0] for _, n in grasps])
+    return positions, normals, counts, rng.uniform(0.2, 0.8, len(positions))
+
+
+def test_parts_hold_whole_grasps_in_order_within_the_bound():
+    positions, normals, counts, mu = mixed_batch(400, 1)
+    fields = batch_arrays(np.arange(400) + 7, positions, normals, mu, counts)
+    parts = split_batch(fields, 500)
+    assert len(parts) >= -(-int(counts.sum()) // 500) and len(parts) > 1
+    for part in parts:
+        contacts = int(part.contact_counts.sum())
+        assert contacts <= 500
+        assert len(part.positions) == len(part.normals) == 3 * contacts
+        assert len(part.friction_coefficients) == contacts
+        assert len(part.torsional_friction) == 0  # hard contacts: the field stays empty
+    for name, whole in zip(fields._fields, fields, strict=True):
+        joined = np.concatenate([getattr(part, name) for part in parts])
+        np.testing.assert_array_equal(joined, whole, err_msg=name)
+
+
+def test_a_grasp_larger_than_the_bound_goes_alone_and_small_batches_whole():
+    positions, normals, counts, mu = mixed_batch(30, 2)
+    fields = batch_arrays(np.arange(30), positions, normals, mu, counts)
+    assert split_batch(fields, int(counts.sum())) == [fields]
+    parts = split_batch(fields, 2)  # every grasp has more contacts than that
+    assert [len(part.ids) for part in parts] == [1] * 30
+    # Arrays that do not match the counts are sent whole, for the node to refuse.
+    short = fields._replace(positions=fields.positions[:-3])
+    assert split_batch(short, 2) == [short]
+
+
+def test_large_batch_goes_in_parts_and_comes_back_whole_beside_a_service_call(own_node):
+    _, _, raw = own_node("/parts_test", max_batch=5000)
+    n_grasps = 2000
+    positions, normals, counts, mu = mixed_batch(n_grasps, 3)
+    assert counts.sum() > 2 * MAX_MESSAGE_CONTACTS
+    sizes: list[int] = []  # contacts of every message on contacts_batch
+    raw.node.create_subscription(ContactArrayBatch, "/parts_test/contacts_batch",
+                                 lambda msg: sizes.append(sum(msg.contact_counts)), QUERY_QOS)
+    client = GraspClient("/parts_test/force_closure")
+    try:
+        assert client.wait_for_node(REPLY_TIMEOUT_S)
+        ids = np.arange(n_grasps) + 1000
+        answer = client.submit_batch(positions, normals, mu, counts=counts, ids=ids)
+        single = sample_grasps(make_object("box"), 1, 6, np.random.default_rng(4))
+        called = client.call(*single, timeout=REPLY_TIMEOUT_S)
+        verdicts = answer.result(REPLY_TIMEOUT_S)
+    finally:
+        client.close()
+    assert len(called) == 1
+    np.testing.assert_array_equal(verdicts.ids, ids)
+    ends = np.cumsum(counts)
+    expected = [check_force_closure(positions[end - n:end][None], normals[end - n:end][None],
+                                    mu[end - n:end][None]) for n, end in zip(counts, ends,
+                                                                             strict=True)]
+    np.testing.assert_array_equal(verdicts.status, [e.status[0] for e in expected])
+    np.testing.assert_array_equal(verdicts.force_closure,
+                                  [e.force_closure[0] for e in expected])
+    deadline = time.monotonic() + 5.0  # the listener hears the parts on its spin thread
+    while sum(sizes) < counts.sum() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert sum(sizes) == counts.sum()
+    assert len(sizes) > 2 and max(sizes) <= MAX_MESSAGE_CONTACTS
