@@ -1,9 +1,11 @@
 """The client's batches: one ContactArrayBatch on ``contacts_batch``, a Future of its
-:class:`~grasp_fc_ros.engine.packed.Verdicts` from ``verdicts_batch``."""
+:class:`~grasp_fc_ros.engine.packed.Verdicts` from the client's reply topic
+``verdicts_batch/c<client id>``."""
 
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable
 from concurrent.futures import Future
 from typing import Any
@@ -13,6 +15,7 @@ from grasp_fc_msgs.msg import ContactArrayBatch, ForceClosureVerdictArray
 from numpy.typing import ArrayLike
 from rclpy.node import Node
 
+from grasp_fc_ros.client.pending import RESEND_AFTER_S, Pending, due, publish, resend_after
 from grasp_fc_ros.engine.packed import Verdicts
 from grasp_fc_ros.interface import wire
 from grasp_fc_ros.interface.conversions import grasps_to_batch_msg, verdict_array_to_numpy
@@ -20,6 +23,7 @@ from grasp_fc_ros.interface.names import (
     CONTACTS_BATCH_TOPIC,
     QUERY_QOS,
     VERDICTS_BATCH_TOPIC,
+    reply_topic,
     resolve,
 )
 
@@ -34,21 +38,26 @@ class BatchQueries:
     node_name : str
         The force_closure node's full name.
     client_id : int
-        Carried by every batch; answers to other clients are skipped unread.
+        Carried by every batch; names the reply topic the answers come on.
     serialized : bool
         Take the answers as bytes (:mod:`grasp_fc_ros.interface.wire`: much faster than
         rclpy's message for a large batch, docs/performance.md#wire-format).
+    resend_s : float
+        Seconds without an answer after which a batch is sent again, plus
+        :data:`~grasp_fc_ros.client.pending.RESEND_PER_GRASP_S` per grasp.
     """
 
-    def __init__(self, node: Node, node_name: str, client_id: int, serialized: bool):
+    def __init__(self, node: Node, node_name: str, client_id: int, serialized: bool,
+                 resend_s: float = RESEND_AFTER_S):
         self._node = node
         self._client_id = client_id
+        self._resend_s = resend_s
         self._lock = threading.Lock()
-        self._in_flight: dict[int, tuple[ContactArrayBatch, Future]] = {}
+        self._in_flight: dict[int, Pending] = {}
         self._next_request = 1
         self.publisher = node.create_publisher(
             ContactArrayBatch, resolve(node_name, CONTACTS_BATCH_TOPIC), QUERY_QOS)
-        self.verdict_topic = resolve(node_name, VERDICTS_BATCH_TOPIC)
+        self.verdict_topic = resolve(node_name, reply_topic(VERDICTS_BATCH_TOPIC, client_id))
         node.create_subscription(ForceClosureVerdictArray, self.verdict_topic,
                                  self._on_serialized if serialized else self._on_message,
                                  QUERY_QOS, raw=serialized)
@@ -74,17 +83,25 @@ class BatchQueries:
         return msg
 
     def submit(self, msg: ContactArrayBatch) -> Future:
-        """Publish a batch made by :meth:`message`; a Future of its Verdicts."""
-        future: Future = Future()
+        """Publish a batch made by :meth:`message`; a Future of its Verdicts (a failed
+        publish, with no node up, leaves it due: sent when a node is there)."""
+        pending = Pending.new(msg, resend_after(len(msg.ids), self._resend_s))
         with self._lock:
-            self._in_flight[msg.request_id] = (msg, future)
-        self.publisher.publish(msg)
-        return future
+            self._in_flight[msg.request_id] = pending
+        publish(self.publisher, pending)
+        return pending.future
 
-    def unanswered(self) -> list[ContactArrayBatch]:
-        """The batches sent and not answered yet (to publish again)."""
+    def resend(self, everything: bool) -> int:
+        """Publish again the unanswered batches: all of them, or those due
+        (:mod:`grasp_fc_ros.client.pending`); how many grasps."""
+        now = time.monotonic()
         with self._lock:
-            return [msg for msg, _ in self._in_flight.values()]
+            pendings = list(self._in_flight.values())
+        if not everything:
+            pendings = due(pendings, now)
+        for pending in pendings:
+            publish(self.publisher, pending)
+        return sum(len(pending.msg.ids) for pending in pendings)
 
     def _on_message(self, msg: ForceClosureVerdictArray) -> None:
         if msg.client_id == self._client_id:
@@ -103,14 +120,14 @@ class BatchQueries:
         if entry is None:
             return
         try:
-            entry[1].set_result(read())
+            entry.future.set_result(read())
         except Exception as exc:  # noqa: BLE001 - the caller learns why, not a timeout
-            entry[1].set_exception(exc)
+            entry.future.set_exception(exc)
 
     def close(self) -> list[Future]:
         """The futures still unanswered (for the caller to cancel)."""
         with self._lock:
-            pending = [future for _, future in self._in_flight.values()]
+            pending = [entry.future for entry in self._in_flight.values()]
             self._in_flight.clear()
         return pending
 

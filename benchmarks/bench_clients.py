@@ -1,0 +1,172 @@
+"""Several clients at once: does every answer reach its asker, and only its asker?
+
+The force_closure node in its own process; beside it one busy process (a Python loop
+taking a core) and --clients client processes, each a grasp_fc_ros.client.GraspClient
+sending --singles single queries (ids 0..N-1, back to back within its window) and one
+batch of --batch 6-finger grasps, all at once.
+
+Prints per client: single queries answered, lost (no answer within --timeout), wrong
+(an answer not to this client, an id it did not send, or an id answered twice), the
+batch answered whole, the grasps the client re-sent (a node (re)appeared, or no answer
+within the client's bound) and its seconds; then the totals (target: 0 lost, 0 wrong)
+and the throughput: all clients' single queries per second, and all grasps per second.
+The machine's other load changes the rates, not the losses.
+
+Usage: python benchmarks/bench_clients.py [--clients C] [--singles N] [--batch B]
+       [--busy P] [--timeout S] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+N_FINGERS = 6
+CONNECT_TIMEOUT_S = 60.0
+# What the issue asks of 4 clients x (20,000 singles + a 50,000-grasp batch).
+TARGET_LOST = 0
+
+
+def run_client(namespace: str, singles: int, batch: int, timeout: float, seed: int,
+               out: str) -> dict:
+    """One client process's run: what it sent and what came back (see the module
+    docstring). Once connected it makes ``<out>.ready`` and starts when ``<out>.go``
+    exists (all clients start together)."""
+    import rclpy
+
+    from grasp_fc_ros.client import GraspClient
+    from grasp_fc_ros.objects import make_object, sample_grasps
+
+    rng = np.random.default_rng(seed)
+    positions, normals = sample_grasps(make_object("box"), max(batch, 1000), N_FINGERS, rng)
+    rclpy.init()
+    client = GraspClient(f"{namespace}/force_closure")
+    try:
+        if not client.wait_for_node(CONNECT_TIMEOUT_S):
+            return {"error": "node not found"}
+        open(out + ".ready", "w").close()
+        while not os.path.exists(out + ".go"):
+            time.sleep(0.01)
+        start = time.time()
+        deadline = time.monotonic() + timeout
+        batch_future = client.submit_batch(positions[:batch], normals[:batch])
+        futures = [client.submit(positions[i % len(positions)], normals[i % len(positions)],
+                                 query_id=i, timeout=timeout) for i in range(singles)]
+        answered, wrong, seen = 0, 0, set()
+        for i, future in enumerate(futures):
+            try:
+                v = future.result(max(deadline - time.monotonic(), 0.0))
+            except TimeoutError:
+                continue
+            answered += 1
+            if v.client_id != client.client_id or v.id != i or v.id in seen:
+                wrong += 1
+            seen.add(v.id)
+        try:
+            verdicts = batch_future.result(max(deadline - time.monotonic(), 0.0))
+            batch_ok = bool(np.array_equal(verdicts.ids, np.arange(batch)))
+        except TimeoutError:
+            batch_ok = False
+        return {"client_id": client.client_id, "answered": answered,
+                "lost": singles - answered, "wrong": wrong, "batch_ok": batch_ok,
+                "resent": client.resubmitted, "start": start, "end": time.time()}
+    finally:
+        client.close()
+        rclpy.try_shutdown()
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description="several GraspClients at once")
+    parser.add_argument("--clients", type=int, default=4)
+    parser.add_argument("--singles", type=int, default=20_000, help="single queries per client")
+    parser.add_argument("--batch", type=int, default=50_000, help="grasps of each client's batch")
+    parser.add_argument("--busy", type=int, default=1, help="busy processes beside them")
+    parser.add_argument("--timeout", type=float, default=300.0,
+                        help="seconds a client waits for all its answers")
+    parser.add_argument("--quick", action="store_true",
+                        help="small sizes (2,000 singles, a 5,000-grasp batch), for the tests")
+    parser.add_argument("--client", nargs=3, metavar=("NAMESPACE", "SEED", "OUT"),
+                        help=argparse.SUPPRESS)  # one client process's run
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.singles, args.batch, args.timeout = 2_000, 5_000, 120.0
+    if args.client:
+        namespace, seed, out = args.client
+        result = run_client(namespace, args.singles, args.batch, args.timeout, int(seed), out)
+        with open(out, "w") as f:
+            json.dump(result, f)
+        return 0
+    return run_all(args)
+
+
+def run_all(args: argparse.Namespace) -> int:
+    import tempfile
+
+    import rclpy
+
+    from bench_ros import start_node, stop_node
+
+    rclpy.init()
+    node, watcher = start_node("clients")
+    namespace = f"/grasp_fc_clients_{os.getpid()}"  # start_node's for this tag
+    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"])
+            for _ in range(args.busy)]
+    results = []
+    try:
+        with tempfile.TemporaryDirectory() as folder:
+            outs = [f"{folder}/client_{k}.json" for k in range(args.clients)]
+            clients = [subprocess.Popen(
+                [sys.executable, __file__, "--singles", str(args.singles), "--batch",
+                 str(args.batch), "--timeout", str(args.timeout), "--client", namespace,
+                 str(k), out]) for k, out in enumerate(outs)]
+            ready = time.monotonic() + 2 * CONNECT_TIMEOUT_S
+            while (not all(os.path.exists(out + ".ready") for out in outs)
+                   and time.monotonic() < ready and all(c.poll() is None for c in clients)):
+                time.sleep(0.05)
+            for out in outs:
+                open(out + ".go", "w").close()
+            for process in clients:
+                process.wait(timeout=args.timeout + 2 * CONNECT_TIMEOUT_S)
+            for out in outs:
+                with open(out) as f:
+                    results.append(json.load(f))
+    finally:
+        for process in busy:
+            process.kill()
+            process.wait()
+        stop_node(node, watcher)
+        rclpy.try_shutdown()
+    return report(args, results)
+
+
+def report(args: argparse.Namespace, results: list[dict]) -> int:
+    print(f"{args.clients} clients x ({args.singles} single queries + a {args.batch}-grasp "
+          f"batch), {args.busy} busy process(es) beside them")
+    for k, r in enumerate(results):
+        if "error" in r:
+            print(f"  client {k}: {r['error']}")
+            continue
+        print(f"  client {k}: {r['answered']} answered, {r['lost']} lost, {r['wrong']} wrong, "
+              f"batch {'answered whole' if r['batch_ok'] else 'NOT answered whole'}, "
+              f"{r['resent']} grasps re-sent, {r['end'] - r['start']:.1f} s")
+    lost = sum(r.get("lost", args.singles) for r in results)
+    wrong = sum(r.get("wrong", 0) for r in results)
+    batches = sum(bool(r.get("batch_ok")) for r in results)
+    ran = [r for r in results if "error" not in r]
+    wall = (max(r["end"] for r in ran) - min(r["start"] for r in ran)) if ran else float("nan")
+    print(f"lost answers: {lost} (target {TARGET_LOST}); wrong answers: {wrong}; "
+          f"batches answered whole: {batches} of {args.clients}")
+    print(f"throughput: {args.clients * args.singles / wall:.0f} single queries/s, "
+          f"{args.clients * (args.singles + args.batch) / wall:.0f} grasps/s "
+          f"({wall:.1f} s from the first client's start to the last one's end)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
