@@ -3,7 +3,8 @@
 The force_closure node in its own process; beside it one busy process (a Python loop
 taking a core) and --clients client processes, each a grasp_fc_ros.client.GraspClient
 sending --singles single queries (ids 0..N-1, back to back within its window) and one
-batch of --batch 6-finger grasps, all at once.
+batch of --batch 6-finger grasps, all at once. --pause-first S stops the first client
+(SIGSTOP) for S seconds meanwhile: a reader that falls behind the others.
 
 Prints per client: single queries answered, lost (no answer within --timeout), wrong
 (an answer not to this client, an id it did not send, or an id answered twice), the
@@ -13,7 +14,7 @@ and the throughput: all clients' single queries per second, and all grasps per s
 The machine's other load changes the rates, not the losses.
 
 Usage: python benchmarks/bench_clients.py [--clients C] [--singles N] [--batch B]
-       [--busy P] [--timeout S] [--quick]
+       [--busy P] [--timeout S] [--pause-first S] [--quick]
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -29,6 +31,8 @@ import numpy as np
 
 N_FINGERS = 6
 CONNECT_TIMEOUT_S = 60.0
+# With --pause-first: how long after the start the first client is stopped (s).
+PAUSE_AFTER_S = 0.5
 # What the issue asks of 4 clients x (20,000 singles + a 50,000-grasp batch).
 TARGET_LOST = 0
 
@@ -89,6 +93,9 @@ def main(argv=None) -> int:
     parser.add_argument("--busy", type=int, default=1, help="busy processes beside them")
     parser.add_argument("--timeout", type=float, default=300.0,
                         help="seconds a client waits for all its answers")
+    parser.add_argument("--pause-first", type=float, default=0.0, metavar="S",
+                        help="SIGSTOP the first client for S seconds once all have started "
+                             "(a reader that falls behind)")
     parser.add_argument("--quick", action="store_true",
                         help="small sizes (2,000 singles, a 5,000-grasp batch), for the tests")
     parser.add_argument("--client", nargs=3, metavar=("NAMESPACE", "SEED", "OUT"),
@@ -131,6 +138,11 @@ def run_all(args: argparse.Namespace) -> int:
                 time.sleep(0.05)
             for out in outs:
                 open(out + ".go", "w").close()
+            if args.pause_first:
+                time.sleep(PAUSE_AFTER_S)
+                clients[0].send_signal(signal.SIGSTOP)
+                time.sleep(args.pause_first)
+                clients[0].send_signal(signal.SIGCONT)
             for process in clients:
                 process.wait(timeout=args.timeout + 2 * CONNECT_TIMEOUT_S)
             for out in outs:
@@ -147,7 +159,8 @@ def run_all(args: argparse.Namespace) -> int:
 
 def report(args: argparse.Namespace, results: list[dict]) -> int:
     print(f"{args.clients} clients x ({args.singles} single queries + a {args.batch}-grasp "
-          f"batch), {args.busy} busy process(es) beside them")
+          f"batch), {args.busy} busy process(es) beside them"
+          + (f", client 0 stopped for {args.pause_first} s" if args.pause_first else ""))
     for k, r in enumerate(results):
         if "error" in r:
             print(f"  client {k}: {r['error']}")

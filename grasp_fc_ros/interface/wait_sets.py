@@ -199,7 +199,7 @@ class ServiceCaller:
 
     def _timed_out(self, timeout: float) -> str:
         return (f"no response from service {self._client.srv_name} within {timeout} s: "
-                f"is its node up? (it may be down, or busy)")
+                f"its node may be down (or busy)")
 
 
 class OwnThreadGroup(CallbackGroup):
