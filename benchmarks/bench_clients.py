@@ -10,8 +10,10 @@ Prints per client: single queries answered, lost (no answer within --timeout), w
 (an answer not to this client, an id it did not send, or an id answered twice), the
 batch answered whole, the grasps the client re-sent (a node (re)appeared, or no answer
 within the client's bound) and its seconds; then the totals (target: 0 lost, 0 wrong)
-and the throughput: all clients' single queries per second, and all grasps per second.
-The machine's other load changes the rates, not the losses.
+and the throughput: all clients' single queries per second, and all grasps per second;
+and the CPU time of the node's own process (receiving, answering, publishing; its
+workers not counted) per single query. The machine's other load changes the rates,
+not the losses or the CPU time.
 
 Usage: python benchmarks/bench_clients.py [--clients C] [--singles N] [--batch B]
        [--busy P] [--timeout S] [--pause-first S] [--quick]
@@ -117,7 +119,7 @@ def run_all(args: argparse.Namespace) -> int:
 
     import rclpy
 
-    from bench_ros import start_node, stop_node
+    from bench_ros import process_cpu_s, start_node, stop_node
 
     rclpy.init()
     node, watcher = start_node("clients")
@@ -136,6 +138,7 @@ def run_all(args: argparse.Namespace) -> int:
             while (not all(os.path.exists(out + ".ready") for out in outs)
                    and time.monotonic() < ready and all(c.poll() is None for c in clients)):
                 time.sleep(0.05)
+            node_cpu_s = process_cpu_s(node.pid)
             for out in outs:
                 open(out + ".go", "w").close()
             if args.pause_first:
@@ -145,6 +148,7 @@ def run_all(args: argparse.Namespace) -> int:
                 clients[0].send_signal(signal.SIGCONT)
             for process in clients:
                 process.wait(timeout=args.timeout + 2 * CONNECT_TIMEOUT_S)
+            node_cpu_s = process_cpu_s(node.pid) - node_cpu_s
             for out in outs:
                 with open(out) as f:
                     results.append(json.load(f))
@@ -154,10 +158,10 @@ def run_all(args: argparse.Namespace) -> int:
             process.wait()
         stop_node(node, watcher)
         rclpy.try_shutdown()
-    return report(args, results)
+    return report(args, results, node_cpu_s)
 
 
-def report(args: argparse.Namespace, results: list[dict]) -> int:
+def report(args: argparse.Namespace, results: list[dict], node_cpu_s: float) -> int:
     print(f"{args.clients} clients x ({args.singles} single queries + a {args.batch}-grasp "
           f"batch), {args.busy} busy process(es) beside them"
           + (f", client 0 stopped for {args.pause_first} s" if args.pause_first else ""))
@@ -178,6 +182,8 @@ def report(args: argparse.Namespace, results: list[dict]) -> int:
     print(f"throughput: {args.clients * args.singles / wall:.0f} single queries/s, "
           f"{args.clients * (args.singles + args.batch) / wall:.0f} grasps/s "
           f"({wall:.1f} s from the first client's start to the last one's end)")
+    print(f"node process CPU (its workers not counted): {node_cpu_s:.2f} s, "
+          f"{1e6 * node_cpu_s / (args.clients * args.singles):.0f} us per single query")
     return 0
 
 
