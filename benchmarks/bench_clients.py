@@ -11,6 +11,7 @@ Prints per client: single queries answered, lost (no answer within --timeout), w
 batch answered whole, the grasps the client re-sent (a node (re)appeared, or no answer
 within the client's bound) and its seconds; then the totals (target: 0 lost, 0 wrong)
 and the throughput: all clients' single queries per second, and all grasps per second;
+the CPU time of each client process per single query (what reading answers costs it);
 and the CPU time of the node's own process (receiving, answering, publishing; its
 workers not counted) per single query. The machine's other load changes the rates,
 not the losses or the CPU time.
@@ -59,7 +60,7 @@ def run_client(namespace: str, singles: int, batch: int, timeout: float, seed: i
         open(out + ".ready", "w").close()
         while not os.path.exists(out + ".go"):
             time.sleep(0.01)
-        start = time.time()
+        start, cpu_s = time.time(), time.process_time()
         deadline = time.monotonic() + timeout
         batch_future = client.submit_batch(positions[:batch], normals[:batch])
         futures = [client.submit(positions[i % len(positions)], normals[i % len(positions)],
@@ -81,7 +82,8 @@ def run_client(namespace: str, singles: int, batch: int, timeout: float, seed: i
             batch_ok = False
         return {"client_id": client.client_id, "answered": answered,
                 "lost": singles - answered, "wrong": wrong, "batch_ok": batch_ok,
-                "resent": client.resubmitted, "start": start, "end": time.time()}
+                "resent": client.resubmitted, "start": start, "end": time.time(),
+                "cpu_s": time.process_time() - cpu_s}
     finally:
         client.close()
         rclpy.try_shutdown()
@@ -182,6 +184,11 @@ def report(args: argparse.Namespace, results: list[dict], node_cpu_s: float) -> 
     print(f"throughput: {args.clients * args.singles / wall:.0f} single queries/s, "
           f"{args.clients * (args.singles + args.batch) / wall:.0f} grasps/s "
           f"({wall:.1f} s from the first client's start to the last one's end)")
+    if ran:
+        per_query = [1e6 * r["cpu_s"] / args.singles for r in ran]
+        print(f"client process CPU per single query (its batch included): median "
+              f"{np.median(per_query):.0f} us (min {min(per_query):.0f}, "
+              f"max {max(per_query):.0f})")
     print(f"node process CPU (its workers not counted): {node_cpu_s:.2f} s, "
           f"{1e6 * node_cpu_s / (args.clients * args.singles):.0f} us per single query")
     return 0

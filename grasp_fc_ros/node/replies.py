@@ -11,7 +11,8 @@ An answer goes to its asker: to the reply topic of the query's ``client_id``
 ``verdicts`` / ``verdicts_batch``. So a client reads only its own answers, and a slow
 one cannot make the others lose theirs (docs/performance.md#reply-topics). A reply
 publisher is made at a client's first answer, which waits (bounded) until the client's
-subscription has matched it, and destroyed once nobody has read it for a while.
+subscription, if the graph shows one, has matched it; it is destroyed once nobody has
+read it for a while.
 """
 
 from __future__ import annotations
@@ -41,10 +42,10 @@ from grasp_fc_ros.node.lane import Refusal
 
 # How long shutdown waits for readers to acknowledge the answers it publishes (s).
 SHUTDOWN_ACK_TIMEOUT_S = 0.5
-# How long a client's first answer waits for the client's subscription to match its new
-# reply publisher (s): a reliable, volatile publisher drops what it publishes before
-# that. Discovery on one machine takes milliseconds; a client that never matches (it
-# died) costs this once. Tuned: docs/performance.md#reply-topics.
+# How long a client's first answer waits for the client's subscription (known to the
+# graph) to match its new reply publisher (s): a reliable, volatile publisher drops what
+# it publishes before that. Discovery on one machine takes milliseconds; a client that
+# never matches (it died meanwhile) costs this once. Tuned: docs/performance.md#reply-topics.
 REPLY_MATCH_WAIT_S = 2.0
 # A reply publisher without subscriptions and unused for this long is destroyed (its
 # client is gone); a client that comes back gets a new one (s).
@@ -124,9 +125,13 @@ class Replies:
                                                 copy.copy(VERDICT_QOS)), now)
             entry.last_used = now
         if not entry.matched:
-            deadline = now + REPLY_MATCH_WAIT_S
-            while not entry.publisher.get_subscription_count() and time.monotonic() < deadline:
-                time.sleep(0.001)
+            # Only for a reader the graph knows: a query whose client_id nobody reads
+            # (a plain subscriber of the shared topic set one) must not cost a wait.
+            if self._node.count_subscribers(entry.publisher.topic_name):
+                deadline = now + REPLY_MATCH_WAIT_S
+                while (not entry.publisher.get_subscription_count()
+                       and time.monotonic() < deadline):
+                    time.sleep(0.001)
             entry.matched = True
         return entry.publisher
 
