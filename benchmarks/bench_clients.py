@@ -149,11 +149,14 @@ def run_all(args: argparse.Namespace) -> int:
                 time.sleep(args.pause_first)
                 clients[0].send_signal(signal.SIGCONT)
             for process in clients:
-                process.wait(timeout=args.timeout + 2 * CONNECT_TIMEOUT_S)
+                end_of(process, args.timeout + 2 * CONNECT_TIMEOUT_S)
             node_cpu_s = process_cpu_s(node.pid) - node_cpu_s
             for out in outs:
-                with open(out) as f:
-                    results.append(json.load(f))
+                try:
+                    with open(out) as f:
+                        results.append(json.load(f))
+                except FileNotFoundError:
+                    results.append({"error": "no result (the client process failed)"})
     finally:
         for process in busy:
             process.kill()
@@ -161,6 +164,18 @@ def run_all(args: argparse.Namespace) -> int:
         stop_node(node, watcher)
         rclpy.try_shutdown()
     return report(args, results, node_cpu_s)
+
+
+def end_of(process: subprocess.Popen, timeout: float) -> None:
+    """Wait for a client process; kill it if it has not ended within ``timeout`` (its
+    result, written before it exits, still counts)."""
+    try:
+        process.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        print(f"a client process (pid {process.pid}) did not exit within {timeout:.0f} s: "
+              f"killed", file=sys.stderr)
+        process.kill()
+        process.wait()
 
 
 def report(args: argparse.Namespace, results: list[dict], node_cpu_s: float) -> int:

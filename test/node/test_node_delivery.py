@@ -208,3 +208,23 @@ def test_a_query_without_an_answer_is_sent_again_after_its_bound(ros, grasps):
             assert grasp_client.resubmitted - before >= 1
     finally:
         responder.spinner.stop()
+
+
+def test_a_gone_clients_reply_publishers_are_destroyed(own_node, grasps, monkeypatch):
+    from grasp_fc_ros.node import replies as replies_module
+
+    node, _, _ = own_node("/delivery_sweep")
+    positions, normals = grasps
+    with GraspClient("/delivery_sweep/force_closure") as grasp_client:
+        assert grasp_client.wait_for_node(REPLY_TIMEOUT_S)
+        grasp_client.submit(positions[0], normals[0]).result(REPLY_TIMEOUT_S)
+        grasp_client.check_batch(positions, normals, timeout=REPLY_TIMEOUT_S)
+        assert node.replies.reply_topics == 2
+        monkeypatch.setattr(replies_module, "REPLY_IDLE_S", 0.0)
+        node.replies.sweep()
+        assert node.replies.reply_topics == 2  # still read
+    deadline = time.monotonic() + REPLY_TIMEOUT_S
+    while node.replies.reply_topics:  # once the client's subscriptions are gone
+        assert time.monotonic() < deadline, "reply publishers of a gone client kept"
+        node.replies.sweep()
+        time.sleep(0.05)
