@@ -5,7 +5,6 @@
 from __future__ import annotations
 
 import threading
-import time
 from collections.abc import Callable
 from concurrent.futures import Future
 from typing import Any
@@ -15,7 +14,13 @@ from grasp_fc_msgs.msg import ContactArrayBatch, ForceClosureVerdictArray
 from numpy.typing import ArrayLike
 from rclpy.node import Node
 
-from grasp_fc_ros.client.pending import RESEND_AFTER_S, Pending, due, publish, resend_after
+from grasp_fc_ros.client.pending import (
+    RESEND_AFTER_S,
+    Pending,
+    publish,
+    publish_again,
+    resend_after,
+)
 from grasp_fc_ros.engine.packed import Verdicts
 from grasp_fc_ros.interface import wire
 from grasp_fc_ros.interface.conversions import grasps_to_batch_msg, verdict_array_to_numpy
@@ -52,6 +57,7 @@ class BatchQueries:
         self._node = node
         self._client_id = client_id
         self._resend_s = resend_s
+        self._closed = False
         self._lock = threading.Lock()
         self._in_flight: dict[int, Pending] = {}
         self._next_request = 1
@@ -94,14 +100,10 @@ class BatchQueries:
     def resend(self, everything: bool) -> int:
         """Publish again the unanswered batches: all of them, or those due
         (:mod:`grasp_fc_ros.client.pending`); how many grasps."""
-        now = time.monotonic()
         with self._lock:
             pendings = list(self._in_flight.values())
-        if not everything:
-            pendings = due(pendings, now)
-        for pending in pendings:
-            publish(self.publisher, pending)
-        return sum(len(pending.msg.ids) for pending in pendings)
+        sent = publish_again(self.publisher, pendings, everything, lambda: self._closed)
+        return sum(len(pending.msg.ids) for pending in sent)
 
     def _on_message(self, msg: ForceClosureVerdictArray) -> None:
         if msg.client_id == self._client_id:
@@ -125,7 +127,8 @@ class BatchQueries:
             entry.future.set_exception(exc)
 
     def close(self) -> list[Future]:
-        """The futures still unanswered (for the caller to cancel)."""
+        """Stop re-sending; the futures still unanswered (for the caller to cancel)."""
+        self._closed = True
         with self._lock:
             pending = [entry.future for entry in self._in_flight.values()]
             self._in_flight.clear()

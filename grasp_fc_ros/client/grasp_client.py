@@ -338,12 +338,12 @@ class GraspClient:
         if self._closed:
             return
         self._closed = True
-        pending = self._singles.close()
+        pending = self._singles.close() + self._batches.close()
         self._executor.shutdown()
         self._spinner.join(timeout=5.0)
         self._services.close()
         self.node.destroy_node()
-        for future in pending + self._batches.close():
+        for future in pending:
             future.cancel()
 
     def __enter__(self) -> GraspClient:

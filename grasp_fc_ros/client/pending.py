@@ -11,6 +11,7 @@ re-send costs at most a duplicate answer, never a wrong one.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any
@@ -75,6 +76,17 @@ def publish(publisher: Publisher, pending: Pending) -> bool:
     return True
 
 
-def due(pendings: list[Pending], now: float) -> list[Pending]:
-    """The queries of ``pendings`` to send again at ``now`` (time.monotonic())."""
-    return [p for p in pendings if p.due <= now]
+def publish_again(publisher: Publisher, pendings: list[Pending], everything: bool,
+                  closed: Callable[[], bool]) -> list[Pending]:
+    """Publish ``pendings`` again, all of them or those due now, until ``closed()`` (the
+    client is closing and waits for the thread doing this); those published."""
+    if not everything:
+        now = time.monotonic()
+        pendings = [p for p in pendings if p.due <= now]
+    sent = []
+    for pending in pendings:
+        if closed():
+            break
+        publish(publisher, pending)
+        sent.append(pending)
+    return sent

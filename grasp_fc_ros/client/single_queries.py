@@ -15,7 +15,13 @@ from rclpy.clock import Clock, ROSClock
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 
-from grasp_fc_ros.client.pending import RESEND_AFTER_S, Pending, due, publish, resend_after
+from grasp_fc_ros.client.pending import (
+    RESEND_AFTER_S,
+    Pending,
+    publish,
+    publish_again,
+    resend_after,
+)
 from grasp_fc_ros.interface import wire
 from grasp_fc_ros.interface.conversions import grasp_to_contact_array
 from grasp_fc_ros.interface.names import (
@@ -74,6 +80,7 @@ class SingleQueries:
         self._serialized = serialized
         self._lock = threading.Condition()
         self._resend_s = resend_s
+        self._closed = False
         self._in_flight: dict[int, Pending] = {}
         self._next_id = 1
         self.publisher = node.create_publisher(ContactArray, resolve(node_name, CONTACTS_TOPIC),
@@ -112,14 +119,10 @@ class SingleQueries:
     def resend(self, everything: bool) -> int:
         """Publish again the unanswered queries: all of them, or those due
         (:mod:`grasp_fc_ros.client.pending`); how many."""
-        now = time.monotonic()
         with self._lock:
             pendings = list(self._in_flight.values())
-        if not everything:
-            pendings = due(pendings, now)
-        for pending in pendings:
-            publish(self.publisher, pending)
-        return len(pendings)
+        sent = publish_again(self.publisher, pendings, everything, lambda: self._closed)
+        return len(sent)
 
     def _query(self, query_id: int, positions: ArrayLike, normals: ArrayLike, mu: ArrayLike,
                frame_id: str) -> Any:
@@ -173,6 +176,7 @@ class SingleQueries:
     def close(self) -> list[Future]:
         """Stop reading verdicts; the futures still unanswered (for the caller to
         cancel)."""
+        self._closed = True
         self._loop.stop()
         with self._lock:
             pending = [entry.future for entry in self._in_flight.values()]
