@@ -10,9 +10,9 @@ An answer goes to its asker: to the reply topic of the query's ``client_id``
 ``verdicts_batch/c<...>``), or, for a query without one (client_id 0), to the shared
 ``verdicts`` / ``verdicts_batch``. So a client reads only its own answers, and a slow
 one cannot make the others lose theirs (docs/performance.md#reply-topics). A reply
-publisher is made at a client's first answer, which waits (bounded) until the client's
-subscription, if the graph shows one, has matched it; it is destroyed once nobody has
-read it for a while.
+publisher is made at a client's first answer, which waits (bounded) until the readers
+of that topic the graph shows (the client's subscription) have matched it; it is
+destroyed once nobody has read it for a while.
 """
 
 from __future__ import annotations
@@ -125,13 +125,13 @@ class Replies:
                                                 copy.copy(VERDICT_QOS)), now)
             entry.last_used = now
         if not entry.matched:
-            # Only for a reader the graph knows: a query whose client_id nobody reads
+            # Only for the readers the graph knows: a query whose client_id nobody reads
             # (a plain subscriber of the shared topic set one) must not cost a wait.
-            if self._node.count_subscribers(entry.publisher.topic_name):
-                deadline = now + REPLY_MATCH_WAIT_S
-                while (not entry.publisher.get_subscription_count()
-                       and time.monotonic() < deadline):
-                    time.sleep(0.001)
+            readers = self._node.count_subscribers(entry.publisher.topic_name)
+            deadline = now + REPLY_MATCH_WAIT_S
+            while (entry.publisher.get_subscription_count() < readers
+                   and time.monotonic() < deadline):
+                time.sleep(0.001)
             entry.matched = True
         return entry.publisher
 
