@@ -38,6 +38,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 
 from grasp_fc_ros.interface.names import QUERY_QOS as RELIABLE  # noqa: E402 - the documented QoS
+from grasp_fc_ros.interface.names import reply_topic  # noqa: E402
 
 DISCOVERY_TIMEOUT_S = 20.0
 REPLY_TIMEOUT_S = 20.0
@@ -93,6 +94,16 @@ class Client:
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
         self.service = self.node.create_client(CheckForceClosure, "check_force_closure")
         self.spinner = SpinThread(self.node)
+
+    def listen(self, client_id: int) -> None:
+        """Also collect the answers to queries carrying ``client_id``: they come on that
+        client's reply topics (call before sending, so that the node's reply publishers
+        find the subscriptions)."""
+        self.node.create_subscription(ForceClosureVerdict, reply_topic("verdicts", client_id),
+                                      self._on_verdict, RELIABLE)
+        self.node.create_subscription(ForceClosureVerdictArray,
+                                      reply_topic("verdicts_batch", client_id),
+                                      self._on_batch, RELIABLE)
 
     def _on_verdict(self, msg):
         with self._lock:

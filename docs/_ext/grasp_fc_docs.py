@@ -68,21 +68,24 @@ class Endpoint:
 # with the graph of a running node, both ways.
 INTERFACES = (
     Endpoint("contacts", "subscription", "grasp_fc_msgs/msg/ContactArray", "{name}",
-             "One grasp query; answered by one verdict on ``verdicts`` with the same "
-             "``id``, ``client_id`` and ``header``.",
+             "One grasp query; answered by one verdict with the same ``id``, "
+             "``client_id`` and ``header``, on the asker's reply topic (see ``verdicts``).",
              qos=("grasp_fc_ros.interface.names.QUERY_QOS",)),
     Endpoint("contacts_batch", "subscription", "grasp_fc_msgs/msg/ContactArrayBatch",
              "{name}",
-             "Many grasps in one packed message; answered by one verdict array on "
-             "``verdicts_batch``, in order.",
+             "Many grasps in one packed message; answered by one verdict array, in "
+             "order, on the asker's reply topic (see ``verdicts_batch``).",
              qos=("grasp_fc_ros.interface.names.QUERY_QOS",)),
     Endpoint("verdicts", "publisher", "grasp_fc_msgs/msg/ForceClosureVerdict", "{name}",
-             "One verdict per query on ``contacts``.",
+             "One verdict per query on ``contacts`` with ``client_id`` 0; a query with "
+             "a client id is answered on ``verdicts/c<client_id, 16 hex digits>`` "
+             "instead, made at the client's first answer (:ref:`answers`).",
              qos=("grasp_fc_ros.interface.names.VERDICT_QOS",)),
     Endpoint("verdicts_batch", "publisher", "grasp_fc_msgs/msg/ForceClosureVerdictArray",
              "{name}",
-             "One verdict array per batch on ``contacts_batch``: the batch's ``header``, "
-             "``client_id`` and ``request_id``.",
+             "One verdict array per batch on ``contacts_batch`` with ``client_id`` 0: "
+             "the batch's ``header``, ``client_id`` and ``request_id``; a batch with a "
+             "client id is answered on ``verdicts_batch/c<client_id, 16 hex digits>``.",
              qos=("grasp_fc_ros.interface.names.VERDICT_QOS",)),
     Endpoint("/diagnostics", "publisher", "diagnostic_msgs/msg/DiagnosticArray", "{name}",
              "About once a second: counters of queries, verdicts per status, overload, "

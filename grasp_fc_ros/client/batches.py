@@ -1,5 +1,6 @@
 """The client's batches: ContactArrayBatch messages on ``contacts_batch``, a Future of
-their :class:`~grasp_fc_ros.engine.packed.Verdicts` from ``verdicts_batch``.
+their :class:`~grasp_fc_ros.engine.packed.Verdicts` from the client's reply topic
+``verdicts_batch/c<client id>``.
 
 A batch of more than :data:`~grasp_fc_ros.interface.names.MAX_MESSAGE_CONTACTS`
 contacts goes out as several messages (parts) of whole grasps, each with a request id
@@ -7,11 +8,13 @@ of its own; its Future resolves once every part is answered, with their verdicts
 order. The parts go out from a thread of their own, each once the node has
 acknowledged the one before (for at most :data:`PART_ACK_WAIT_S`): no message is then
 large enough, and no burst of them long enough, to hold up a service call of the node
-or of this process behind it (docs/performance.md#big-batches).
+or of this process behind it (docs/performance.md#big-batches). Every part is kept until
+answered and sent again as :mod:`grasp_fc_ros.client.pending` says.
 """
 
 from __future__ import annotations
 
+import math
 import queue
 import threading
 from collections.abc import Callable
@@ -25,6 +28,13 @@ from numpy.typing import ArrayLike
 from rclpy.duration import Duration
 from rclpy.node import Node
 
+from grasp_fc_ros.client.pending import (
+    RESEND_AFTER_S,
+    Pending,
+    publish,
+    publish_again,
+    resend_after,
+)
 from grasp_fc_ros.engine.packed import Verdicts
 from grasp_fc_ros.interface import wire
 from grasp_fc_ros.interface.conversions import (
@@ -39,6 +49,7 @@ from grasp_fc_ros.interface.names import (
     MAX_MESSAGE_CONTACTS,
     QUERY_QOS,
     VERDICTS_BATCH_TOPIC,
+    reply_topic,
     resolve,
 )
 
@@ -70,22 +81,28 @@ class BatchQueries:
     node_name : str
         The force_closure node's full name.
     client_id : int
-        Carried by every batch; answers to other clients are skipped unread.
+        Carried by every batch; names the reply topic the answers come on.
     serialized : bool
         Take the answers as bytes (:mod:`grasp_fc_ros.interface.wire`: much faster than
         rclpy's message for a large batch, docs/performance.md#wire-format).
+    resend_s : float
+        Seconds without an answer after which a batch is sent again, plus
+        :data:`~grasp_fc_ros.client.pending.RESEND_PER_GRASP_S` per grasp.
     """
 
-    def __init__(self, node: Node, node_name: str, client_id: int, serialized: bool):
+    def __init__(self, node: Node, node_name: str, client_id: int, serialized: bool,
+                 resend_s: float = RESEND_AFTER_S):
         self._node = node
         self._client_id = client_id
+        self._resend_s = resend_s
+        self._closed = False
         self._lock = threading.Lock()
-        # request id -> (the part's message, its batch, its index in the batch)
-        self._in_flight: dict[int, tuple[ContactArrayBatch, _Batch, int]] = {}
+        # request id -> (the part's query, its batch, its index in the batch)
+        self._in_flight: dict[int, tuple[Pending, _Batch, int]] = {}
         self._next_request = 1
         self.publisher = node.create_publisher(
             ContactArrayBatch, resolve(node_name, CONTACTS_BATCH_TOPIC), QUERY_QOS)
-        self.verdict_topic = resolve(node_name, VERDICTS_BATCH_TOPIC)
+        self.verdict_topic = resolve(node_name, reply_topic(VERDICTS_BATCH_TOPIC, client_id))
         node.create_subscription(ForceClosureVerdictArray, self.verdict_topic,
                                  self._on_serialized if serialized else self._on_message,
                                  QUERY_QOS, raw=serialized)
@@ -120,7 +137,8 @@ class BatchQueries:
                counts: ArrayLike | None, ids: ArrayLike | None, frame_id: str = "",
                torsional_friction: ArrayLike | None = None) -> Future:
         """Publish a batch (arguments as :meth:`message`), in parts of at most
-        MAX_MESSAGE_CONTACTS contacts; a Future of all its Verdicts, in order."""
+        MAX_MESSAGE_CONTACTS contacts; a Future of all its Verdicts, in order. A failed
+        publish (no node up) leaves a part due: sent when a node is there."""
         ids = np.arange(n_grasps_of(positions, counts)) if ids is None else ids
         fields = batch_arrays(ids, positions, normals, mu, counts, torsional_friction)
         parts = split_batch(fields, MAX_MESSAGE_CONTACTS)
@@ -132,34 +150,43 @@ class BatchQueries:
             msg = batch_msg(part, client_id=self._client_id, request_id=request_id)
             msg.header.frame_id = frame_id
             msg.header.stamp = stamp
+            pending = Pending.new(msg, resend_after(len(msg.ids), self._resend_s))
+            if len(parts) > 1:
+                pending.due = math.inf  # not due for a re-send before the sender sent it
             with self._lock:
-                self._in_flight[request_id] = (msg, batch, index)
+                self._in_flight[request_id] = (pending, batch, index)
             if len(parts) == 1:
-                self.publisher.publish(msg)
+                publish(self.publisher, pending)
             else:
-                self._parts.put(msg)
+                self._parts.put(pending)
         return batch.future
 
     def _send_parts(self) -> None:
         """The sending thread: publish queued parts one at a time, each once the node
         acknowledged the previous one (or PART_ACK_WAIT_S passed)."""
         wait = Duration(seconds=PART_ACK_WAIT_S)
-        while (msg := self._parts.get()) is not None:
+        while (pending := self._parts.get()) is not None:
             with self._lock:
-                wanted = msg.request_id in self._in_flight  # not answered, not closed
+                wanted = pending.msg.request_id in self._in_flight  # not answered, not closed
             if not wanted:
                 continue
+            if not publish(self.publisher, pending):
+                continue  # due at once: re-sent when a node is there
             try:
-                self.publisher.publish(msg)
                 self.publisher.wait_for_all_acked(wait)
-            except Exception:  # noqa: BLE001 - closed or shut down: sent again on reconnect
+            except Exception:  # noqa: BLE001 - closed or shut down: re-sent on reconnect
                 if not self._node.context.ok():
                     return
 
-    def unanswered(self) -> list[ContactArrayBatch]:
-        """The messages sent and not answered yet (to publish again)."""
+    def resend(self, everything: bool) -> int:
+        """Publish again the unanswered parts: all of them, or those due
+        (:mod:`grasp_fc_ros.client.pending`); how many grasps."""
         with self._lock:
-            return [msg for msg, _, _ in self._in_flight.values()]
+            pendings = [pending for pending, _, _ in self._in_flight.values()]
+        if everything:  # parts the sender has not sent yet go out from there
+            pendings = [pending for pending in pendings if pending.due != math.inf]
+        sent = publish_again(self.publisher, pendings, everything, lambda: self._closed)
+        return sum(len(pending.msg.ids) for pending in sent)
 
     def _on_message(self, msg: ForceClosureVerdictArray) -> None:
         if msg.client_id == self._client_id:
@@ -195,7 +222,9 @@ class BatchQueries:
                                     else Verdicts.concatenate(parts))
 
     def close(self) -> list[Future]:
-        """Stop sending parts; the futures still unanswered (for the caller to cancel)."""
+        """Stop sending parts and re-sending; the futures still unanswered (for the
+        caller to cancel)."""
+        self._closed = True
         self._parts.put(None)
         with self._lock:
             pending = {id(batch.future): batch.future

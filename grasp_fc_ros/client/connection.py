@@ -2,9 +2,10 @@
 
 :class:`NodeWatch` looks for the node on the query topics every :data:`WATCH_PERIOD_S`
 and, when a node newly subscribes to them (a restarted node has not seen what was sent
-to its predecessor), has every unanswered query published again; a duplicate answer
-(both nodes saw it) is ignored by id. :class:`DiagnosticsReader` keeps the node's
-latest /diagnostics key values.
+to its predecessor), has every unanswered query published again; otherwise, while a
+node is there, the queries that are due (unanswered for their bound, or whose publish
+failed: :mod:`.pending`). A duplicate answer (both nodes saw it) is ignored by id.
+:class:`DiagnosticsReader` keeps the node's latest /diagnostics key values.
 """
 
 from __future__ import annotations
@@ -39,12 +40,13 @@ class NodeWatch:
         The node's answer topics: the node is there when each has a publisher.
     service : rclpy.client.Client
         The check_force_closure client, looked for first.
-    resend : callable ()
-        Publishes every unanswered query again; returns how many grasps it sent.
+    resend : callable (everything: bool) -> int
+        Publishes again every unanswered query (True) or those due (False); returns
+        how many grasps it sent.
     """
 
     def __init__(self, node: Node, publishers: list[Publisher], verdict_topics: list[str],
-                 service: Client, resend: Callable[[], int]):
+                 service: Client, resend: Callable[[bool], int]):
         self._node = node
         self._publishers = publishers
         self._verdict_topics = verdict_topics
@@ -78,8 +80,12 @@ class NodeWatch:
             return grew
 
     def _watch(self) -> None:
-        if self._seen(self._publishers[0].get_subscription_count()):
-            self.resubmitted += self._resend()
+        matched = self._publishers[0].get_subscription_count()
+        if self._seen(matched):
+            time.sleep(MATCH_GRACE_S)
+            self.resubmitted += self._resend(True)
+        elif matched:
+            self.resubmitted += self._resend(False)
 
 
 class DiagnosticsReader:

@@ -11,10 +11,14 @@
 
 The client uses the QoS the node documents (:data:`grasp_fc_ros.interface.names.QUERY_QOS`:
 reliable, KEEP_ALL), keeps at most ``max_in_flight`` single queries unanswered (more
-:meth:`submit` calls wait), keeps only verdicts carrying its own random ``client_id``,
-and publishes again every unanswered query when a node (re)appears on the query topics,
-e.g. after the node was killed and restarted. A verdict answering an id twice (the old
-and the new node both answered) resolves its future once. :meth:`GraspClient.label_grasps`
+:meth:`submit` calls wait), and reads only its own answers: every query carries its
+random ``client_id``, and the node answers it on the client's reply topics
+(``verdicts/c<id>``, ``verdicts_batch/c<id>``: :func:`~grasp_fc_ros.interface.names.reply_topic`),
+so other clients cost it nothing. It publishes again every unanswered query when a node
+(re)appears on the query topics (e.g. after the node was killed and restarted), a query
+with no answer within its bound (``resend_after``), and one whose publish failed (no
+node up: it is kept, and sent when a node is there). A verdict answering an id twice
+resolves its future once. :meth:`GraspClient.label_grasps`
 sends a long job to the node's ``label_grasps`` action, with a progress bar and Ctrl-C
 cancelling it.
 
@@ -27,7 +31,6 @@ from __future__ import annotations
 
 import secrets
 import threading
-import time
 from concurrent.futures import Future
 from typing import Any
 
@@ -36,8 +39,9 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from grasp_fc_ros.client.batches import BatchQueries
-from grasp_fc_ros.client.connection import MATCH_GRACE_S, DiagnosticsReader, NodeWatch
+from grasp_fc_ros.client.connection import DiagnosticsReader, NodeWatch
 from grasp_fc_ros.client.label_action import LabelActionClient
+from grasp_fc_ros.client.pending import RESEND_AFTER_S
 from grasp_fc_ros.client.service_calls import ServiceCalls
 from grasp_fc_ros.client.single_queries import (
     DEFAULT_IN_FLIGHT,
@@ -47,7 +51,12 @@ from grasp_fc_ros.client.single_queries import (
 from grasp_fc_ros.engine.contact_forces import ContactForces
 from grasp_fc_ros.engine.packed import Verdicts
 from grasp_fc_ros.interface import wire
-from grasp_fc_ros.interface.names import NODE_NAME
+from grasp_fc_ros.interface.names import (
+    NODE_NAME,
+    VERDICTS_BATCH_TOPIC,
+    VERDICTS_TOPIC,
+    resolve,
+)
 
 
 class GraspClient:
@@ -62,6 +71,10 @@ class GraspClient:
         Largest number of single queries sent but not answered.
     name : str, optional
         Name of the client's own ROS node (default: a unique one).
+    resend_after : float
+        Seconds without an answer after which a query is sent again (batches: plus
+        :data:`~grasp_fc_ros.client.pending.RESEND_PER_GRASP_S` per grasp); default
+        :data:`~grasp_fc_ros.client.pending.RESEND_AFTER_S`.
 
     Requires ``rclpy.init()``; the client spins its own node on a thread of its own
     (service calls wait for their responses in the calling thread).
@@ -77,21 +90,22 @@ class GraspClient:
     """
 
     def __init__(self, node_name: str = NODE_NAME, max_in_flight: int = DEFAULT_IN_FLIGHT,
-                 name: str | None = None):
+                 name: str | None = None, resend_after: float = RESEND_AFTER_S):
         self.client_id = secrets.randbits(63) | 1  # never 0 ("no client id")
         self.node = Node(name or f"grasp_fc_client_{self.client_id:x}")
         # Queries go out and verdicts come in serialized (grasp_fc_ros.interface.wire),
         # unless this rmw's layout is not the one wire writes.
         serialized = wire.layout_matches()
         self._singles = SingleQueries(self.node, node_name, self.client_id, max_in_flight,
-                                      serialized)
-        self._batches = BatchQueries(self.node, node_name, self.client_id, serialized)
+                                      serialized, resend_after)
+        self._batches = BatchQueries(self.node, node_name, self.client_id, serialized,
+                                     resend_after)
         self._services = ServiceCalls(self.node.get_name(), node_name)
         self.label_action = LabelActionClient(self.node, node_name)
         self._diagnostics = DiagnosticsReader(self.node, node_name)
         self._watch = NodeWatch(
             self.node, [self._singles.publisher, self._batches.publisher],
-            [self._singles.verdict_topic, self._batches.verdict_topic],
+            [resolve(node_name, VERDICTS_TOPIC), resolve(node_name, VERDICTS_BATCH_TOPIC)],
             self._services.check_client, self._resend)
         self._closed = False
         self._executor = SingleThreadedExecutor(context=self.node.context)
@@ -107,19 +121,12 @@ class GraspClient:
 
     @property
     def resubmitted(self) -> int:
-        """Grasps published again because a node (re)appeared."""
+        """Grasps published again: a node (re)appeared, or they had no answer within
+        their bound (:mod:`grasp_fc_ros.client.pending`), or their publish failed."""
         return self._watch.resubmitted
 
-    def _resend(self) -> int:
-        singles, batches = self._singles.unanswered(), self._batches.unanswered()
-        if not singles and not batches:
-            return 0
-        time.sleep(MATCH_GRACE_S)
-        for msg in singles:
-            self._singles.publisher.publish(msg)
-        for batch in batches:
-            self._batches.publisher.publish(batch)
-        return len(singles) + sum(len(batch.ids) for batch in batches)
+    def _resend(self, everything: bool) -> int:
+        return self._singles.resend(everything) + self._batches.resend(everything)
 
     @property
     def in_flight(self) -> int:
@@ -146,12 +153,16 @@ class GraspClient:
         timeout : float
             How long to wait for room when ``max_in_flight`` queries are unanswered.
 
+        The query is kept until answered: while no node is up (publishing fails) it is
+        sent when one appears, and it is sent again if no answer came within
+        ``resend_after``. Nothing else is raised.
+
         Raises
         ------
         TimeoutError
-            If no room was made within ``timeout``.
+            If no room was made within ``timeout`` (nothing was registered).
         ValueError
-            If ``query_id`` is already in flight.
+            If ``query_id`` is already in flight (nothing was registered).
         """
         return self._singles.submit(positions, normals, mu, query_id, frame_id, timeout)
 
@@ -168,6 +179,10 @@ class GraspClient:
         ``mu``: None (node default), a scalar or one value per contact; ``ids``: (N,),
         default 0..N-1; ``torsional_friction``: None (hard contacts), a scalar or one
         value per contact (m).
+
+        The batch is kept until answered, as for :meth:`submit` (its bound grows with
+        its size). Raises only the ValueError of a mis-shaped input, before anything is
+        registered or sent.
         """
         return self._batches.submit(positions, normals, mu, counts, ids, frame_id,
                                     torsional_friction)
@@ -324,12 +339,12 @@ class GraspClient:
         if self._closed:
             return
         self._closed = True
-        pending = self._singles.close()
+        pending = self._singles.close() + self._batches.close()
         self._executor.shutdown()
         self._spinner.join(timeout=5.0)
         self._services.close()
         self.node.destroy_node()
-        for future in pending + self._batches.close():
+        for future in pending:
             future.cancel()
 
     def __enter__(self) -> GraspClient:

@@ -81,7 +81,8 @@ class ServiceCalls:
         # wait_for_node waits for check_force_closure only; this service may be
         # discovered a moment later, and a request sent before would go unanswered.
         if not self._forces_client.wait_for_service(timeout_sec=timeout):
-            raise TimeoutError(f"service compute_contact_forces not found within {timeout} s")
+            raise TimeoutError(f"service {self._forces_client.srv_name} not found within "
+                               f"{timeout} s: its node may be down")
         response = self._forces.call(request, timeout)
         forces = np.array([(v.x, v.y, v.z) for v in response.contact_forces],
                           dtype=np.float64).reshape(-1, 3)

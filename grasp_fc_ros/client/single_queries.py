@@ -1,5 +1,5 @@
 """The client's single queries: one ContactArray on ``contacts`` per grasp, a Future of
-its ForceClosureVerdict from ``verdicts``."""
+its ForceClosureVerdict from the client's reply topic ``verdicts/c<client id>``."""
 
 from __future__ import annotations
 
@@ -15,9 +15,22 @@ from rclpy.clock import Clock, ROSClock
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 
+from grasp_fc_ros.client.pending import (
+    RESEND_AFTER_S,
+    Pending,
+    publish,
+    publish_again,
+    resend_after,
+)
 from grasp_fc_ros.interface import wire
 from grasp_fc_ros.interface.conversions import grasp_to_contact_array
-from grasp_fc_ros.interface.names import CONTACTS_TOPIC, QUERY_QOS, VERDICTS_TOPIC, resolve
+from grasp_fc_ros.interface.names import (
+    CONTACTS_TOPIC,
+    QUERY_QOS,
+    VERDICTS_TOPIC,
+    reply_topic,
+    resolve,
+)
 from grasp_fc_ros.interface.wait_sets import SubscriptionLoop
 
 # Single queries unanswered at most (more submit() calls wait): well inside what the
@@ -49,25 +62,30 @@ class SingleQueries:
     node_name : str
         The force_closure node's full name (its topics are looked up next to it).
     client_id : int
-        Carried by every query; verdicts of other clients are skipped unread.
+        Carried by every query; names the reply topic the verdicts come on.
     max_in_flight : int
         Largest number of queries sent but not answered.
     serialized : bool
         Send queries and take verdicts as bytes (:mod:`grasp_fc_ros.interface.wire`).
+    resend_s : float
+        Seconds without an answer after which a query is sent again
+        (:mod:`grasp_fc_ros.client.pending`).
     """
 
     def __init__(self, node: Node, node_name: str, client_id: int, max_in_flight: int,
-                 serialized: bool):
+                 serialized: bool, resend_s: float = RESEND_AFTER_S):
         self._node = node
         self._client_id = client_id
         self._max_in_flight = max_in_flight
         self._serialized = serialized
         self._lock = threading.Condition()
-        self._in_flight: dict[int, tuple[Any, Future]] = {}
+        self._resend_s = resend_s
+        self._closed = False
+        self._in_flight: dict[int, Pending] = {}
         self._next_id = 1
         self.publisher = node.create_publisher(ContactArray, resolve(node_name, CONTACTS_TOPIC),
                                                QUERY_QOS)
-        self.verdict_topic = resolve(node_name, VERDICTS_TOPIC)
+        self.verdict_topic = resolve(node_name, reply_topic(VERDICTS_TOPIC, client_id))
         # Verdicts come in many at a time: taken by a loop of their own, every verdict
         # the subscription holds at each wake-up (see SubscriptionLoop).
         self._loop = SubscriptionLoop(
@@ -92,15 +110,19 @@ class SingleQueries:
                                        timeout):
                 raise TimeoutError(f"{len(self._in_flight)} queries unanswered for {timeout} s")
             msg = self._query(query_id, positions, normals, mu, frame_id)
-            future: Future = Future()
-            self._in_flight[query_id] = (msg, future)
-        self.publisher.publish(msg)
-        return future
+            pending = Pending.new(msg, resend_after(1, self._resend_s))
+            self._in_flight[query_id] = pending
+        # A failed publish (no node) leaves it due: sent when a node is there.
+        publish(self.publisher, pending)
+        return pending.future
 
-    def unanswered(self) -> list[Any]:
-        """The queries sent and not answered yet (to publish again)."""
+    def resend(self, everything: bool) -> int:
+        """Publish again the unanswered queries: all of them, or those due
+        (:mod:`grasp_fc_ros.client.pending`); how many."""
         with self._lock:
-            return [msg for msg, _ in self._in_flight.values()]
+            pendings = list(self._in_flight.values())
+        sent = publish_again(self.publisher, pendings, everything, lambda: self._closed)
+        return len(sent)
 
     def _query(self, query_id: int, positions: ArrayLike, normals: ArrayLike, mu: ArrayLike,
                frame_id: str) -> Any:
@@ -125,7 +147,7 @@ class SingleQueries:
         for data in raws:
             if data[:len(wire.CDR_LE)] == wire.CDR_LE:
                 client_id, query_id = wire.verdict_ids(data)
-                if client_id == self._client_id:  # others' verdicts are not decoded
+                if client_id == self._client_id:  # a stray publisher's are not decoded
                     mine.append((query_id, data))
             else:
                 msg = deserialize_message(data, ForceClosureVerdict)
@@ -136,17 +158,17 @@ class SingleQueries:
             self._lock.notify_all()
         for entry, data in entries:
             if entry is not None:
-                entry[1].set_result(wire.decode_verdict(data) if data[:4] == wire.CDR_LE
-                                    else deserialize_message(data, ForceClosureVerdict))
+                entry.future.set_result(wire.decode_verdict(data) if data[:4] == wire.CDR_LE
+                                        else deserialize_message(data, ForceClosureVerdict))
 
     def _on_messages(self, msgs: list[ForceClosureVerdict]) -> None:
         with self._lock:
             entries = [(self._in_flight.pop(msg.id, None), msg) for msg in msgs
-                       if msg.client_id == self._client_id]  # not another client's
+                       if msg.client_id == self._client_id]  # not a stray publisher's
             self._lock.notify_all()
         for entry, msg in entries:
             if entry is not None:
-                entry[1].set_result(msg)
+                entry.future.set_result(msg)
 
     def _on_loop_error(self, exc: Exception) -> None:
         self._node.get_logger().error(f"reading verdicts failed: {exc!r}")
@@ -154,9 +176,10 @@ class SingleQueries:
     def close(self) -> list[Future]:
         """Stop reading verdicts; the futures still unanswered (for the caller to
         cancel)."""
+        self._closed = True
         self._loop.stop()
         with self._lock:
-            pending = [future for _, future in self._in_flight.values()]
+            pending = [entry.future for entry in self._in_flight.values()]
             self._in_flight.clear()
             self._lock.notify_all()
         return pending

@@ -14,7 +14,9 @@ NODE_NAME = "force_closure"
 # Topics the node subscribes to.
 CONTACTS_TOPIC = "contacts"
 CONTACTS_BATCH_TOPIC = "contacts_batch"
-# Topics the node publishes on.
+# Topics the node publishes on: answers to queries without a client id (client_id 0)
+# on these shared topics, answers to a client's queries on its reply topics
+# (reply_topic()).
 VERDICTS_TOPIC = "verdicts"
 VERDICTS_BATCH_TOPIC = "verdicts_batch"
 MARKERS_TOPIC = "markers"
@@ -36,6 +38,21 @@ QUERY_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
 # at most its window (2,000) unanswered, far below this depth.
 VERDICT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
                          history=HistoryPolicy.KEEP_LAST, depth=10_000)
+
+
+def reply_topic(answers_topic: str, client_id: int) -> str:
+    """The topic on which the node answers the queries carrying ``client_id``.
+
+    ``answers_topic`` is :data:`VERDICTS_TOPIC` or :data:`VERDICTS_BATCH_TOPIC`; the
+    reply topic is below it, named by the id in 16 hex digits
+    (``verdicts/c00000000000000ff``; a name token may not start with a digit). Each
+    client reads only its own answers, so other clients cost it nothing
+    (docs/performance.md#reply-topics). Client id 0 ("no client id") is answered on
+    ``answers_topic`` itself.
+    """
+    if client_id == 0:
+        return answers_topic
+    return f"{answers_topic}/c{client_id:016x}"
 
 
 def resolve(node_name: str, name: str) -> str:

@@ -166,13 +166,14 @@ class ServiceCaller:
         Raises
         ------
         TimeoutError
-            If it did not come within ``timeout`` seconds (a busy caller's time counts).
+            If it did not come within ``timeout`` seconds (a busy caller's time counts);
+            the message names the service and says the node may be down.
         RuntimeError
             If rclpy shut down while waiting.
         """
         deadline = time.monotonic() + timeout
         if not self._lock.acquire(timeout=max(timeout, 0.0)):
-            raise TimeoutError(f"no service response within {timeout} s")
+            raise TimeoutError(self._timed_out(timeout))
         try:
             handle = self._client.handle
             with handle:
@@ -180,7 +181,7 @@ class ServiceCaller:
             while True:
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
-                    raise TimeoutError(f"no service response within {timeout} s")
+                    raise TimeoutError(self._timed_out(timeout))
                 if not self._client.context.ok():
                     raise RuntimeError("rclpy shut down while waiting for a response")
                 self._wait_set.clear_entities()
@@ -195,6 +196,10 @@ class ServiceCaller:
                     return response
         finally:
             self._lock.release()
+
+    def _timed_out(self, timeout: float) -> str:
+        return (f"no response from service {self._client.srv_name} within {timeout} s: "
+                f"its node may be down (or busy)")
 
 
 class OwnThreadGroup(CallbackGroup):

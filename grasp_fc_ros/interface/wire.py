@@ -386,6 +386,13 @@ class _Cdr:
         buffer[places] = np.frombuffer(b"".join(encoded), np.uint8)
         self.put(buffer.tobytes())
 
+    def same_strings(self, text: str, n: int) -> None:
+        """A string[] of ``n`` copies of ``text`` (one slot repeated: no object per
+        string)."""
+        data = text.encode("utf-8") + b"\0"
+        self.put(_UINT32.pack(n), 4)
+        self.put((_UINT32.pack(len(data)) + data + bytes(-len(data) % 4)) * n)
+
     def bytes(self) -> bytes:
         return b"".join(self.parts)
 
@@ -411,8 +418,11 @@ def encode_verdict_array(header: Header, client_id: int, request_id: int,
     verdicts : Verdicts
         Its optional fields that are None go as empty sequences.
     """
-    full = _non_empty(verdicts.messages)
-    if len(full) > MAX_MESSAGE_SHARE * len(verdicts.messages):
+    messages = verdicts.messages
+    # A refusal or failure: the same message for every grasp, written in bulk.
+    uniform = len(messages) > 1 and messages.count(messages[0]) == len(messages)
+    full = np.empty(0, np.int64) if uniform else _non_empty(messages)
+    if len(full) > MAX_MESSAGE_SHARE * len(messages):
         from rclpy.serialization import serialize_message
 
         from grasp_fc_ros.interface.conversions import verdicts_to_array_msg
@@ -428,7 +438,10 @@ def encode_verdict_array(header: Header, client_id: int, request_id: int,
     out.sequence(np.asarray(verdicts.force_closure, bool).view(np.uint8), "u1")
     out.sequence(verdicts.status, "u1")
     out.sequence(verdicts.margin, "<f8")
-    out.strings(verdicts.messages, full)
+    if uniform:
+        out.same_strings(messages[0], len(messages))
+    else:
+        out.strings(messages, full)
     for values in (verdicts.contact_forces, verdicts.contact_torques,
                    verdicts.separating_wrench, verdicts.min_friction):
         out.sequence(np.empty(0) if values is None else values, "<f8")

@@ -30,7 +30,9 @@ a new contact model goes in :mod:`grasp_fc_ros.core` (and its fields through
 
 Flow control: the query topics are reliable and KEEP_ALL (``QUERY_QOS``), so DDS
 pushes back on a publisher instead of overwriting queries the node has not taken yet;
-the verdicts go out reliable with a deep history (``VERDICT_QOS``). Interactive
+the verdicts go out reliable with a deep history (``VERDICT_QOS``), each to its asker:
+on the client's reply topic (``verdicts/c<client id>``), or on ``verdicts`` /
+``verdicts_batch`` for client id 0 (:mod:`.replies`). Interactive
 requests (service, single queries) are decided ahead of batch chunks, so no batch
 holds them up.
 

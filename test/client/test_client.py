@@ -24,8 +24,12 @@ def test_waits_and_calls_time_out_without_a_node(lonely):
     assert lonely.wait_for_node(timeout=0.5) is False
     with pytest.raises(TimeoutError):
         lonely.check_batch(positions, positions, timeout=0.3)
-    with pytest.raises(TimeoutError):
+    with pytest.raises(TimeoutError, match="service /nobody_here/check_force_closure within "
+                                           "0.3 s: its node may be down"):
         lonely.call(positions, positions, timeout=0.3)
+    with pytest.raises(TimeoutError, match="/nobody_here/compute_contact_forces not found "
+                                           "within 0.3 s: its node may be down"):
+        lonely.compute_contact_forces(positions[0], positions[0], np.zeros(6), timeout=0.3)
     with pytest.raises(TimeoutError):
         lonely.next_diagnostics(timeout=0.3)
 

@@ -173,8 +173,11 @@ def verdict_arrays(draw):
     header = Header(frame_id=draw(TEXT))
     header.stamp.sec = draw(st.integers(-2**31, 2**31 - 1))
     header.stamp.nanosec = draw(st.integers(0, 2**32 - 1))
-    share = draw(st.sampled_from([0.0, 0.03, 1.0]))
-    messages = [draw(TEXT) if draw(st.floats(0, 1)) < share else "" for _ in range(n)]
+    share = draw(st.sampled_from([0.0, 0.03, 1.0, "same"]))
+    if share == "same":  # a refusal: one text for every grasp (written in bulk)
+        messages = [draw(TEXT)] * n
+    else:
+        messages = [draw(TEXT) if draw(st.floats(0, 1)) < share else "" for _ in range(n)]
     floats = st.lists(FLOATS, min_size=n, max_size=n)
     verdicts = Verdicts(
         ids=np.array(draw(st.lists(UINT64, min_size=n, max_size=n)), np.uint64),
@@ -215,6 +218,22 @@ def test_encoded_verdict_array_reads_back_in_rclpy_as_the_message(case):
     for name in ("ids", "force_closure", "status", "margin", "contact_forces",
                  "contact_torques", "separating_wrench", "min_friction"):
         assert same_field(getattr(got, name), getattr(want, name)), name
+
+
+@pytest.mark.parametrize("text", ["", "7 grasps exceed max_batch=3", "ü", "abc"])
+def test_a_refusal_is_encoded_in_bulk_and_reads_back_in_rclpy(text):
+    from grasp_fc_msgs.msg import ForceClosureVerdictArray
+    from std_msgs.msg import Header
+
+    from grasp_fc_ros.engine.packed import Verdicts
+
+    raw = wire.encode_verdict_array(Header(frame_id="palm"), 5, 6,
+                                    Verdicts.failed(np.arange(7) + 3, 1, text))
+    back = deserialize_message(raw, ForceClosureVerdictArray)
+    assert (back.header.frame_id, back.client_id, back.request_id) == ("palm", 5, 6)
+    assert list(back.ids) == list(range(3, 10)) and list(back.status) == [1] * 7
+    assert list(back.messages) == [text] * 7 and np.isnan(back.margin).all()
+    assert not any(back.force_closure) and len(back.separating_wrenches) == 0
 
 
 @settings(max_examples=80, deadline=None)

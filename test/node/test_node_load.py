@@ -15,7 +15,7 @@ from grasp_fc_ros.client import GraspClient
 from grasp_fc_ros.core import Status, check_force_closure
 from grasp_fc_ros.interface import wire
 from grasp_fc_ros.interface.conversions import grasp_to_contact_array, grasps_to_batch_msg
-from grasp_fc_ros.interface.names import QUERY_QOS
+from grasp_fc_ros.interface.names import QUERY_QOS, reply_topic
 from grasp_fc_ros.node.lane import SHUTDOWN_MESSAGE
 from grasp_fc_ros.objects import make_object, sample_grasps
 from ros_fixtures import REPLY_TIMEOUT_S
@@ -53,9 +53,11 @@ def test_burst_of_single_queries_is_answered_exactly_once(own_node, grasps):
         if len(heard) >= BURST:
             all_heard.set()
 
-    listener = raw.node.create_subscription(ForceClosureVerdict, "/burst_test/verdicts",
-                                            on_verdict, QUERY_QOS, raw=True)
     client = GraspClient("/burst_test/force_closure")
+    # The client's reply topic: a second reader of its answers.
+    listener = raw.node.create_subscription(
+        ForceClosureVerdict, reply_topic("/burst_test/verdicts", client.client_id),
+        on_verdict, QUERY_QOS, raw=True)
     try:
         assert client.wait_for_node(REPLY_TIMEOUT_S)
         futures = []
@@ -65,7 +67,7 @@ def test_burst_of_single_queries_is_answered_exactly_once(own_node, grasps):
             futures.append(client.submit(positions[k][contacts], normals[k][contacts],
                                          query_id=i, timeout=LOAD_TIMEOUT_S))
         verdicts = [f.result(LOAD_TIMEOUT_S) for f in futures]
-        # The listener hears every verdict on the topic: each id exactly once.
+        # The listener hears every verdict on the reply topic: each id exactly once.
         assert all_heard.wait(LOAD_TIMEOUT_S), f"heard {len(heard)} of {BURST} verdicts"
         time.sleep(0.5)
     finally:

@@ -26,6 +26,8 @@ from grasp_fc_ros.objects import make_object, sample_grasps
 from ros_fixtures import REPLY_TIMEOUT_S
 
 DEFAULT_MU = 0.5
+# The queries' client id: their answers come on its reply topic (client.listen).
+CLIENT_ID = 9000
 
 
 @pytest.fixture(scope="module")
@@ -43,7 +45,7 @@ def queries(grasps, soft=()):
     positions, normals = grasps
     msgs = []
     for i in range(len(positions)):
-        msg = grasp_to_contact_array(100 + i, positions[i], normals[i], client_id=9000 + i)
+        msg = grasp_to_contact_array(100 + i, positions[i], normals[i], client_id=CLIENT_ID)
         msg.header.frame_id = f"frame_{i}" * (i % 3)
         msg.header.stamp.sec, msg.header.stamp.nanosec = 1000 + i, 7 * i
         if i in soft:
@@ -65,6 +67,7 @@ def assert_answers(verdicts, msgs, grasps):
 @pytest.mark.parametrize("soft", [(), (0,), (3, 4, 9), (11,)])
 def test_serialized_path_answers_every_query_once_in_order(own_node, grasps, soft):
     node, _, client = own_node(f"/wire_test_{len(soft)}_{sum(soft)}", workers=0)
+    client.listen(CLIENT_ID)
     assert node.uses_wire
     msgs = queries(grasps, soft)
     # Soft contacts are decided as hard ones until the node supports them: the point here
@@ -77,6 +80,7 @@ def test_serialized_path_answers_every_query_once_in_order(own_node, grasps, sof
 def test_without_the_layout_the_message_path_answers(own_node, grasps, monkeypatch):
     monkeypatch.setattr(wire, "layout_matches", lambda: False)
     node, _, client = own_node("/wire_test_off", workers=0)
+    client.listen(CLIENT_ID)
     assert not node.uses_wire
     msgs = queries(grasps)
     assert_answers(send_and_collect(client, msgs), msgs, grasps)
@@ -92,6 +96,7 @@ def test_without_the_layout_the_message_path_answers(own_node, grasps, monkeypat
 
 def test_invalid_query_on_the_serialized_path_names_its_id(own_node, grasps):
     _, _, client = own_node("/wire_test_invalid", workers=0)
+    client.listen(CLIENT_ID)
     msgs = queries(grasps)[:3]
     msgs[1].contacts[2].normal.x = msgs[1].contacts[2].normal.y = 0.0
     msgs[1].contacts[2].normal.z = 0.0
@@ -134,6 +139,7 @@ def test_a_batch_taken_serialized_keeps_its_header_ids_and_verdicts(own_node, gr
     from grasp_fc_ros.interface.conversions import grasps_to_batch_msg
 
     node, _, client = own_node("/wire_test_batch", workers=0)
+    client.listen(2**64 - 1)
     assert node.uses_wire  # the node reads batches with wire.decode_contact_array_batch
     args = mixed_batch(grasps)
     msg = grasps_to_batch_msg(args["ids"], args["positions"], args["normals"], args["mu"],
@@ -160,6 +166,7 @@ def test_a_big_endian_batch_is_read_by_rclpy_and_answered(own_node, grasps):
     from interface.test_wire import big_endian_batch
 
     _, _, client = own_node("/wire_test_big_endian", workers=0)
+    client.listen(3)
     positions, normals = grasps
     ids = np.arange(len(positions), dtype=np.uint64) + 40
     client.batch_pub.publish(big_endian_batch(batch_arrays(ids, positions, normals),

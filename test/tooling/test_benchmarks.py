@@ -87,6 +87,13 @@ EXPECTED: dict[str, Run] = {
              rf"verdict message\s+{N} B/grasp")
         for tag in ("off", "certificates", r"certificates\+min_friction"))),
     # --peer 3: the Qhull peer on three grasps as well (it costs ~20 ms a grasp).
+    # Four client processes beside a busy one: each gets exactly its own answers.
+    "bench_clients": Run(lines=(
+        Line(r"client \d: 2000 answered, 0 lost, 0 wrong, batch answered whole", count=4),
+        Line(r"lost answers: 0 \(target 0\); wrong answers: 0; batches answered whole: "
+             r"4 of 4"),
+        Line(r"single queries/s"),
+    ), timeout_s=240),
     "bench_core": Run(args=("--quick", "--peer", "3"), lines=(
         Line(rf"^six fingers, 8-sided-pyramid Qhull peer {N} ms per grasp; filtered "
              rf"pipeline {N} ms \({N}x faster"),
