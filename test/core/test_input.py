@@ -173,7 +173,8 @@ def test_friction_beyond_its_bound_is_refused_and_at_the_bound_is_decided():
     from grasp_fc_ros.core.tolerances import MAX_FRICTION_COEFFICIENT
     positions, normals = ellipsoid_batch(n_grasps=60, n_contacts=3, seed=2)
     at_bound = check_force_closure(positions, normals, MAX_FRICTION_COEFFICIENT)
-    assert not np.any(at_bound.status == Status.SOLVER_FAILURE), "solver failures at the friction bound"
+    assert not np.any(at_bound.status == Status.SOLVER_FAILURE), (
+        "solver failures at the friction bound")
     mu = np.full((60, 3), 0.5)
     mu[7, 2] = MAX_FRICTION_COEFFICIENT * 1.5
     with pytest.raises(ValueError, match="grasp 7, contact 2: friction coefficient exceeds"):
