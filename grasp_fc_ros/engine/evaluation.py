@@ -55,11 +55,12 @@ class InvalidGrasp:
 
 
 def effective_friction(mu: np.ndarray, default: float) -> np.ndarray:
-    """Contact friction with finite values <= 0 replaced by ``default``; shape kept.
+    """Contact friction with values exactly 0 (the messages' "not given") replaced by
+    ``default``; shape kept.
 
-    NaN and +-inf stay, so that validation rejects them as not finite.
+    Negative values, NaN and +-inf stay, so that validation rejects them (INVALID_INPUT).
     """
-    return np.where(np.isfinite(mu) & (mu <= 0), default, mu)
+    return np.where(mu == 0, default, mu)
 
 
 def find_invalid(packed: PackedGrasps, mu: np.ndarray, settings: Settings
@@ -97,6 +98,8 @@ def find_invalid(packed: PackedGrasps, mu: np.ndarray, settings: Settings
         seen.add(g)
         # The core's reason reads "grasp k, contact 0: <what>"; keep <what>.
         what = doubled.reasons[k].split(": ", 1)[-1]
+        if -np.inf < packed.mu[k] < 0:  # finite and negative: 0 was perhaps meant
+            what += f" (0 uses the node's friction_coefficient, {settings.friction_coefficient:g})"
         problems.append(InvalidGrasp(g, k - int(starts[g]), what))
     return sorted(problems, key=lambda p: p.grasp)
 

@@ -27,7 +27,7 @@ class Settings:
     Attributes
     ----------
     friction_coefficient : float
-        Used for contacts whose own coefficient is finite and <= 0.
+        Used for contacts whose own coefficient is 0 (not given).
     use_filter : bool
         Run the torque-space filter before the exact test where it pays for the grasp's
         contact count (the core's ``use_filter="auto"``); False: never.
@@ -68,8 +68,8 @@ class PackedGrasps:
     normals : (K, 3) float64
         Inward contact normals, any length (validated by :func:`evaluate`).
     mu : (K,) float64
-        Friction coefficient per contact; finite values <= 0 mean "node default"
-        (NaN and +-inf are invalid).
+        Friction coefficient per contact; 0 means "node default" (negative values, NaN
+        and +-inf are invalid).
     name_by_id : bool
         True when the grasps are separate single-grasp topic queries: messages then
         name a grasp by its query id only ("query id 12"), since its place among the

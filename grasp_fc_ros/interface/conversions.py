@@ -370,7 +370,8 @@ def batch_arrays(ids: ArrayLike, positions: ArrayLike, normals: ArrayLike,
     ----------
     ids : (N,) int
     positions, normals : (N, n, 3) float, or (K, 3) stacked when ``counts`` is given
-    mu : None, scalar, or one value per contact; None or empty means node default
+    mu : None, scalar, or one value per contact; None, empty or 0 means the node's
+        friction_coefficient (a negative value: INVALID_INPUT)
     counts : (N,) int, optional
         Contacts per grasp for stacked (K, 3) input of mixed sizes.
     torsional_friction : None, scalar, or one value per contact
@@ -434,8 +435,14 @@ def batch_msg(fields: BatchArrays, *, client_id: int = 0, request_id: int = 0,
 _BATCH_TYPECODES = (_TYPECODE_UINT64, _TYPECODE_UINT32) + (_TYPECODE_FLOAT64,) * 4
 
 
+def friction_or_default(mu: ArrayLike | None) -> ArrayLike:
+    """``mu`` as sent in a Contact: None becomes 0, which the node reads as its
+    ``friction_coefficient`` parameter (a negative value is INVALID_INPUT there)."""
+    return 0.0 if mu is None else mu
+
+
 def grasp_to_contact_array(grasp_id: int, positions: ArrayLike, normals: ArrayLike,
-                           mu: ArrayLike = 0.0, *, client_id: int = 0,
+                           mu: ArrayLike | None = None, *, client_id: int = 0,
                            torsional_friction: ArrayLike = 0.0) -> ContactArray:
     """Build a single-grasp ContactArray (client side).
 
@@ -443,7 +450,7 @@ def grasp_to_contact_array(grasp_id: int, positions: ArrayLike, normals: ArrayLi
     ----------
     grasp_id : int
     positions, normals : (n, 3) float
-    mu : scalar or (n,) float; a finite value <= 0 means node default
+    mu : None, scalar or (n,) float; None or 0: the node's friction_coefficient
     client_id : int
         Echoed in the verdict.
     torsional_friction : scalar or (n,) float
@@ -451,7 +458,8 @@ def grasp_to_contact_array(grasp_id: int, positions: ArrayLike, normals: ArrayLi
     """
     points = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
     directions = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
-    mus = np.broadcast_to(np.asarray(mu, dtype=np.float64), (len(points),))
+    mus = np.broadcast_to(np.asarray(friction_or_default(mu), dtype=np.float64),
+                          (len(points),))
     gammas = np.broadcast_to(np.asarray(torsional_friction, dtype=np.float64), (len(points),))
     msg = ContactArray(id=int(grasp_id), client_id=int(client_id))
     msg.contacts = [

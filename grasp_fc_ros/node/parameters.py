@@ -60,7 +60,8 @@ PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
     # name: (default, descriptor)
     "friction_coefficient": (0.5, ParameterDescriptor(
         type=ParameterType.PARAMETER_DOUBLE,
-        description="Coulomb friction coefficient for contacts that give none (finite <= 0)",
+        description="Coulomb friction coefficient for contacts that give 0 (none); a "
+                    "negative one makes the query INVALID_INPUT",
         additional_constraints=f"finite, > 0 and <= {MAX_FRICTION_COEFFICIENT:g}")),
     "use_filter": (True, _bool_descriptor(
         "Run the torque-space filter before the exact test where it pays "

@@ -121,7 +121,8 @@ def test_bad_values_named_by_file_row_and_id(tmp_path):
     source = open_input(tmp_path / "bad.npz")
     assert validate_chunk(source, 0, 10) is None
     problem = validate_chunk(source, 10, 20)
-    assert problem == f"{source.path}: grasp 13 (id 513), contact 2: normal has zero length"
+    assert problem == (f"{source.path}: grasp 13 (id 513), contact 2: normal has zero length, "
+                       "got (0, 0, 0)")
 
 
 def test_negative_id_is_named(tmp_path):
