@@ -258,6 +258,15 @@ def _store_epsilon(verdicts: Verdicts, packed: PackedGrasps, group: np.ndarray,
     return time.perf_counter() - began
 
 
+def warm_up_epsilon() -> None:
+    """Compile (or load from numba's cache) the epsilon kernels :func:`group_epsilon`
+    uses, on a force-closure tetrahedron grasp: a cold compilation takes far longer
+    than a chunk (docs/epsilon.md#cost)."""
+    corners = np.array([[1.0, 1.0, 1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, -1.0],
+                        [-1.0, -1.0, 1.0]])
+    group_epsilon(corners[None], -corners[None], np.full((1, 4), 0.5))
+
+
 def group_epsilon(positions: np.ndarray, normals: np.ndarray, mu: np.ndarray,
                   torsional: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Certified Ferrari-Canny epsilon bounds of validated same-size grasps.

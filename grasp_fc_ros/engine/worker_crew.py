@@ -41,6 +41,9 @@ _logger = logging.getLogger(__name__)
 #: The command that starts a worker process; the crew appends its memory file's
 #: descriptor (see :func:`.worker.serve`).
 WORKER_COMMAND = (sys.executable, "-m", "grasp_fc_ros.engine.worker")
+#: Given before the descriptor, a worker also warms the epsilon kernels before it says
+#: it is ready (the pool's ``warm_epsilon``); otherwise its first epsilon chunk does.
+WARM_EPSILON_FLAG = "--warm-epsilon"
 
 # How long a worker may stay silent on a chunk before it counts as hung: at least
 # WORKER_TIMEOUT_S, plus a time per contact of the chunk (answer_bound_s). The floor
@@ -336,7 +339,7 @@ class _Slot:
             except OSError as exc:
                 raise _WorkerLost(f"cannot run {command[0]}: {exc}") from exc
             self._process = process
-            self._epsilon_warm = False
+            self._epsilon_warm = WARM_EPSILON_FLAG in self.crew.command
             self._arm(self.crew.start_timeout_s)
         try:
             hello = read_message(_pipes(process)[1])

@@ -96,7 +96,9 @@ class ForceClosureNode(Node):
         self._own_pool = pool is None
         self.statistics = Statistics()
         self.parameters = LiveParameters(self)
-        self.pool = pool if pool is not None else EvaluationPool(self.parameters.workers)
+        self.pool = pool if pool is not None else EvaluationPool(
+            self.parameters.workers,
+            warm_epsilon=self.parameters.settings.compute_epsilon)
         try:
             self._start_lanes()
         except BaseException:

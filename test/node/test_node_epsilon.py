@@ -111,14 +111,16 @@ def test_invalid_grasps_get_nan_bounds_and_spare_the_others(grasps):
     assert seconds["epsilon_s"] > 0
 
 
-def test_worker_chunks_return_epsilon_in_order(grasps):
-    """Chunks decided in a worker process (which compiles the epsilon kernels on its
-    first such chunk, within its allowance) come back with their bounds in place."""
+@pytest.mark.parametrize("warm_epsilon", [False, True])
+def test_worker_chunks_return_epsilon_in_order(grasps, warm_epsilon):
+    """Chunks decided in a worker process (which warms the epsilon kernels at start, or
+    on its first such chunk within its allowance) come back with their bounds in place."""
     positions, normals = grasps
     packed = batch_to_packed(grasps_to_batch_msg(np.arange(len(positions)), positions,
                                                  normals, DEFAULT_MU))
     settings = Settings(compute_epsilon=True)
-    pool = EvaluationPool(1, chunk_contacts=40)  # 8 grasps a chunk: 4 chunks
+    # 8 grasps a chunk: 4 chunks.
+    pool = EvaluationPool(1, chunk_contacts=40, warm_epsilon=warm_epsilon)
     try:
         pooled, _ = pool.decide(packed, settings)
     finally:
