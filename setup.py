@@ -4,7 +4,7 @@ package_name = "grasp_fc_ros"
 
 setup(
     name=package_name,
-    version="0.1.0",
+    version="1.0.0",
     packages=find_packages(exclude=["test", "test.*"]),
     # PEP 561: the package ships its type hints.
     package_data={package_name: ["py.typed"]},
@@ -23,7 +23,7 @@ setup(
                     "label": ["dask", "distributed", "pyarrow"]},
     zip_safe=True,
     maintainer="grasp_fc_ros maintainers",
-    maintainer_email="maintainers@grasp-fc-ros.dev",
+    maintainer_email="maintainers@users.noreply.h-seed-30dcbcef.example",
     description="Fast, exact force-closure test for multi-finger frictional grasps.",
     license="Apache-2.0",
     entry_points={

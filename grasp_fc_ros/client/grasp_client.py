@@ -51,6 +51,7 @@ from grasp_fc_ros.client.single_queries import (
 from grasp_fc_ros.engine.contact_forces import ContactForces
 from grasp_fc_ros.engine.packed import Verdicts
 from grasp_fc_ros.interface import wire
+from grasp_fc_ros.interface.conversions import friction_or_default
 from grasp_fc_ros.interface.names import (
     NODE_NAME,
     VERDICTS_BATCH_TOPIC,
@@ -135,7 +136,7 @@ class GraspClient:
 
     # --- single queries -----------------------------------------------------------------
 
-    def submit(self, positions: ArrayLike, normals: ArrayLike, mu: ArrayLike = 0.0,
+    def submit(self, positions: ArrayLike, normals: ArrayLike, mu: ArrayLike | None = None,
                query_id: int | None = None, frame_id: str = "",
                timeout: float = DEFAULT_TIMEOUT_S) -> Future:
         """Send one grasp on ``contacts``; return a Future of its ForceClosureVerdict.
@@ -144,8 +145,9 @@ class GraspClient:
         ----------
         positions, normals : (n, 3) float
             Contact positions (m) and inward normals.
-        mu : scalar or (n,) float
-            Friction per contact; a finite value <= 0 means the node's default.
+        mu : None, scalar or (n,) float
+            Friction per contact; None or 0: the node's ``friction_coefficient``
+            (negative: INVALID_INPUT).
         query_id : int, optional
             Default: a number counting up from 1 in this client.
         frame_id : str
@@ -164,7 +166,8 @@ class GraspClient:
         ValueError
             If ``query_id`` is already in flight (nothing was registered).
         """
-        return self._singles.submit(positions, normals, mu, query_id, frame_id, timeout)
+        return self._singles.submit(positions, normals, friction_or_default(mu), query_id,
+                                    frame_id, timeout)
 
     # --- batches ------------------------------------------------------------------------
 
@@ -176,7 +179,8 @@ class GraspClient:
         MAX_MESSAGE_CONTACTS contacts); return a Future of all their :class:`Verdicts`.
 
         ``positions``, ``normals``: (N, n, 3), or stacked (K, 3) with ``counts`` (N,);
-        ``mu``: None (node default), a scalar or one value per contact; ``ids``: (N,),
+        ``mu``: None or 0 (the node's ``friction_coefficient``), a scalar or one value per
+        contact; ``ids``: (N,),
         default 0..N-1; ``torsional_friction``: None (hard contacts), a scalar or one
         value per contact (m).
 
@@ -205,10 +209,11 @@ class GraspClient:
 
     # --- the services -------------------------------------------------------------------
 
-    def call(self, positions: ArrayLike, normals: ArrayLike, mu: ArrayLike = 0.0,
+    def call(self, positions: ArrayLike, normals: ArrayLike, mu: ArrayLike | None = None,
              ids: ArrayLike | None = None, timeout: float = DEFAULT_TIMEOUT_S) -> Verdicts:
         """Decide grasps (N, n, 3) through the service; their :class:`Verdicts` in order.
 
+        ``mu``: None or 0 (the node's ``friction_coefficient``), a scalar or (N, n).
         The verdicts always carry ``contact_forces`` (N * n, 3), ``separating_wrench``
         (N, 6) and ``min_friction`` (N,): NaN where the node sent none (parameters
         ``certificates``, ``compute_min_friction`` off, or no certificate).
@@ -218,14 +223,14 @@ class GraspClient:
         TimeoutError
             If no response came within ``timeout``.
         """
-        return self._services.call(positions, normals, mu, ids, timeout)
+        return self._services.call(positions, normals, friction_or_default(mu), ids, timeout)
 
     def call_request(self, request: Any, timeout: float = DEFAULT_TIMEOUT_S) -> Verdicts:
         """Send a prepared CheckForceClosure request; its :class:`Verdicts` in order."""
         return self._services.call_request(request, timeout)
 
     def compute_contact_forces(self, positions: ArrayLike, normals: ArrayLike,
-                               wrench: ArrayLike, mu: ArrayLike = 0.0,
+                               wrench: ArrayLike, mu: ArrayLike | None = None,
                                max_normal_forces: ArrayLike | None = None, frame_id: str = "",
                                timeout: float = DEFAULT_TIMEOUT_S,
                                torsional_friction: ArrayLike = 0.0) -> ContactForces:
@@ -239,8 +244,9 @@ class GraspClient:
         wrench : (6,) float
             External load on the object: force (N) then torque (N m) about the frame's
             origin; the contact forces cancel it.
-        mu : scalar or (n,) float
-            Friction per contact; a finite value <= 0 means the node's default.
+        mu : None, scalar or (n,) float
+            Friction per contact; None or 0: the node's ``friction_coefficient``
+            (negative: INVALID_INPUT).
         max_normal_forces : None or (n,) float
             Per-contact normal-force limits (N); None: no limits.
         frame_id : str
@@ -260,7 +266,8 @@ class GraspClient:
         TimeoutError
             If no response came within ``timeout``.
         """
-        return self._services.compute_contact_forces(positions, normals, wrench, mu,
+        return self._services.compute_contact_forces(positions, normals, wrench,
+                                                     friction_or_default(mu),
                                                      max_normal_forces, frame_id, timeout,
                                                      torsional_friction)
 
@@ -281,7 +288,7 @@ class GraspClient:
         positions, normals : (N, n, 3) float, or stacked (K, 3) with ``counts`` (N,)
             Contact positions (m) and inward normals.
         mu : None, scalar or one value per contact
-            None or values <= 0: the node's default friction.
+            None or 0: the node's ``friction_coefficient`` (negative: INVALID_INPUT).
         counts, ids : (N,) int, optional
             Contacts per grasp for stacked input; query ids (default 0..N-1).
         progress : bool

@@ -76,16 +76,18 @@ def torsional_or_none(torsional: np.ndarray) -> np.ndarray | None:
 
 
 def torsional_checks(torsional: np.ndarray) -> tuple:
-    """Per-contact checks of gamma (N, n) for the validation: (bad mask, what) pairs.
+    """Per-contact checks of gamma (N, n) for the validation: (bad mask, what, values)
+    triples.
 
     gamma must be finite, >= 0 and, being a length like the positions, at most
     ``MAX_ABS_COORDINATE``.
     """
     return (
-        (~np.isfinite(torsional), "torsional friction is not finite"),
-        (~(torsional >= 0), "torsional friction must be >= 0"),
+        (~np.isfinite(torsional), "torsional friction is not finite", torsional),
+        (~(torsional >= 0), "torsional friction must be >= 0 (0: a hard contact)", torsional),
         (torsional > MAX_ABS_COORDINATE,
-         f"torsional friction exceeds {MAX_ABS_COORDINATE:.3g} (use a larger length unit)"),
+         f"torsional friction exceeds {MAX_ABS_COORDINATE:.3g} (use a larger length unit)",
+         torsional),
     )
 
 

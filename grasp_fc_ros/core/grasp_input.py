@@ -212,28 +212,36 @@ def _validate(p: np.ndarray, nrm: np.ndarray, m: np.ndarray,
     with np.errstate(invalid="ignore"):
         normal_size = _largest_component(nrm)
         checks = (
-            (~np.isfinite(p).all(axis=2), "position is not finite"),
+            (~np.isfinite(p).all(axis=2), "position is not finite", p),
             (~(_largest_component(p) <= MAX_ABS_COORDINATE),
              f"position has a coordinate beyond +-{MAX_ABS_COORDINATE:.3g} (use a larger "
-             "length unit)"),
-            (~np.isfinite(nrm).all(axis=2), "normal is not finite"),
-            (normal_size == 0, "normal has zero length"),
+             "length unit)", p),
+            (~np.isfinite(nrm).all(axis=2), "normal is not finite", nrm),
+            (normal_size == 0, "normal has zero length", nrm),
             (normal_size < MIN_NORMAL_COMPONENT,
              f"normal is too short to give a direction (every component below "
-             f"{MIN_NORMAL_COMPONENT:.3g})"),
-            (~np.isfinite(m), "friction coefficient is not finite"),
-            (~(m > 0), "friction coefficient must be > 0"),
+             f"{MIN_NORMAL_COMPONENT:.3g}; scale it up)", nrm),
+            (~np.isfinite(m), "friction coefficient is not finite", m),
+            (~(m > 0), "friction coefficient must be > 0", m),
             (m > MAX_FRICTION_COEFFICIENT,
-             f"friction coefficient exceeds {MAX_FRICTION_COEFFICIENT:g}"),
+             f"friction coefficient exceeds {MAX_FRICTION_COEFFICIENT:g}", m),
         ) + (() if torsional is None else torsional_checks(torsional))
     valid = np.ones(n_grasps, dtype=bool)
     # Report the first problem of each grasp: a grasp already found bad is skipped.
-    for bad, what in checks:
+    for bad, what, values in checks:
         has_bad, first = _first_per_grasp(bad)
         for g in np.flatnonzero(has_bad & valid):
-            reasons[g] = f"grasp {g}, contact {first[g]}: {what}"
+            reasons[g] = (f"grasp {g}, contact {first[g]}: {what}, got "
+                          f"{show_value(values[g, first[g]])}")
         valid &= ~has_bad
     return GraspValidation(valid, reasons)
+
+
+def show_value(value: np.ndarray | float) -> str:
+    """A contact's offending value for a message: ``-0.5`` or ``(0, 0, 0)`` (6 digits)."""
+    if np.ndim(value) == 0:
+        return f"{float(value):.6g}"
+    return "(" + ", ".join(f"{float(v):.6g}" for v in np.ravel(value)) + ")"
 
 
 def _all_valid(p: np.ndarray, nrm: np.ndarray, m: np.ndarray) -> bool:

@@ -53,13 +53,17 @@ from .torque_space_filter import (
 
 
 class Status(IntEnum):
-    """How a grasp was decided; also the ``uint8`` status codes of the ROS messages."""
+    """How a grasp was decided; also the ``uint8`` status codes of the ROS messages.
 
-    FORCE_CLOSURE = 0      #: the exact test found a verified strictly internal force
-    NOT_FORCE_CLOSURE = 1  #: decided by the exact test (incl. a rank-deficient grasp map)
-    FILTERED_OUT = 2       #: rejected by the torque filter: certainly not force closure
-    INVALID_INPUT = 3      #: bad input (produced by callers that validate per grasp)
-    SOLVER_FAILURE = 4     #: the solver could not decide, even after a retry
+    0 is UNKNOWN, so that a zero-initialised verdict never reads as a decision (the ROS
+    message convention; interface 1.0, before which FORCE_CLOSURE was 0)."""
+
+    UNKNOWN = 0            #: no verdict: a zero-initialised message (never produced)
+    FORCE_CLOSURE = 1      #: the exact test found a verified strictly internal force
+    NOT_FORCE_CLOSURE = 2  #: decided by the exact test (incl. a rank-deficient grasp map)
+    FILTERED_OUT = 3       #: rejected by the torque filter: certainly not force closure
+    INVALID_INPUT = 4      #: bad input (produced by callers that validate per grasp)
+    SOLVER_FAILURE = 5     #: the solver could not decide, even after a retry
 
 
 # Plain integers for the per-call path: an IntEnum attribute lookup is a noticeable part

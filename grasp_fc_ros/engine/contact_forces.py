@@ -61,7 +61,7 @@ def contact_forces_for_load(packed: PackedGrasps, wrench: ArrayLike,
     Parameters
     ----------
     packed : PackedGrasps
-        Exactly one grasp of n contacts (friction <= 0: the default of ``settings``).
+        Exactly one grasp of n contacts (friction 0: the default of ``settings``).
     wrench : (6,) float
         External load: force (N) then torque (N m) about the frame's origin.
     max_normal_forces : (0,) or (n,) float

@@ -21,6 +21,7 @@ from grasp_fc_ros.core import (
     ForceClosureResult,
     Status,
     check_force_closure,
+    epsilon_quality,
     minimum_friction,
     validate_grasps,
 )
@@ -55,11 +56,12 @@ class InvalidGrasp:
 
 
 def effective_friction(mu: np.ndarray, default: float) -> np.ndarray:
-    """Contact friction with finite values <= 0 replaced by ``default``; shape kept.
+    """Contact friction with values exactly 0 (the messages' "not given") replaced by
+    ``default``; shape kept.
 
-    NaN and +-inf stay, so that validation rejects them as not finite.
+    Negative values, NaN and +-inf stay, so that validation rejects them (INVALID_INPUT).
     """
-    return np.where(np.isfinite(mu) & (mu <= 0), default, mu)
+    return np.where(mu == 0, default, mu)
 
 
 def find_invalid(packed: PackedGrasps, mu: np.ndarray, settings: Settings
@@ -97,6 +99,8 @@ def find_invalid(packed: PackedGrasps, mu: np.ndarray, settings: Settings
         seen.add(g)
         # The core's reason reads "grasp k, contact 0: <what>"; keep <what>.
         what = doubled.reasons[k].split(": ", 1)[-1]
+        if -np.inf < packed.mu[k] < 0:  # finite and negative: 0 was perhaps meant
+            what += f" (0 uses the node's friction_coefficient, {settings.friction_coefficient:g})"
         problems.append(InvalidGrasp(g, k - int(starts[g]), what))
     return sorted(problems, key=lambda p: p.grasp)
 
@@ -132,11 +136,15 @@ def evaluate(packed: PackedGrasps, settings: Settings) -> tuple[Verdicts, dict]:
         these arrays); with ``settings.compute_min_friction`` ``min_friction``: the
         core's :func:`minimum_friction` with ratios = each contact's effective friction
         over the grasp's largest, so the grasp is force closure when its largest
-        coefficient exceeds mu* (the others scaled along) and not below it.
+        coefficient exceeds mu* (the others scaled along) and not below it; with
+        ``settings.compute_epsilon`` ``epsilon_lower`` and ``epsilon_upper``: the
+        core's :func:`epsilon_quality` at its default accuracy, torques about the
+        frame's origin (see :func:`group_epsilon`).
     seconds : dict
         Time spent: ``validation_s`` (0 where the core validated the grasps inside its
         own call: one grasp, or grasps of one size), ``filter_s``, ``exact_s``
-        (certificates included) and, if computed, ``min_friction_s`` (s).
+        (certificates included) and, if computed, ``min_friction_s`` and
+        ``epsilon_s`` (s).
     """
     lone = _decide_lone_grasp(packed, settings)
     if lone is not None:
@@ -193,6 +201,8 @@ def _decide_groups(packed: PackedGrasps, mu: np.ndarray, settings: Settings,
     seconds = {"validation_s": validation_s, "filter_s": 0.0, "exact_s": 0.0}
     if settings.compute_min_friction:
         seconds["min_friction_s"] = 0.0
+    if settings.compute_epsilon:
+        seconds["epsilon_s"] = 0.0
     starts = packed.starts
     min_friction = verdicts.min_friction  # an array when the settings ask for mu*
     for group in groups:
@@ -225,7 +235,63 @@ def _decide_groups(packed: PackedGrasps, mu: np.ndarray, settings: Settings,
                 for i in group:
                     verdicts.messages[i] = f"min_friction not computed: {exc}"
             seconds["min_friction_s"] += time.perf_counter() - began
+        if settings.compute_epsilon:
+            seconds["epsilon_s"] += _store_epsilon(verdicts, packed, group, rows, mu)
     return verdicts, seconds
+
+
+def _store_epsilon(verdicts: Verdicts, packed: PackedGrasps, group: np.ndarray,
+                   rows: np.ndarray, mu: np.ndarray) -> float:
+    """Put the epsilon bounds of the grasps ``group`` (contacts ``rows``) into
+    ``verdicts`` (made with NaN bounds by :meth:`Verdicts.failed_grasps`); a failure
+    leaves them NaN and says so in the messages. Returns the seconds it took."""
+    lower, upper = verdicts.epsilon_lower, verdicts.epsilon_upper
+    assert lower is not None and upper is not None, "verdicts made without epsilon"
+    began = time.perf_counter()
+    try:
+        lower[group], upper[group] = group_epsilon(
+            packed.positions[rows], packed.normals[rows], mu[rows],
+            None if packed.torsional is None else packed.torsional[rows])
+    except Exception as exc:  # noqa: BLE001 - an optional extra: verdicts stand
+        for i in group:
+            verdicts.messages[i] = f"epsilon not computed: {exc}"
+    return time.perf_counter() - began
+
+
+def warm_up_epsilon() -> None:
+    """Compile (or load from numba's cache) the epsilon kernels :func:`group_epsilon`
+    uses, on a force-closure tetrahedron grasp: a cold compilation takes far longer
+    than a chunk (docs/epsilon.md#cost)."""
+    corners = np.array([[1.0, 1.0, 1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, -1.0],
+                        [-1.0, -1.0, 1.0]])
+    group_epsilon(corners[None], -corners[None], np.full((1, 4), 0.5))
+
+
+def group_epsilon(positions: np.ndarray, normals: np.ndarray, mu: np.ndarray,
+                  torsional: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Certified Ferrari-Canny epsilon bounds of validated same-size grasps.
+
+    The core's :func:`epsilon_quality` with its defaults: the L1 budget (normal forces
+    summing to at most 1), torques about the origin of the query's frame divided by the
+    grasp's largest contact distance from it (so the bounds are unitless and do not
+    change when the grasp is scaled about that origin), rtol 1e-3.
+
+    Parameters
+    ----------
+    positions, normals : (G, n, 3) float64
+    mu : (G, n) float64
+        Effective friction per contact (> 0).
+    torsional : (G, n) float64 or None
+        Torsional friction per contact (m; 0 or None: hard contacts).
+
+    Returns
+    -------
+    lower, upper : (G,) float64
+        lower <= epsilon <= upper; lower > 0 only for force-closure grasps.
+    """
+    result = epsilon_quality(positions, normals, mu,
+                             torsional_friction=0.0 if torsional is None else torsional)
+    return result.lower, result.upper
 
 
 def _store_certificates(verdicts: Verdicts, result: ForceClosureResult, group: np.ndarray,
@@ -254,7 +320,7 @@ def _decide_lone_grasp(packed: PackedGrasps, settings: Settings
     docs/performance.md#one-grasp). Invalid input makes the core raise ValueError: the
     general path then decides the grasp again and says which contact is wrong.
     """
-    if (len(packed) != 1 or settings.compute_min_friction
+    if (len(packed) != 1 or settings.compute_min_friction or settings.compute_epsilon
             or not MIN_CONTACTS <= packed.counts[0] <= settings.max_contacts):
         return None
     mu = effective_friction(packed.mu, settings.friction_coefficient)

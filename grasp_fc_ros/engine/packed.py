@@ -27,7 +27,7 @@ class Settings:
     Attributes
     ----------
     friction_coefficient : float
-        Used for contacts whose own coefficient is finite and <= 0.
+        Used for contacts whose own coefficient is 0 (not given).
     use_filter : bool
         Run the torque-space filter before the exact test where it pays for the grasp's
         contact count (the core's ``use_filter="auto"``); False: never.
@@ -42,6 +42,9 @@ class Settings:
         separating wrenches of rejected ones (the core's ``certificates=True``).
     compute_min_friction : bool
         Also return each grasp's minimum friction coefficient (see :func:`evaluate`).
+    compute_epsilon : bool
+        Also return each grasp's certified Ferrari-Canny epsilon bounds (the core's
+        :func:`~grasp_fc_ros.core.epsilon_quality`; see :func:`evaluate`).
     """
 
     friction_coefficient: float = 0.5
@@ -51,6 +54,7 @@ class Settings:
     max_batch: int = 100_000
     certificates: bool = False
     compute_min_friction: bool = False
+    compute_epsilon: bool = False
 
 
 @dataclass
@@ -68,8 +72,8 @@ class PackedGrasps:
     normals : (K, 3) float64
         Inward contact normals, any length (validated by :func:`evaluate`).
     mu : (K,) float64
-        Friction coefficient per contact; finite values <= 0 mean "node default"
-        (NaN and +-inf are invalid).
+        Friction coefficient per contact; 0 means "node default" (negative values, NaN
+        and +-inf are invalid).
     name_by_id : bool
         True when the grasps are separate single-grasp topic queries: messages then
         name a grasp by its query id only ("query id 12"), since its place among the
@@ -162,6 +166,12 @@ class Verdicts:
     min_friction : (N,) float64 or None
         Minimum friction coefficient mu* of each grasp; NaN where not computed (invalid
         input, or not certified). None: not computed for any grasp.
+    epsilon_lower, epsilon_upper : (N,) float64 or None
+        Certified bounds lower <= epsilon <= upper on each grasp's Ferrari-Canny epsilon
+        (the core's :func:`~grasp_fc_ros.core.epsilon_quality`: L1 budget, torques about
+        the frame's origin over the grasp's largest contact distance from it; unitless);
+        NaN where not computed (invalid input, a failure). None: not computed for any
+        grasp.
     """
 
     ids: np.ndarray
@@ -173,6 +183,8 @@ class Verdicts:
     contact_torques: np.ndarray | None = None
     separating_wrench: np.ndarray | None = None
     min_friction: np.ndarray | None = None
+    epsilon_lower: np.ndarray | None = None
+    epsilon_upper: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -201,6 +213,9 @@ class Verdicts:
             verdicts.separating_wrench = np.full((n_grasps, 6), np.nan)
         if settings.compute_min_friction:
             verdicts.min_friction = np.full(n_grasps, np.nan)
+        if settings.compute_epsilon:
+            verdicts.epsilon_lower = np.full(n_grasps, np.nan)
+            verdicts.epsilon_upper = np.full(n_grasps, np.nan)
         return verdicts
 
     @classmethod
@@ -218,7 +233,8 @@ class Verdicts:
 
 
 # The optional per-grasp results of Verdicts, computed only when the settings ask.
-OPTIONAL_FIELDS = ("contact_forces", "contact_torques", "separating_wrench", "min_friction")
+OPTIONAL_FIELDS = ("contact_forces", "contact_torques", "separating_wrench", "min_friction",
+                   "epsilon_lower", "epsilon_upper")
 
 
 def _concatenate_optional(arrays: list) -> np.ndarray | None:

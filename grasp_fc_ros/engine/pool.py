@@ -24,6 +24,7 @@ from grasp_fc_ros.engine.evaluation import evaluate
 from grasp_fc_ros.engine.packed import PackedGrasps, Settings, Verdicts
 from grasp_fc_ros.engine.worker_crew import (
     START_TIMEOUT_S,
+    WARM_EPSILON_FLAG,
     WORKER_COMMAND,
     WORKER_TIMEOUT_S,
     WorkerCrew,
@@ -133,18 +134,24 @@ class EvaluationPool:
     log : callable (str) -> None, optional
         Told of every worker that dies, hangs or cannot start and what became of its
         chunk (default: this module's :mod:`logging` logger, as warnings).
+    warm_epsilon : bool
+        Workers also warm the epsilon kernels before they are ready (a cold compilation
+        counts against ``start_timeout_s``); otherwise each worker's first chunk with
+        ``compute_epsilon`` does, with the start-up time allowed on top of its bound.
     """
 
     def __init__(self, workers: int, chunk_contacts: int = CHUNK_CONTACTS, *,
                  worker_timeout_s: float = WORKER_TIMEOUT_S,
                  start_timeout_s: float = START_TIMEOUT_S,
                  worker_command: Sequence[str] | None = None,
-                 log: Callable[[str], None] | None = None):
+                 log: Callable[[str], None] | None = None, warm_epsilon: bool = False):
         self.workers = workers
         self.worker_timeout_s = worker_timeout_s
         self._chunk_contacts = chunk_contacts
-        self._crew = WorkerCrew(workers, WORKER_COMMAND if worker_command is None
-                                else worker_command, worker_timeout_s, start_timeout_s,
+        command = tuple(WORKER_COMMAND if worker_command is None else worker_command)
+        if warm_epsilon:
+            command += (WARM_EPSILON_FLAG,)
+        self._crew = WorkerCrew(workers, command, worker_timeout_s, start_timeout_s,
                                 _log.warning if log is None else log) if workers else None
 
     def decide(self, packed: PackedGrasps, settings: Settings,

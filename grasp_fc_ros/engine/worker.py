@@ -14,22 +14,23 @@ from collections.abc import Callable
 
 from grasp_fc_ros.core import warm_up
 from grasp_fc_ros.engine.child_process import read_message, write_message
-from grasp_fc_ros.engine.evaluation import evaluate
+from grasp_fc_ros.engine.evaluation import evaluate, warm_up_epsilon
 from grasp_fc_ros.engine.packed import PackedGrasps, Settings, Verdicts
 from grasp_fc_ros.engine.shared_chunk import SHARED, SharedChunk
+from grasp_fc_ros.engine.worker_crew import WARM_EPSILON_FLAG
 
 #: What a worker does with a chunk: :func:`~.evaluation.evaluate`'s signature.
 Decide = Callable[[PackedGrasps, Settings], tuple[Verdicts, dict]]
 
-
-def serve(shared_fd: int, decide: Decide = evaluate) -> None:
+def serve(shared_fd: int, decide: Decide = evaluate, warm_epsilon: bool = False) -> None:
     """Worker main loop: a chunk in on stdin (its arrays in the memory of file descriptor
     ``shared_fd``, or pickled whole), ``(True, decide(chunk, settings))`` out on stdout,
     or ``(False, reason)`` if ``decide`` raised.
 
     ``decide`` is a seam for fault tests (test/engine/faulty_worker.py wraps
     :func:`~.evaluation.evaluate` in a worker that dies or hangs on chosen chunks);
-    the pool's workers use :func:`~.evaluation.evaluate` itself.
+    the pool's workers use :func:`~.evaluation.evaluate` itself. With ``warm_epsilon``
+    the epsilon kernels are warmed too before the worker says it is ready.
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     stdin, stdout = sys.stdin.buffer, sys.stdout.buffer
@@ -37,6 +38,8 @@ def serve(shared_fd: int, decide: Decide = evaluate) -> None:
     sys.stdout = sys.stderr
     shared = SharedChunk(shared_fd)
     warm_up()  # the compiled exact stage, before the pool counts this worker as ready
+    if warm_epsilon:
+        warm_up_epsilon()
     write_message(stdout, "ready")
     while True:
         try:
@@ -52,4 +55,4 @@ def serve(shared_fd: int, decide: Decide = evaluate) -> None:
 
 
 if __name__ == "__main__":
-    serve(int(sys.argv[1]))
+    serve(int(sys.argv[-1]), warm_epsilon=WARM_EPSILON_FLAG in sys.argv[1:-1])

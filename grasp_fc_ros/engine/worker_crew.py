@@ -41,6 +41,9 @@ _logger = logging.getLogger(__name__)
 #: The command that starts a worker process; the crew appends its memory file's
 #: descriptor (see :func:`.worker.serve`).
 WORKER_COMMAND = (sys.executable, "-m", "grasp_fc_ros.engine.worker")
+#: Given before the descriptor, a worker also warms the epsilon kernels before it says
+#: it is ready (the pool's ``warm_epsilon``); otherwise its first epsilon chunk does.
+WARM_EPSILON_FLAG = "--warm-epsilon"
 
 # How long a worker may stay silent on a chunk before it counts as hung: at least
 # WORKER_TIMEOUT_S, plus a time per contact of the chunk (answer_bound_s). The floor
@@ -75,8 +78,9 @@ JOIN_TIMEOUT_S = 2.0
 def answer_bound_s(chunk: PackedGrasps, settings: Settings, floor_s: float) -> float:
     """Seconds a worker may take to answer ``chunk`` before it counts as hung:
     ``floor_s`` plus :data:`SLOW_CONTACT_S` per contact when the chunk has soft contacts
-    or asks for mu*, else :data:`HARD_CONTACT_S`."""
-    slow = chunk.torsional is not None or settings.compute_min_friction
+    or asks for mu* or epsilon, else :data:`HARD_CONTACT_S`."""
+    slow = (chunk.torsional is not None or settings.compute_min_friction
+            or settings.compute_epsilon)
     return floor_s + len(chunk.mu) * (SLOW_CONTACT_S if slow else HARD_CONTACT_S)
 
 
@@ -271,6 +275,10 @@ class _Slot:
         self._deadline: float | None = None
         self._bound_s = 0.0
         self._killed_late = False
+        # Whether the current process has answered an epsilon chunk: a worker warms
+        # only the verdict kernels at start, so its first epsilon chunk compiles (or
+        # loads from numba's cache) the epsilon kernels and gets the start-up allowance.
+        self._epsilon_warm = False
         self._thread = threading.Thread(target=self._run, daemon=True,
                                         name=f"grasp_fc_worker_{index}")
         self._thread.start()
@@ -331,6 +339,7 @@ class _Slot:
             except OSError as exc:
                 raise _WorkerLost(f"cannot run {command[0]}: {exc}") from exc
             self._process = process
+            self._epsilon_warm = WARM_EPSILON_FLAG in self.crew.command
             self._arm(self.crew.start_timeout_s)
         try:
             hello = read_message(_pipes(process)[1])
@@ -357,8 +366,10 @@ class _Slot:
             return True
         message = ((SHARED, layout, task.settings) if layout is not None
                    else (PICKLED, task.chunk, task.settings))
+        compiles = task.settings.compute_epsilon and not self._epsilon_warm
         with self._lock:
-            self._arm(answer_bound_s(task.chunk, task.settings, self.crew.worker_timeout_s))
+            self._arm(answer_bound_s(task.chunk, task.settings, self.crew.worker_timeout_s)
+                      + (self.crew.start_timeout_s if compiles else 0.0))
         to_worker, from_worker = _pipes(process)
         try:
             write_message(to_worker, message)
@@ -368,6 +379,7 @@ class _Slot:
             self.crew.worker_died(task, self._lost(process, exc, "deciding a chunk"))
             return False
         self._disarm()
+        self._epsilon_warm |= bool(task.settings.compute_epsilon)
         if ok:
             settle(task, answer)
         else:  # evaluate itself raised: deciding again would fail the same way

@@ -169,6 +169,9 @@ def verdicts_to_array_msg(verdicts: Verdicts, query: ContactArrayBatch | None = 
                                             verdicts.separating_wrench.reshape(-1))
     if verdicts.min_friction is not None:
         msg.min_friction = _to_field(_TYPECODE_FLOAT64, verdicts.min_friction)
+    if verdicts.epsilon_lower is not None and verdicts.epsilon_upper is not None:
+        msg.epsilon_lower = _to_field(_TYPECODE_FLOAT64, verdicts.epsilon_lower)
+        msg.epsilon_upper = _to_field(_TYPECODE_FLOAT64, verdicts.epsilon_upper)
     return msg
 
 
@@ -184,13 +187,13 @@ def _set_wrench(reply: ForceClosureVerdict, values: list[float]) -> None:
 
 def _set_certificates(reply: ForceClosureVerdict, forces: np.ndarray | None,
                       torques: np.ndarray | None, wrench: np.ndarray | None,
-                      min_friction: float) -> None:
+                      min_friction: float, epsilon: tuple[float, float]) -> None:
     """Fill the certificate fields of one verdict message made by
-    :func:`verdicts_to_msgs` (NaN wrench and min_friction, no forces).
+    :func:`verdicts_to_msgs` (NaN wrench, min_friction and epsilon, no forces).
 
     ``forces`` (n, 3) and ``torques`` (n,) or None are sent only for a FORCE_CLOSURE
     verdict (empty otherwise); ``wrench`` (6,) or None (the NaN stays); ``min_friction``
-    as it is (NaN: not computed).
+    and ``epsilon`` (lower, upper) as they are (NaN: not computed).
     """
     if forces is not None and reply.status == ForceClosureVerdict.FORCE_CLOSURE:
         reply.contact_forces = _vectors(forces)
@@ -199,6 +202,7 @@ def _set_certificates(reply: ForceClosureVerdict, forces: np.ndarray | None,
     if wrench is not None and not np.isnan(wrench).any():
         _set_wrench(reply, wrench.tolist())
     reply.min_friction = min_friction
+    reply.epsilon_lower, reply.epsilon_upper = epsilon
 
 
 def verdicts_to_msgs(verdicts: Verdicts, queries: list[ContactArray] | None = None
@@ -209,7 +213,8 @@ def verdicts_to_msgs(verdicts: Verdicts, queries: list[ContactArray] | None = No
     and client_id are copied into the verdicts. The certificate fields follow
     ForceClosureVerdict's conventions: ``contact_forces`` (split by the queries' contact
     counts, so ``queries`` are needed with them) only for FORCE_CLOSURE verdicts,
-    ``separating_wrench`` and ``min_friction`` NaN where there is none.
+    ``separating_wrench``, ``min_friction`` and the epsilon bounds NaN where there is
+    none.
 
     Raises
     ------
@@ -255,16 +260,21 @@ def _certificates_to_msgs(verdicts: Verdicts, queries: list[ContactArray] | None
                                          else [None] * len(out))
     min_friction = (verdicts.min_friction.tolist() if verdicts.min_friction is not None
                     else [math.nan] * len(out))
-    for reply, f, t, w, m in zip(out, forces, torques, wrenches, min_friction, strict=True):
-        _set_certificates(reply, f, t, w, m)
+    epsilon = (list(zip(verdicts.epsilon_lower.tolist(), verdicts.epsilon_upper.tolist(),
+                        strict=True))
+               if verdicts.epsilon_lower is not None and verdicts.epsilon_upper is not None
+               else [(math.nan, math.nan)] * len(out))
+    for reply, f, t, w, m, e in zip(out, forces, torques, wrenches, min_friction, epsilon,
+                                    strict=True):
+        _set_certificates(reply, f, t, w, m, e)
 
 
 def verdict_array_to_numpy(msg: ForceClosureVerdictArray) -> Verdicts:
     """Read a ForceClosureVerdictArray back into numpy arrays (client side).
 
     The certificate fields become ``contact_forces`` (K, 3), ``contact_torques`` (K,),
-    ``separating_wrench`` (N, 6) and ``min_friction`` (N,), or None where the message
-    carries none (empty).
+    ``separating_wrench`` (N, 6), ``min_friction``, ``epsilon_lower`` and
+    ``epsilon_upper`` (N,), or None where the message carries none (empty).
     """
     def optional(values: Any, width: int) -> np.ndarray | None:
         if not len(values):
@@ -282,6 +292,8 @@ def verdict_array_to_numpy(msg: ForceClosureVerdictArray) -> Verdicts:
         contact_torques=optional(msg.contact_torques, 0),
         separating_wrench=optional(msg.separating_wrenches, 6),
         min_friction=optional(msg.min_friction, 0),
+        epsilon_lower=optional(msg.epsilon_lower, 0),
+        epsilon_upper=optional(msg.epsilon_upper, 0),
     )
 
 
@@ -300,7 +312,8 @@ def verdict_msgs_to_numpy(replies: list[ForceClosureVerdict], counts: ArrayLike)
     -------
     Verdicts
         With ``contact_forces`` (K, 3) (NaN rows for grasps without forces),
-        ``separating_wrench`` (N, 6) and ``min_friction`` (N,) always set: single
+        ``separating_wrench`` (N, 6), ``min_friction``, ``epsilon_lower`` and
+        ``epsilon_upper`` (N,) always set: single
         verdicts carry NaN, not "absent", where there is none; ``contact_torques`` (K,)
         (NaN where there are none) when any verdict carries them, else None.
 
@@ -342,7 +355,9 @@ def verdict_msgs_to_numpy(replies: list[ForceClosureVerdict], counts: ArrayLike)
         contact_forces=forces,
         contact_torques=torques if any(len(r.contact_torques) for r in replies) else None,
         separating_wrench=wrench,
-        min_friction=np.array([r.min_friction for r in replies], dtype=np.float64))
+        min_friction=np.array([r.min_friction for r in replies], dtype=np.float64),
+        epsilon_lower=np.array([r.epsilon_lower for r in replies], dtype=np.float64),
+        epsilon_upper=np.array([r.epsilon_upper for r in replies], dtype=np.float64))
 
 
 class BatchArrays(NamedTuple):
@@ -370,7 +385,8 @@ def batch_arrays(ids: ArrayLike, positions: ArrayLike, normals: ArrayLike,
     ----------
     ids : (N,) int
     positions, normals : (N, n, 3) float, or (K, 3) stacked when ``counts`` is given
-    mu : None, scalar, or one value per contact; None or empty means node default
+    mu : None, scalar, or one value per contact; None, empty or 0 means the node's
+        friction_coefficient (a negative value: INVALID_INPUT)
     counts : (N,) int, optional
         Contacts per grasp for stacked (K, 3) input of mixed sizes.
     torsional_friction : None, scalar, or one value per contact
@@ -434,8 +450,14 @@ def batch_msg(fields: BatchArrays, *, client_id: int = 0, request_id: int = 0,
 _BATCH_TYPECODES = (_TYPECODE_UINT64, _TYPECODE_UINT32) + (_TYPECODE_FLOAT64,) * 4
 
 
+def friction_or_default(mu: ArrayLike | None) -> ArrayLike:
+    """``mu`` as sent in a Contact: None becomes 0, which the node reads as its
+    ``friction_coefficient`` parameter (a negative value is INVALID_INPUT there)."""
+    return 0.0 if mu is None else mu
+
+
 def grasp_to_contact_array(grasp_id: int, positions: ArrayLike, normals: ArrayLike,
-                           mu: ArrayLike = 0.0, *, client_id: int = 0,
+                           mu: ArrayLike | None = None, *, client_id: int = 0,
                            torsional_friction: ArrayLike = 0.0) -> ContactArray:
     """Build a single-grasp ContactArray (client side).
 
@@ -443,7 +465,7 @@ def grasp_to_contact_array(grasp_id: int, positions: ArrayLike, normals: ArrayLi
     ----------
     grasp_id : int
     positions, normals : (n, 3) float
-    mu : scalar or (n,) float; a finite value <= 0 means node default
+    mu : None, scalar or (n,) float; None or 0: the node's friction_coefficient
     client_id : int
         Echoed in the verdict.
     torsional_friction : scalar or (n,) float
@@ -451,7 +473,8 @@ def grasp_to_contact_array(grasp_id: int, positions: ArrayLike, normals: ArrayLi
     """
     points = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
     directions = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
-    mus = np.broadcast_to(np.asarray(mu, dtype=np.float64), (len(points),))
+    mus = np.broadcast_to(np.asarray(friction_or_default(mu), dtype=np.float64),
+                          (len(points),))
     gammas = np.broadcast_to(np.asarray(torsional_friction, dtype=np.float64), (len(points),))
     msg = ContactArray(id=int(grasp_id), client_id=int(client_id))
     msg.contacts = [

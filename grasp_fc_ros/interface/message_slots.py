@@ -105,19 +105,22 @@ def contact(position: Point, normal: Vector3, friction_coefficient: float,
 def verdict(header: Header, client_id: int, query_id: int, force_closure: bool, status: int,
             margin: float, message: str, contact_forces: list[Vector3],
             contact_torques: array.array, separating_wrench: Wrench,
-            min_friction: float) -> ForceClosureVerdict:
+            min_friction: float, epsilon_lower: float = math.nan,
+            epsilon_upper: float = math.nan) -> ForceClosureVerdict:
     if not FAST:
         return ForceClosureVerdict(
             header=header, client_id=client_id, id=query_id, force_closure=force_closure,
             status=status, margin=margin, message=message, contact_forces=contact_forces,
             contact_torques=contact_torques, separating_wrench=separating_wrench,
-            min_friction=min_friction)
+            min_friction=min_friction, epsilon_lower=epsilon_lower,
+            epsilon_upper=epsilon_upper)
     msg = _new(ForceClosureVerdict)
     msg._header, msg._client_id, msg._id = header, client_id, query_id
     msg._force_closure, msg._status, msg._margin = force_closure, status, margin
     msg._message, msg._contact_forces, msg._contact_torques = (message, contact_forces,
                                                                contact_torques)
     msg._separating_wrench, msg._min_friction = separating_wrench, min_friction
+    msg._epsilon_lower, msg._epsilon_upper = epsilon_lower, epsilon_upper
     msg._check_fields = False
     return msg
 

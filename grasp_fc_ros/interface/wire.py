@@ -64,9 +64,10 @@ _MIN_QUERY_BYTES = _ENCAPSULATION + 16 + 16 + 4
 # force_closure, uint8 status, pad to 8, float64 margin, then string message.
 _VERDICT_HEAD = struct.Struct("<BB6xd")
 # After the message: pad to 4, uint32 0 (no contact_forces), uint32 0 (no
-# contact_torques), pad to 8, separating_wrench (6 float64) and min_friction, all NaN:
-# no certificate.
+# contact_torques), pad to 8, then the float64 tail: separating_wrench (6 values),
+# min_friction, epsilon_lower and epsilon_upper, all NaN: no certificate, not computed.
 _NAN = struct.pack("<d", math.nan)
+_TAIL_VALUES = 9
 
 
 def _align(offset: int, size: int) -> int:
@@ -185,7 +186,8 @@ def encode_verdicts(prefixes: list[bytes], force_closure: ArrayLike, status: Arr
     Returns
     -------
     list of bytes
-        contact_forces and contact_torques empty, separating_wrench and min_friction NaN.
+        contact_forces and contact_torques empty; separating_wrench, min_friction and
+        the epsilon bounds NaN.
     """
     out = []
     empty_tail = _message_tail("")
@@ -206,7 +208,7 @@ def _message_tail(text: str) -> bytes:
     pad4 = _align(at + len(tail), 4) - (at + len(tail))
     tail += b"\0" * pad4 + struct.pack("<II", 0, 0)
     pad8 = _align(at + len(tail), 8) - (at + len(tail))
-    return tail + b"\0" * pad8 + _NAN * 7
+    return tail + b"\0" * pad8 + _NAN * _TAIL_VALUES
 
 
 @functools.cache
@@ -254,7 +256,8 @@ def _single_layout_matches() -> bool:
                 != (query.header, query.client_id, query.id, True, 1, 0.125, text, [], [])
                 or not all(math.isnan(v) for v in (
                     wrench.force.x, wrench.force.y, wrench.force.z, wrench.torque.x,
-                    wrench.torque.y, wrench.torque.z, back.min_friction))):
+                    wrench.torque.y, wrench.torque.z, back.min_friction, back.epsilon_lower,
+                    back.epsilon_upper))):
             return False
         # Same length as rclpy's own (their padding bytes are not initialised, so the
         # bytes themselves cannot be compared).
@@ -284,6 +287,8 @@ def _array_layout_matches() -> bool:
             verdicts.contact_forces = np.arange(6.0 * n).reshape(-1, 3)
             verdicts.separating_wrench = np.full((n, 6), 0.5)
             verdicts.min_friction = np.full(n, 0.25)
+            verdicts.epsilon_lower = np.linspace(0.0, 0.5, n)
+            verdicts.epsilon_upper = np.linspace(0.5, 1.0, n)
         reference = verdicts_to_array_msg(verdicts)
         reference.header, reference.client_id, reference.request_id = header, 2**63 + 1, 9
         # (rclpy's serialized arrays end in unused buffer bytes: lengths are not compared.)
@@ -296,7 +301,8 @@ def _array_layout_matches() -> bool:
         if (client_id, request_id, back.messages) != (2**63 + 1, 9, expected.messages):
             return False
         for name in ("ids", "force_closure", "status", "margin", "contact_forces",
-                     "contact_torques", "separating_wrench", "min_friction"):
+                     "contact_torques", "separating_wrench", "min_friction",
+                     "epsilon_lower", "epsilon_upper"):
             a, b = getattr(back, name), getattr(expected, name)
             if (a is None) != (b is None) or (a is not None and not np.array_equal(a, b)):
                 return False
@@ -443,7 +449,8 @@ def encode_verdict_array(header: Header, client_id: int, request_id: int,
     else:
         out.strings(messages, full)
     for values in (verdicts.contact_forces, verdicts.contact_torques,
-                   verdicts.separating_wrench, verdicts.min_friction):
+                   verdicts.separating_wrench, verdicts.min_friction,
+                   verdicts.epsilon_lower, verdicts.epsilon_upper):
         out.sequence(np.empty(0) if values is None else values, "<f8")
     return out.bytes()
 
@@ -523,8 +530,9 @@ def decode_verdict_array(raw: bytes) -> tuple[int, int, Verdicts]:
     """(client_id, request_id, verdicts) of a serialized ``ForceClosureVerdictArray``.
 
     The verdicts as :func:`~grasp_fc_ros.interface.conversions.verdict_array_to_numpy` reads them:
-    ``contact_forces`` (K, 3), ``separating_wrench`` (N, 6), ``contact_torques`` and
-    ``min_friction``, each None where the message carries none.
+    ``contact_forces`` (K, 3), ``separating_wrench`` (N, 6), ``contact_torques``,
+    ``min_friction``, ``epsilon_lower`` and ``epsilon_upper``, each None where the
+    message carries none.
 
     Raises
     ------
@@ -553,7 +561,8 @@ def _decode_verdict_array(raw: bytes) -> tuple[int, int, Verdicts]:
         status = reader.sequence("u1")
         margin = reader.sequence("<f8")
         messages = reader.strings()
-        forces, torques, wrenches, min_friction = (reader.sequence("<f8") for _ in range(4))
+        forces, torques, wrenches, min_friction, lower, upper = (
+            reader.sequence("<f8") for _ in range(6))
     except struct.error as exc:
         raise ValueError(f"truncated verdict array of {len(raw)} bytes: {exc}") from None
     return client_id, request_id, Verdicts(
@@ -562,7 +571,9 @@ def _decode_verdict_array(raw: bytes) -> tuple[int, int, Verdicts]:
         contact_forces=forces.reshape(-1, 3) if len(forces) else None,
         contact_torques=torques if len(torques) else None,
         separating_wrench=wrenches.reshape(-1, 6) if len(wrenches) else None,
-        min_friction=min_friction if len(min_friction) else None)
+        min_friction=min_friction if len(min_friction) else None,
+        epsilon_lower=lower if len(lower) else None,
+        epsilon_upper=upper if len(upper) else None)
 
 
 # --- batches of grasps: ContactArrayBatch ----------------------------------------------
@@ -636,6 +647,9 @@ def verdict_ids(raw: bytes) -> tuple[int, int]:
 
 
 _VERDICT_BODY = struct.Struct("<?B6xdI")
+# The float64 tail of a verdict (see _TAIL_VALUES): separating_wrench, min_friction,
+# epsilon_lower, epsilon_upper.
+_TAIL = struct.Struct(f"<{_TAIL_VALUES}d")
 
 
 def decode_verdict(raw: bytes) -> ForceClosureVerdict:
@@ -683,14 +697,14 @@ def _fill_verdict(view: memoryview) -> ForceClosureVerdict:
         torques.extend(np.frombuffer(view, "<f8", n_torques, at).tolist())
         at += 8 * n_torques
     at = _align(at, 8)
-    w = struct.unpack_from("<7d", view, at)
-    if len(view) - (at + 56) not in range(8):
-        raise ValueError(f"verdict of {len(view)} bytes after its encapsulation, {at + 56} "
-                         "expected")
+    w = _TAIL.unpack_from(view, at)
+    if len(view) - (at + _TAIL.size) not in range(8):
+        raise ValueError(f"verdict of {len(view)} bytes after its encapsulation, "
+                         f"{at + _TAIL.size} expected")
     return slots.verdict(
         slots.header(slots.time_msg(sec, nanosec), frame_id), client_id, query_id,
         force_closure, status, margin, message, forces, torques,
-        slots.wrench(slots.vector3(*w[0:3]), slots.vector3(*w[3:6])), w[6])
+        slots.wrench(slots.vector3(*w[0:3]), slots.vector3(*w[3:6])), w[6], w[7], w[8])
 
 
 def _string(view: memoryview, at: int) -> tuple[str, int]:

@@ -8,7 +8,7 @@ Layouts
 -------
 ``.npz``: ``positions`` (N, n, 3), ``normals`` (N, n, 3), ``mu`` scalar, (N,) or (N, n),
 optional ``ids`` (N,) non-negative integers, optional ``torsional_friction`` (scalar, (N,)
-or (N, n); the core has no soft-finger model yet, so every value must be zero).
+or (N, n): gamma of soft-finger contacts, a length in the positions' unit; 0: hard).
 
 Parquet: one row per grasp; ``positions`` and ``normals`` are list columns of 3n floats
 (x, y, z per contact, contact after contact) or lists of n lists of 3; ``mu`` a float

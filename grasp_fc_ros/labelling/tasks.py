@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .sources import TORSIONAL_KEY, GraspChunk, InputError, Source
+from .sources import GraspChunk, InputError, Source
 
 if TYPE_CHECKING:
     import pyarrow as pa
@@ -32,16 +32,8 @@ def validate_chunk(source: Source, start: int, stop: int) -> str | None:
     except InputError as error:
         return str(error)
     where = _grasp_names(source.path, chunk)
-    if chunk.torsional is not None:
-        torsional = np.broadcast_to(chunk.torsional, chunk.positions.shape[:2])
-        bad_grasps = (torsional != 0).any(axis=1)
-        if bad_grasps.any():
-            g = int(np.argmax(bad_grasps))
-            c = int(np.argmax(torsional[g] != 0))
-            return (f"{where(g)}, contact {c}: {TORSIONAL_KEY} is {torsional[g, c]}, but the "
-                    "core has no torsional (soft-finger) friction yet: leave it out or "
-                    "make it 0")
-    validation = validate_grasps(chunk.positions, chunk.normals, chunk.mu)
+    validation = validate_grasps(chunk.positions, chunk.normals, chunk.mu,
+                                 _torsional(chunk))
     if validation.valid.all():
         return None
     g = int(np.argmin(validation.valid))
@@ -52,6 +44,12 @@ def validate_chunk(source: Source, start: int, stop: int) -> str | None:
 
 def _grasp_names(path: str, chunk: GraspChunk) -> Callable[[int], str]:
     return lambda g: f"{path}: grasp {int(chunk.rows[g])} (id {int(chunk.ids[g])})"
+
+
+def _torsional(chunk: GraspChunk) -> np.ndarray | float:
+    """The chunk's torsional friction gamma as the core takes it: 0.0 (every contact
+    hard) where the input has none."""
+    return 0.0 if chunk.torsional is None else chunk.torsional
 
 
 def label_chunk(source: Source, start: int, stop: int, use_filter: bool | str, origins: str,
@@ -66,8 +64,11 @@ def label_chunk(source: Source, start: int, stop: int, use_filter: bool | str, o
     from .schema import label_table
 
     chunk = source.read(start, stop)
+    torsional = _torsional(chunk)
     result = check_force_closure(chunk.positions, chunk.normals, chunk.mu,
-                                 use_filter=use_filter, origins=origins)
+                                 use_filter=use_filter, origins=origins,
+                                 torsional_friction=torsional)
     epsilon = (None if quality_rtol is None else
-               epsilon_quality(chunk.positions, chunk.normals, chunk.mu, rtol=quality_rtol))
+               epsilon_quality(chunk.positions, chunk.normals, chunk.mu, rtol=quality_rtol,
+                               torsional_friction=torsional))
     return label_table(chunk, result, source.object_name, epsilon)

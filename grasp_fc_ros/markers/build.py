@@ -33,9 +33,10 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from grasp_fc_ros.core import Status
 
-#: RGBA per verdict: green, orange, red, grey, magenta (colour-blind friendly enough
-#: with the text label beside it).
+#: RGBA per verdict: green, orange, red, grey, magenta, and white for UNKNOWN (a
+#: zero-initialised verdict; colour-blind friendly enough with the text label beside it).
 STATUS_COLORS: dict[Status, tuple[float, float, float, float]] = {
+    Status.UNKNOWN: (0.95, 0.95, 0.95, 1.0),
     Status.FORCE_CLOSURE: (0.10, 0.70, 0.20, 1.0),
     Status.FILTERED_OUT: (1.00, 0.55, 0.00, 1.0),
     Status.NOT_FORCE_CLOSURE: (0.85, 0.10, 0.10, 1.0),
@@ -43,6 +44,7 @@ STATUS_COLORS: dict[Status, tuple[float, float, float, float]] = {
     Status.SOLVER_FAILURE: (0.75, 0.00, 0.75, 1.0),
 }
 STATUS_LABELS: dict[Status, str] = {
+    Status.UNKNOWN: "no verdict",
     Status.FORCE_CLOSURE: "force closure",
     Status.FILTERED_OUT: "rejected by the filter",
     Status.NOT_FORCE_CLOSURE: "not force closure",

@@ -106,9 +106,8 @@ def sample_indices(n_grasps: int, sample: int) -> np.ndarray:
 
 
 def decided_mu(mu: np.ndarray, default: float) -> np.ndarray:
-    """Friction coefficients as decided: finite values <= 0 replaced by ``default``."""
-    with np.errstate(invalid="ignore"):
-        return np.where(np.isfinite(mu) & (mu <= 0), default, mu)
+    """Friction coefficients as decided: values exactly 0 replaced by ``default``."""
+    return np.where(mu == 0, default, mu)
 
 
 @dataclass

@@ -13,7 +13,19 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-from grasp_fc_ros.interface.names import NODE_NAME
+from grasp_fc_ros.interface.names import (
+    CHECK_SERVICE,
+    CLEAR_MARKERS_SERVICE,
+    CONTACT_FORCES_SERVICE,
+    CONTACTS_BATCH_TOPIC,
+    CONTACTS_TOPIC,
+    DIAGNOSTICS_TOPIC,
+    LABEL_ACTION,
+    MARKERS_TOPIC,
+    NODE_NAME,
+    VERDICTS_BATCH_TOPIC,
+    VERDICTS_TOPIC,
+)
 from grasp_fc_ros.node.force_closure_node import ForceClosureNode
 from grasp_fc_ros.node.parameters import PARAMETERS
 
@@ -22,11 +34,25 @@ from grasp_fc_ros.node.parameters import PARAMETERS
 SIGNAL_POLL_S = 0.05
 
 
+def _interface_lines() -> str:
+    """The node's topics, services and action, one line each, for --help."""
+    rows = [("topics", f"{CONTACTS_TOPIC} -> {VERDICTS_TOPIC}", "one grasp per message"),
+            ("", f"{CONTACTS_BATCH_TOPIC} -> {VERDICTS_BATCH_TOPIC}", "many grasps per message"),
+            ("", MARKERS_TOPIC, "RViz markers (publish_markers:=true)"),
+            ("", DIAGNOSTICS_TOPIC, "counters and timings, once a second"),
+            ("services", CHECK_SERVICE, "verdicts for the grasps of a request"),
+            ("", CONTACT_FORCES_SERVICE, "contact forces that hold a load"),
+            ("", CLEAR_MARKERS_SERVICE, "delete the published markers"),
+            ("action", LABEL_ACTION, "a long batch, with feedback and cancel")]
+    return "\n".join(f"  {kind:<10} {name:<34} {what}" for kind, name, what in rows)
+
+
 USAGE = f"""usage: grasp-fc-node [-h] [--ros-args ROS_ARGUMENTS...]
 
-The {NODE_NAME} node: force-closure verdicts for grasp queries on the topics
-contacts and contacts_batch and the service check_force_closure, and contact
-forces for a load from the service compute_contact_forces (see the README).
+The {NODE_NAME} node: force-closure verdicts for grasp queries (grasp_fc_msgs),
+one per query (see the README and docs/node.rst).
+
+{_interface_lines()}
 
 ROS arguments (after --ros-args):
   -p NAME:=VALUE           set a parameter (doubles need a decimal point: 1.0)

@@ -63,8 +63,12 @@ from grasp_fc_ros.node.statistics import WARN_THROTTLE_S, Statistics, Throttle
 
 LaneT = TypeVar("LaneT", bound=Lane)
 
-# The wire status codes are the core's Status values.
-assert all(getattr(ForceClosureVerdict, s.name) == s.value for s in Status)
+# The wire status codes are the core's Status values (UNKNOWN = 0 included): checked at
+# import, also under python -O.
+if not all(getattr(ForceClosureVerdict, s.name) == s.value for s in Status):
+    raise ImportError("grasp_fc_msgs' ForceClosureVerdict status constants differ from "
+                      "grasp_fc_ros.core.Status: rebuild grasp_fc_msgs from this "
+                      "checkout's msg_defs/ (make setup)")
 
 
 class ForceClosureNode(Node):
@@ -96,7 +100,8 @@ class ForceClosureNode(Node):
         self.parameters = LiveParameters(self)
         self.pool = pool if pool is not None else EvaluationPool(
             self.parameters.workers, worker_timeout_s=self.parameters.worker_timeout_s,
-            log=self.get_logger().warning)
+            log=self.get_logger().warning,
+            warm_epsilon=self.parameters.settings.compute_epsilon)
         try:
             self._start_lanes()
         except BaseException:
@@ -177,5 +182,7 @@ class ForceClosureNode(Node):
             except Exception as exc:  # noqa: BLE001 - shutdown must go on
                 self.get_logger().warning(f"cannot wait for readers at shutdown: {exc}")
         if unanswered:
-            self.get_logger().warning(f"{unanswered} queries left unanswered at shutdown")
+            self.get_logger().warning(
+                f"{unanswered} {'query' if unanswered == 1 else 'queries'} left unanswered "
+                "at shutdown")
         super().destroy_node()

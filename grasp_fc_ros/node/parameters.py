@@ -66,7 +66,8 @@ PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
     # name: (default, descriptor)
     "friction_coefficient": (0.5, ParameterDescriptor(
         type=ParameterType.PARAMETER_DOUBLE,
-        description="Coulomb friction coefficient for contacts that give none (finite <= 0)",
+        description="Coulomb friction coefficient for contacts that give 0 (none); a "
+                    "negative one makes the query INVALID_INPUT",
         additional_constraints=f"finite, > 0 and <= {MAX_FRICTION_COEFFICIENT:g}")),
     "use_filter": (True, _bool_descriptor(
         "Run the torque-space filter before the exact test where it pays "
@@ -90,6 +91,12 @@ PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
     "compute_min_friction": (False, _bool_descriptor(
         "Every verdict carries the grasp's minimum friction coefficient "
         "(about a hundred exact tests' worth of time per grasp)")),
+    "compute_epsilon": (False, _bool_descriptor(
+        "Every verdict carries certified bounds epsilon_lower <= epsilon <= "
+        "epsilon_upper on the grasp's Ferrari-Canny epsilon (circular friction cones, "
+        "normal forces summing to <= 1, torques about the frame's origin over the largest "
+        "contact distance from it); costs more than the verdict itself, and its first use "
+        "in a fresh install compiles kernels (docs/epsilon.md#cost)")),
     "workers": (DEFAULT_WORKERS, _int_descriptor(
         "Worker processes deciding large batches and service requests (0: none, decide "
         "in the node's threads); set at start-up", 0, MAX_WORKERS, read_only=True)),

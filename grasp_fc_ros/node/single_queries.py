@@ -185,11 +185,11 @@ class SingleQueryLane:
 
         Queries that :mod:`grasp_fc_ros.interface.wire` does not decode (another layout)
         or with soft contacts (a torsional_friction), and all of them when the settings
-        ask for certificates or minimum friction, take the message path, in runs, so
-        that verdicts still go out in arrival order.
+        ask for certificates, minimum friction or epsilon, take the message path, in
+        runs, so that verdicts still go out in arrival order.
         """
         settings = self._context.settings()
-        if settings.certificates or settings.compute_min_friction:
+        if settings.certificates or settings.compute_min_friction or settings.compute_epsilon:
             self._answer_messages([deserialize_message(r, ContactArray) for r in raws])
             return
         start = self._context.clock()

@@ -9,6 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from grasp_fc_ros.core import Status, check_force_closure
+from grasp_fc_ros.core.grasp_input import show_value
 from grasp_fc_ros.engine.evaluation import InvalidGrasp, evaluate, find_invalid
 from grasp_fc_ros.engine.packed import PackedGrasps, Settings, Verdicts
 from grasp_fc_ros.objects import make_object, sample_grasps
@@ -103,13 +104,14 @@ def test_invalid_grasps_are_structured_and_spare_the_others(mixed):
     friction = np.where(mu == 0, settings_.friction_coefficient, mu)
     problems = find_invalid(packed, friction, settings_)
     assert problems == [
-        InvalidGrasp(1, 2, "position is not finite"),
-        InvalidGrasp(3, 1, "normal has zero length"),
+        InvalidGrasp(1, 2, f"position is not finite, got {show_value(grasps[1][0][2])}"),
+        InvalidGrasp(3, 1, "normal has zero length, got (0, 0, 0)"),
         InvalidGrasp(4, None, "1 contacts; a grasp needs 2 to max_contacts=64"),
-        InvalidGrasp(5, 2, "friction coefficient is not finite"),
+        InvalidGrasp(5, 2, "friction coefficient is not finite, got inf"),
     ]
     verdicts, _ = evaluate(packed, settings_)
-    assert verdicts.messages[1] == "grasp 1 (id 101), contact 2: position is not finite"
+    assert verdicts.messages[1] == ("grasp 1 (id 101), contact 2: position is not finite, "
+                                    f"got {show_value(grasps[1][0][2])}")
     assert verdicts.messages[4] == ("grasp 4 (id 104): 1 contacts; a grasp needs 2 to "
                                     "max_contacts=64")
     assert (verdicts.status[[1, 3, 4, 5]] == Status.INVALID_INPUT).all()
@@ -121,9 +123,15 @@ def test_invalid_grasps_are_structured_and_spare_the_others(mixed):
 
 
 @pytest.mark.parametrize("spoil, message", [
-    (lambda p, n, mu: p.__setitem__((2, 0), np.nan), "contact 2: position is not finite"),
-    (lambda p, n, mu: n.__setitem__(1, 0.0), "contact 1: normal has zero length"),
-    (lambda p, n, mu: mu.fill(np.inf), "contact 0: friction coefficient is not finite"),
+    (lambda p, n, mu: p.__setitem__((2, 0), np.nan),
+     lambda p, n, mu: f"contact 2: position is not finite, got {show_value(p[2])}"),
+    (lambda p, n, mu: n.__setitem__(1, 0.0),
+     lambda p, n, mu: "contact 1: normal has zero length, got (0, 0, 0)"),
+    (lambda p, n, mu: mu.fill(np.inf),
+     lambda p, n, mu: "contact 0: friction coefficient is not finite, got inf"),
+    (lambda p, n, mu: mu.__setitem__(4, -0.25),
+     lambda p, n, mu: ("contact 4: friction coefficient must be > 0, got -0.25 (0 uses the "
+                       "node's friction_coefficient, 0.5)")),
 ])
 def test_a_lone_invalid_grasp_is_named_like_one_in_a_batch(mixed, spoil, message):
     p, n = (a.copy() for a in next(g for g in mixed if len(g[0]) == 6))
@@ -131,7 +139,7 @@ def test_a_lone_invalid_grasp_is_named_like_one_in_a_batch(mixed, spoil, message
     spoil(p, n, mu)
     verdicts, _ = evaluate(pack([(p, n)], mu, name_by_id=True, ids=[7]), Settings())
     assert verdicts.status[0] == Status.INVALID_INPUT
-    assert verdicts.messages == [f"query id 7, {message}"]
+    assert verdicts.messages == [f"query id 7, {message(p, n, mu)}"]
 
 
 def test_a_lone_grasp_whose_core_call_fails_gets_solver_failure(mixed, monkeypatch):
@@ -150,9 +158,10 @@ def test_single_queries_are_named_by_id_and_chunks_by_batch_index(mixed):
     grasps = [(p.copy(), n.copy()) for p, n in mixed[:3]]
     grasps[2][1][0] = 0.0
     by_id = evaluate(pack(grasps, name_by_id=True, ids=[7, 8, 9]), Settings())[0]
-    assert by_id.messages[2] == "query id 9, contact 0: normal has zero length"
+    assert by_id.messages[2] == "query id 9, contact 0: normal has zero length, got (0, 0, 0)"
     chunk = evaluate(pack(grasps, first_index=50), Settings())[0]
-    assert chunk.messages[2] == "grasp 52 (id 102), contact 0: normal has zero length"
+    assert chunk.messages[2] == ("grasp 52 (id 102), contact 0: normal has zero length, "
+                                 "got (0, 0, 0)")
 
 
 def test_max_contacts_and_max_batch_are_applied(mixed):
@@ -222,7 +231,8 @@ def test_an_invalid_grasp_in_a_one_size_batch_is_named_and_spares_the_others(six
     grasps[5][1][3] = 0.0
     verdicts, _ = evaluate(pack(grasps), Settings())
     assert verdicts.status[5] == Status.INVALID_INPUT
-    assert verdicts.messages[5] == "grasp 5 (id 105), contact 3: normal has zero length"
+    assert verdicts.messages[5] == ("grasp 5 (id 105), contact 3: normal has zero length, "
+                                    "got (0, 0, 0)")
     good = [i for i in range(8) if i != 5]
     assert all(verdicts.messages[i] == "" for i in good)
     assert_same_as_core(Verdicts(*(a[good] for a in (verdicts.ids, verdicts.force_closure,

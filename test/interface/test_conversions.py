@@ -93,7 +93,7 @@ def test_verdict_array_copies_header_client_and_request_id_and_round_trips():
     assert msg.header.frame_id == "palm" and msg.header.stamp.sec == 42
     back = verdict_array_to_numpy(msg)
     np.testing.assert_array_equal(back.ids, [3, 4])
-    np.testing.assert_array_equal(back.status, [0, 3])
+    np.testing.assert_array_equal(back.status, [Status.FORCE_CLOSURE, Status.INVALID_INPUT])
     np.testing.assert_array_equal(back.margin, [0.25, math.nan])
     assert back.messages == ["", "bad"] and back.force_closure.tolist() == [True, False]
 

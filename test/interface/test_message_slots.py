@@ -28,14 +28,14 @@ TEXT = st.text(st.characters(blacklist_characters="\0", blacklist_categories=("C
 def built_and_constructed(sec, nanosec, frame, numbers, flags, text, forces, torques):
     """The same verdict (and its nested messages) from the builders and from the
     generated constructors."""
-    x, y, z, margin, min_friction = numbers
+    x, y, z, margin, min_friction, lower, upper = numbers
     client_id, query_id, status = flags
 
     def verdict(time_msg, header, vector3, wrench, verdict_type):
         return verdict_type(
             header(time_msg(sec, nanosec), frame), client_id, query_id, status % 2 == 0,
             status, margin, text, [vector3(*f) for f in forces], array.array("d", torques),
-            wrench(vector3(x, y, z), vector3(z, y, x)), min_friction)
+            wrench(vector3(x, y, z), vector3(z, y, x)), min_friction, lower, upper)
 
     built = verdict(slots.time_msg, slots.header, slots.vector3, slots.wrench, slots.verdict)
     constructed = verdict(
@@ -56,7 +56,7 @@ def test_this_rosidl_keeps_fields_in_underscore_slots():
 
 @settings(max_examples=80, deadline=None)
 @given(st.integers(-2**31, 2**31 - 1), st.integers(0, 2**32 - 1), TEXT,
-       st.tuples(FLOATS, FLOATS, FLOATS, FLOATS, FLOATS),
+       st.tuples(FLOATS, FLOATS, FLOATS, FLOATS, FLOATS, FLOATS, FLOATS),
        st.tuples(st.integers(0, 2**64 - 1), st.integers(0, 2**64 - 1), st.integers(0, 255)),
        TEXT, st.lists(st.tuples(FLOATS, FLOATS, FLOATS), max_size=4),
        st.lists(FLOATS, max_size=4))

@@ -86,7 +86,8 @@ def test_encoded_verdicts_equal_rclpy_serialization(cases):
         wrench = verdict.separating_wrench
         assert all(math.isnan(v) for v in (wrench.force.x, wrench.force.y, wrench.force.z,
                                            wrench.torque.x, wrench.torque.y, wrench.torque.z,
-                                           verdict.min_friction))
+                                           verdict.min_friction, verdict.epsilon_lower,
+                                           verdict.epsilon_upper))
         # As long as rclpy's own (its padding bytes are uninitialised memory, so the
         # bytes cannot be compared).
         assert len(serialize_message(verdict)) == len(raw)
@@ -139,7 +140,7 @@ def test_encoded_query_equals_what_rclpy_reads(msg):
 @settings(max_examples=60, deadline=None)
 @given(queries(), st.booleans(), st.integers(0, 255), FLOATS, TEXT,
        st.lists(st.lists(FLOATS, min_size=3, max_size=3), max_size=4),
-       st.lists(FLOATS, min_size=7, max_size=7))
+       st.lists(FLOATS, min_size=9, max_size=9))
 def test_decoded_verdict_equals_rclpy_deserialization(query, fc, status, margin, text, forces,
                                                       wrench):
     from geometry_msgs.msg import Vector3
@@ -147,7 +148,8 @@ def test_decoded_verdict_equals_rclpy_deserialization(query, fc, status, margin,
     verdict = ForceClosureVerdict(header=query.header, client_id=query.client_id, id=query.id,
                                   force_closure=fc, status=status, margin=margin, message=text,
                                   contact_forces=[Vector3(x=x, y=y, z=z) for x, y, z in forces],
-                                  min_friction=wrench[6])
+                                  min_friction=wrench[6], epsilon_lower=wrench[7],
+                                  epsilon_upper=wrench[8])
     w = verdict.separating_wrench
     w.force.x, w.force.y, w.force.z, w.torque.x, w.torque.y, w.torque.z = wrench[:6]
     raw = serialize_message(verdict)
@@ -192,6 +194,9 @@ def verdict_arrays(draw):
             verdicts.contact_torques = np.array(draw(st.lists(FLOATS, min_size=k, max_size=k)))
         verdicts.separating_wrench = np.full((n, 6), draw(FLOATS))
         verdicts.min_friction = np.array(draw(floats), np.float64)
+    if draw(st.booleans()):
+        verdicts.epsilon_lower = np.array(draw(floats), np.float64)
+        verdicts.epsilon_upper = np.array(draw(floats), np.float64)
     return header, draw(UINT64), draw(UINT64), verdicts
 
 
@@ -216,7 +221,8 @@ def test_encoded_verdict_array_reads_back_in_rclpy_as_the_message(case):
     got, want = verdict_array_to_numpy(back), verdict_array_to_numpy(expected)
     assert got.messages == want.messages
     for name in ("ids", "force_closure", "status", "margin", "contact_forces",
-                 "contact_torques", "separating_wrench", "min_friction"):
+                 "contact_torques", "separating_wrench", "min_friction", "epsilon_lower",
+                 "epsilon_upper"):
         assert same_field(getattr(got, name), getattr(want, name)), name
 
 
@@ -249,7 +255,8 @@ def test_decoded_verdict_array_equals_rclpy_deserialization(case):
     assert (got_client, got_request) == (client_id, request_id)
     assert got.messages == want.messages
     for name in ("ids", "force_closure", "status", "margin", "contact_forces",
-                 "contact_torques", "separating_wrench", "min_friction"):
+                 "contact_torques", "separating_wrench", "min_friction", "epsilon_lower",
+                 "epsilon_upper"):
         assert same_field(getattr(got, name), getattr(want, name)), name
 
 

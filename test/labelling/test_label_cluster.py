@@ -14,6 +14,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from grasp_fc_ros.core import check_force_closure
+from grasp_fc_ros.core.grasp_input import show_value
 from grasp_fc_ros.labelling import InputError, Plan, cli, dask_client, object_sources, run
 from grasp_fc_ros.labelling.output import Output
 from grasp_fc_ros.objects import make_object, sample_grasps
@@ -143,7 +144,7 @@ def test_bad_value_found_on_a_worker_writes_nothing(client, dataset, tmp_path):
         run(_plan([paths[1], str(tmp_path / "bad.npz")]), tmp_path / "out", client,
             progress=False)
     assert str(error.value) == (f"{tmp_path / 'bad.npz'}: grasp 2345 (id 3345), contact 4: "
-                                "normal is not finite")
+                                "normal is not finite, got (nan, nan, nan)")
     assert not (tmp_path / "out").exists()
 
 
@@ -326,7 +327,7 @@ def test_cli_nan_on_a_cluster_exits_2_naming_file_and_grasp(processes, tmp_path,
     assert code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"grasp-fc-label: error: {tmp_path / 'g.npz'}: grasp 801 (id 801), "
-                   "contact 1: position is not finite"]
+                   f"contact 1: position is not finite, got {show_value(p[801, 1])}"]
     assert not (tmp_path / "o").exists()
     assert sorted(os.listdir(tmp_path)) == ["g.npz", "scheduler.json"]
 

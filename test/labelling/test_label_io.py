@@ -121,7 +121,8 @@ def test_bad_values_named_by_file_row_and_id(tmp_path):
     source = open_input(tmp_path / "bad.npz")
     assert validate_chunk(source, 0, 10) is None
     problem = validate_chunk(source, 10, 20)
-    assert problem == f"{source.path}: grasp 13 (id 513), contact 2: normal has zero length"
+    assert problem == (f"{source.path}: grasp 13 (id 513), contact 2: normal has zero length, "
+                       "got (0, 0, 0)")
 
 
 def test_negative_id_is_named(tmp_path):
@@ -145,17 +146,40 @@ def test_parquet_null_grasp_is_named(tmp_path):
     assert "n.parquet: grasp 4: positions has no value" in problem
 
 
-def test_nonzero_torsional_friction_is_refused(tmp_path):
+def test_soft_grasps_are_labelled_with_their_torsional_friction(tmp_path):
+    from grasp_fc_ros.core import check_force_closure, epsilon_quality
+
+    # Two contacts on opposite sides of a 5 cm sphere: force closure only as soft fingers.
+    direction = np.random.default_rng(4).normal(size=(30, 3))
+    positions = 0.05 * np.stack([direction, -direction], axis=1) / np.linalg.norm(
+        direction, axis=1)[:, None, None]
+    normals = -positions
+    torsional = np.full((30, 2), 0.01)
+    torsional[::3] = 0.0  # some grasps hard
+    np.savez(tmp_path / "t.npz", positions=positions, normals=normals, mu=0.5,
+             torsional_friction=torsional)
+    source = open_input(tmp_path / "t.npz")
+    assert validate_chunk(source, 0, 30) is None
+    table = label_chunk(source, 0, 30, "auto", "seed", quality_rtol=1e-3)
+    soft = check_force_closure(positions, normals, 0.5, torsional_friction=torsional)
+    hard = check_force_closure(positions, normals, 0.5)
+    assert np.array_equal(table["status"].to_numpy(), soft.status)
+    np.testing.assert_array_equal(soft.force_closure, torsional[:, 0] > 0)
+    assert not hard.force_closure.any()
+    epsilon = epsilon_quality(positions, normals, 0.5, torsional_friction=torsional)
+    np.testing.assert_allclose(table["epsilon_upper"].to_numpy(), epsilon.upper,
+                               rtol=1e-9, atol=1e-6)
+
+
+def test_bad_torsional_friction_is_refused_naming_the_value(tmp_path):
     positions, normals = _grasps(8)
     torsional = np.zeros((8, 4))
-    torsional[5, 3] = 0.01
+    torsional[5, 3] = -0.01
     np.savez(tmp_path / "t.npz", positions=positions, normals=normals, mu=0.5,
              torsional_friction=torsional)
     problem = validate_chunk(open_input(tmp_path / "t.npz"), 0, 8)
-    assert "t.npz: grasp 5 (id 5), contact 3: torsional_friction is 0.01" in problem
-    np.savez(tmp_path / "z.npz", positions=positions, normals=normals, mu=0.5,
-             torsional_friction=0.0)
-    assert validate_chunk(open_input(tmp_path / "z.npz"), 0, 8) is None
+    assert problem == (f"{tmp_path / 't.npz'}: grasp 5 (id 5), contact 3: torsional "
+                       "friction must be >= 0 (0: a hard contact), got -0.01")
 
 
 def test_label_chunk_equals_core(tmp_path):

@@ -221,7 +221,7 @@ def test_invalid_query_draws_what_it_can():
     (dict(lifetime_s=-1.0), "lifetime_s must be finite and >= 0"),
 ])
 def test_bad_input_is_named(kwargs, match):
-    args = dict(positions=FOUR, normals=-FOUR, mu=0.5, status=0)
+    args = dict(positions=FOUR, normals=-FOUR, mu=0.5, status=Status.FORCE_CLOSURE)
     args.update(kwargs)
     with pytest.raises(ValueError, match=match):
         grasp_markers(**args, query_id=1, frame_id="f")

@@ -267,7 +267,8 @@ def test_malformed_and_oversized_goals_get_invalid_input_verdicts(grasps, served
     bad = batch_msg(positions[:3], zero_normal)
     status, verdicts = Goal(action_client, bad).result()
     assert [s == Status.INVALID_INPUT for s in verdicts.status] == [False, True, False]
-    assert verdicts.messages[1] == "grasp 1 (id 1), contact 0: normal has zero length"
+    assert verdicts.messages[1] == ("grasp 1 (id 1), contact 0: normal has zero length, "
+                                    "got (0, 0, 0)")
 
 
 def test_diagnostics_count_the_goals(grasps, served, action_client):

@@ -19,6 +19,7 @@ import pytest
 from rclpy.parameter import Parameter
 
 from grasp_fc_ros.core import Status, check_force_closure
+from grasp_fc_ros.core.grasp_input import show_value
 from grasp_fc_ros.engine import evaluation as evaluation_module
 from grasp_fc_ros.engine.pool import EvaluationPool
 from grasp_fc_ros.interface.conversions import (
@@ -172,8 +173,10 @@ def test_bad_grasps_get_invalid_input_and_spare_the_others(client, grasps):
     bad = [1, 3, 5, 6]
     assert (got.status[bad] == Status.INVALID_INPUT).all()
     assert not got.force_closure[bad].any()
-    assert got.messages[1] == "grasp 1 (id 1001), contact 2: position is not finite"
-    assert got.messages[3] == "grasp 3 (id 1003), contact 3: normal has zero length"
+    assert got.messages[1] == ("grasp 1 (id 1001), contact 2: position is not finite, got "
+                               f"{show_value(positions[1, 2])}")
+    assert got.messages[3] == ("grasp 3 (id 1003), contact 3: normal has zero length, "
+                               "got (0, 0, 0)")
     assert got.messages[6].startswith("grasp 6 (id 1006), contact 1: ")
     good = [0, 2, 4, 7]
     assert all(got.messages[i] == "" for i in good)
@@ -281,7 +284,8 @@ def test_service_answers_every_grasp_in_order(client, grasps):
     verdicts = client.call(requests)
     assert [v.id for v in verdicts] == list(range(100, 110))
     assert verdicts[4].status == Status.INVALID_INPUT
-    assert verdicts[4].message == "grasp 4 (id 104), contact 0: normal has zero length"
+    assert verdicts[4].message == ("grasp 4 (id 104), contact 0: normal has zero length, "
+                                   f"got {show_value(normals[4, 0] * 0.0)}")
     expected = check_force_closure(positions, normals, DEFAULT_MU)
     for i in (0, 1, 2, 3, 5, 6, 7, 8, 9):
         assert verdicts[i].status == expected.status[i]
@@ -416,7 +420,8 @@ def test_diagnostics_report_exact_counter_changes(client, grasps):
         "queries": 20,
         "force_closure": int((statuses == Status.FORCE_CLOSURE).sum()),
         "rejected_by_filter": int((statuses == Status.FILTERED_OUT).sum()),
-        "decided_by_exact_test": int((statuses <= Status.NOT_FORCE_CLOSURE).sum()),
+        "decided_by_exact_test": int(np.isin(statuses, [Status.FORCE_CLOSURE,
+                                                   Status.NOT_FORCE_CLOSURE]).sum()),
         "invalid_input": 1,
         "solver_failures": 0,
         "callback_errors": 0,
@@ -443,7 +448,7 @@ def test_single_query_message_names_its_id_and_contact(client, grasps):
     client.contacts_pub.publish(grasp_to_contact_array(4242, positions, normals))
     [verdict] = client.wait_for("verdicts", 1)
     assert verdict.id == 4242 and verdict.status == Status.INVALID_INPUT
-    assert verdict.message == "query id 4242, contact 2: normal has zero length"
+    assert verdict.message == "query id 4242, contact 2: normal has zero length, got (0, 0, 0)"
 
 
 @pytest.mark.parametrize("bad_mu", [-math.inf, math.inf, math.nan])
@@ -454,8 +459,33 @@ def test_non_finite_contact_friction_is_invalid_not_default(client, grasps, bad_
     verdicts = client.call([grasp_to_contact_array(1, positions[0], normals[0], mu=mu),
                             grasp_to_contact_array(2, positions[1], normals[1], mu=0.0)])
     assert verdicts[0].status == Status.INVALID_INPUT
-    assert verdicts[0].message == "grasp 0 (id 1), contact 3: friction coefficient is not finite"
+    assert verdicts[0].message == ("grasp 0 (id 1), contact 3: friction coefficient is not "
+                                   f"finite, got {bad_mu}")
     assert verdicts[1].status == check_force_closure(positions[1], normals[1], DEFAULT_MU).status
+
+
+def test_negative_contact_friction_is_invalid_input_and_zero_is_the_default(client, grasps):
+    """Interface 1.0: 0 means the node's friction_coefficient, a negative value is refused
+    with its value and contact, on the service, the batch topic and the single topic."""
+    positions, normals = (a[:3] for a in grasps)
+    mu = np.zeros((3, 4))
+    mu[1, 2] = -0.3
+    expected_message = ("contact 2: friction coefficient must be > 0, got -0.3 (0 uses the "
+                        f"node's friction_coefficient, {DEFAULT_MU:g})")
+    client.clear()
+    served = client.call([grasp_to_contact_array(i, positions[i], normals[i], mu=mu[i])
+                          for i in range(3)])
+    batch = send_batch(client, grasps_to_batch_msg(np.arange(3), positions, normals, mu=mu))
+    client.contacts_pub.publish(grasp_to_contact_array(77, positions[1], normals[1], mu=mu[1]))
+    [single] = client.wait_for("verdicts", 1)
+    core = check_force_closure(positions, normals, DEFAULT_MU).status
+    for status in ([v.status for v in served], batch.status.tolist()):
+        assert status == [core[0], Status.INVALID_INPUT, core[2]]
+    assert served[1].message == f"grasp 1 (id 1), {expected_message}"
+    assert batch.messages[1] == f"grasp 1 (id 1), {expected_message}"
+    assert not served[1].force_closure and not batch.force_closure[1]
+    assert single.id == 77 and single.status == Status.INVALID_INPUT
+    assert single.message == f"query id 77, {expected_message}"
 
 
 def test_single_queries_beyond_max_batch_are_refused_at_once(own_node, grasps):

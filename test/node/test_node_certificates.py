@@ -219,7 +219,8 @@ def test_compute_contact_forces_infeasible_load(certifying):
 
 
 @pytest.mark.parametrize("change, message", [
-    (lambda p, n, w, m: n.__setitem__(2, 0.0), "query id 0, contact 2: normal has zero length"),
+    (lambda p, n, w, m: n.__setitem__(2, 0.0),
+     "query id 0, contact 2: normal has zero length, got (0, 0, 0)"),
     (lambda p, n, w, m: p.__setitem__((1, 0), math.nan),
      "query id 0, contact 1: position is not finite"),
     (lambda p, n, w, m: w.__setitem__(4, math.inf),

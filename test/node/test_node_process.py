@@ -129,6 +129,9 @@ def test_help_prints_usage_and_exits_0():
     assert done.returncode == 0, done.stderr
     assert done.stdout.startswith("usage: grasp-fc-node")
     assert "friction_coefficient" in done.stdout and "--params-file" in done.stdout
+    for name in ("contacts_batch", "check_force_closure", "compute_contact_forces",
+                 "label_grasps", "markers", "clear_markers", "publish_markers"):
+        assert name in done.stdout, name
 
 
 @pytest.mark.parametrize("args, why", [

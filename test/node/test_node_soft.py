@@ -64,7 +64,8 @@ def test_evaluation_decides_soft_grasps_and_names_bad_gamma():
     assert verdicts.status.tolist() == [Status.FORCE_CLOSURE] * 4 + [
         Status.INVALID_INPUT, Status.FORCE_CLOSURE]
     assert verdicts.messages[4] == (
-        "grasp 4 (id 104), contact 1: torsional friction must be >= 0")
+        "grasp 4 (id 104), contact 1: torsional friction must be >= 0 (0: a hard contact), "
+        "got -1")
     hard, _ = evaluate(batch_to_packed(grasps_to_batch_msg(np.arange(6), positions, normals)),
                        Settings())
     assert not hard.force_closure.any()
@@ -114,7 +115,8 @@ def test_node_decides_a_soft_antipodal_grasp_on_both_topics(system):
         grasps_to_batch_msg(np.arange(4), positions, normals, torsional_friction=gamma)))
     assert got.status.tolist() == [Status.FORCE_CLOSURE, Status.FILTERED_OUT,
                                    Status.FORCE_CLOSURE, Status.INVALID_INPUT]
-    assert got.messages[3] == "grasp 3 (id 3), contact 0: torsional friction must be >= 0"
+    assert got.messages[3] == ("grasp 3 (id 3), contact 0: torsional friction must be >= 0 "
+                               f"(0: a hard contact), got {-GAMMA:g}")
     verdicts = client.call([grasp_to_contact_array(5, positions[1], normals[1],
                                                    torsional_friction=GAMMA)])
     assert verdicts[0].force_closure

@@ -103,7 +103,8 @@ def test_invalid_query_on_the_serialized_path_names_its_id(own_node, grasps):
     verdicts = send_and_collect(client, msgs)
     assert [v.id for v in verdicts] == [100, 101, 102]
     assert verdicts[1].status == Status.INVALID_INPUT
-    assert verdicts[1].message == "query id 101, contact 2: normal has zero length"
+    assert verdicts[1].message == ("query id 101, contact 2: normal has zero "
+                                   "length, got (0, 0, 0)")
     assert verdicts[0].message == verdicts[2].message == ""
 
 

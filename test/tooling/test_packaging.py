@@ -92,8 +92,26 @@ def test_setup_py_has_the_package_xml_version(package):
 
 def test_changelog_parses_and_matches_the_version(package):
     changelog = get_changelog_from_path(str(ROOT / "CHANGELOG.rst"), package.name)
-    versions = [version for version, _, _ in changelog.foreach_version()]
+    # catkin_pkg keeps the sections oldest first: reversed, the file's order (newest first).
+    versions = [version for version, _, _ in changelog.foreach_version(reverse=True)]
     assert versions and versions[0] == package.version
+
+
+def test_interface_package_has_the_version_a_changelog_and_urls(package):
+    """grasp_fc_msgs is released with grasp_fc_ros: same version, its own changelog; both
+    name a website and the maintainers' address (no placeholder domain)."""
+    interfaces = parse_package(str(ROOT / "msg_defs" / "package.xml"))
+    interfaces.validate()
+    assert interfaces.version == package.version
+    changelog = get_changelog_from_path(str(ROOT / "msg_defs" / "CHANGELOG.rst"),
+                                        interfaces.name)
+    assert [version for version, _, _ in changelog.foreach_version(reverse=True)][0] == (
+        package.version)
+    for manifest in (package, interfaces):
+        assert [url.type for url in manifest.urls] == ["website"]
+        assert (ROOT / manifest.urls[0].url).is_file(), manifest.urls[0].url
+        assert [m.email for m in manifest.maintainers] == [
+            "maintainers@users.noreply.h-seed-30dcbcef.example"]
 
 
 @pytest.mark.timeout(300)
