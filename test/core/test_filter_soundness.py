@@ -128,7 +128,10 @@ def test_validation_and_filter_do_not_depend_on_the_scale(seed, n_contacts, log_
                                 normals, mu)
     scaled = validate_grasps(scaled_positions, scaled_normals, mu)
     assert np.array_equal(reference.valid, scaled.valid)
-    assert reference.reasons == scaled.reasons
+    # The same reasons, but for the offending values they quote (which scale with it).
+    def without_values(reasons):
+        return [reason.split(", got ")[0] for reason in reasons]
+    assert without_values(reference.reasons) == without_values(scaled.reasons)
     assert scaled.valid.sum() == (12 if corrupt == "none" else 11)
     valid = scaled.valid
     if n_contacts >= 3:
