@@ -36,9 +36,9 @@ import rclpy
 
 from bench_ros import process_cpu_s, start_node, stop_node, verdict
 from grasp_fc_ros.core import Status, check_force_closure, warm_up
-from grasp_fc_ros.engine.packed import PackedGrasps, Settings, Verdicts
 from grasp_fc_ros.engine.pool import EvaluationPool
 from grasp_fc_ros.objects import make_object, sample_grasps
+from grasp_fc_ros.packed import PackedGrasps, Settings, Verdicts
 
 N_FINGERS = 6
 MU = 0.5  # the node's default friction

@@ -22,9 +22,9 @@ from collections.abc import Sequence
 import numpy as np
 
 from bench_ros import bench_core, bench_core_everywhere, ceiling_pool, tree_cpu_s
-from grasp_fc_ros.engine.packed import PackedGrasps, Settings
 from grasp_fc_ros.engine.pool import EvaluationPool
 from grasp_fc_ros.objects import make_object, sample_grasps
+from grasp_fc_ros.packed import PackedGrasps, Settings
 
 N_FINGERS = 6
 MU = 0.5  # as bench_ros.bench_core decides the same grasps

@@ -1,5 +1,5 @@
 """The client's batches: ContactArrayBatch messages on ``contacts_batch``, a Future of
-their :class:`~grasp_fc_ros.engine.packed.Verdicts` from the client's reply topic
+their :class:`~grasp_fc_ros.packed.Verdicts` from the client's reply topic
 ``verdicts_batch/c<client id>``.
 
 A batch of more than :data:`~grasp_fc_ros.interface.names.MAX_MESSAGE_CONTACTS`
@@ -35,7 +35,6 @@ from grasp_fc_ros.client.pending import (
     publish_again,
     resend_after,
 )
-from grasp_fc_ros.engine.packed import Verdicts
 from grasp_fc_ros.interface import wire
 from grasp_fc_ros.interface.conversions import (
     BatchArrays,
@@ -52,6 +51,7 @@ from grasp_fc_ros.interface.names import (
     reply_topic,
     resolve,
 )
+from grasp_fc_ros.packed import Verdicts
 
 # Longest the sending thread waits for the node to acknowledge a part before it sends the
 # next one anyway (s): a slow or vanished node delays a batch's parts by this much each,

@@ -48,8 +48,6 @@ from grasp_fc_ros.client.single_queries import (
     DEFAULT_TIMEOUT_S,
     SingleQueries,
 )
-from grasp_fc_ros.engine.contact_forces import ContactForces
-from grasp_fc_ros.engine.packed import Verdicts
 from grasp_fc_ros.interface import wire
 from grasp_fc_ros.interface.conversions import friction_or_default
 from grasp_fc_ros.interface.names import (
@@ -58,6 +56,7 @@ from grasp_fc_ros.interface.names import (
     VERDICTS_TOPIC,
     resolve,
 )
+from grasp_fc_ros.packed import ContactForces, Verdicts
 
 
 class GraspClient:

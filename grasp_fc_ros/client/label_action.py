@@ -17,9 +17,9 @@ from rclpy.node import Node
 from rclpy.task import Future as RclpyFuture
 from tqdm import tqdm
 
-from grasp_fc_ros.engine.packed import Verdicts
 from grasp_fc_ros.interface.conversions import verdict_array_to_numpy
 from grasp_fc_ros.interface.names import LABEL_ACTION, resolve
+from grasp_fc_ros.packed import Verdicts
 
 # How long label_grasps looks for the action server when it has no timeout (s).
 DEFAULT_SERVER_WAIT_S = 60.0

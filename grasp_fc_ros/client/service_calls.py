@@ -16,11 +16,10 @@ from grasp_fc_msgs.srv import CheckForceClosure, ComputeContactForces
 from numpy.typing import ArrayLike
 from rclpy.node import Node
 
-from grasp_fc_ros.engine.contact_forces import ContactForces
-from grasp_fc_ros.engine.packed import Verdicts
 from grasp_fc_ros.interface.conversions import grasp_to_contact_array, verdict_msgs_to_numpy
 from grasp_fc_ros.interface.names import CHECK_SERVICE, CONTACT_FORCES_SERVICE, resolve
 from grasp_fc_ros.interface.wait_sets import ServiceCaller
+from grasp_fc_ros.packed import ContactForces, Verdicts
 
 
 class ServiceCalls:

@@ -1,6 +1,5 @@
 """Deciding packed grasps, in worker processes and in chunks (ROS-free).
 
-* :mod:`.packed` -- the data: packed grasps, their verdicts, the settings;
 * :mod:`.evaluation` -- packed grasps in, verdicts out (the core on the node's layout);
 * :mod:`.contact_forces` -- the forces that hold a load, for one packed grasp;
 * :mod:`.chunking` -- how requests and long jobs are cut into chunks;
@@ -10,6 +9,6 @@
   memory it shares with the pool, and the framing of their messages;
 * :mod:`.long_jobs` -- a long job chunk by chunk, with progress and a prompt stop.
 
-Importing this package imports none of them: a client that needs only the data types
-of :mod:`.packed` does not start or load the pool.
+The data these modules pass (packed grasps, verdicts, settings) is in
+:mod:`grasp_fc_ros.packed`, which clients import without this package.
 """

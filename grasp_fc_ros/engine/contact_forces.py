@@ -4,54 +4,16 @@ service), without ROS."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from grasp_fc_ros.core import optimal_contact_forces
 from grasp_fc_ros.engine.evaluation import effective_friction, find_invalid
-from grasp_fc_ros.engine.packed import PackedGrasps, Settings
+from grasp_fc_ros.packed import ContactForces, PackedGrasps, Settings
 
 #: Names of the wrench's six components, for messages.
 WRENCH_COMPONENTS = ("force.x", "force.y", "force.z", "torque.x", "torque.y", "torque.z")
-
-
-@dataclass(frozen=True)
-class ContactForces:
-    """The answer to one grasp-force optimisation request.
-
-    Attributes
-    ----------
-    feasible : bool
-        Forces inside the cones (and under the limits) balance the load.
-    max_normal_force : float
-        The least largest normal force s* (N); inf when infeasible, NaN when the request
-        is invalid or the solver could not decide.
-    contact_forces : (n, 3) float64
-        The optimal force per contact (N); shape (0, 3) unless feasible.
-    contact_torques : (n,) float64
-        The torsional moment about each contact's normal (N m; 0 at hard contacts);
-        shape (0,) unless feasible.
-    message : str
-        Empty, or why there is no answer (naming the query and contact).
-    """
-
-    feasible: bool
-    max_normal_force: float
-    contact_forces: np.ndarray
-    contact_torques: np.ndarray
-    message: str = ""
-
-    @classmethod
-    def refused(cls, message: str) -> ContactForces:
-        """No answer: ``message`` says why."""
-        return cls(False, float("nan"), np.empty((0, 3)), np.empty(0), message)
-
-    @classmethod
-    def infeasible(cls, max_normal_force: float) -> ContactForces:
-        """No forces hold the load (s* = inf), or none within the limits."""
-        return cls(False, max_normal_force, np.empty((0, 3)), np.empty(0))
 
 
 def contact_forces_for_load(packed: PackedGrasps, wrench: ArrayLike,

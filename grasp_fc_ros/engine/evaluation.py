@@ -26,7 +26,7 @@ from grasp_fc_ros.core import (
     validate_grasps,
 )
 from grasp_fc_ros.core.tolerances import MARGIN_TOL
-from grasp_fc_ros.engine.packed import MIN_CONTACTS, PackedGrasps, Settings, Verdicts
+from grasp_fc_ros.packed import MIN_CONTACTS, PackedGrasps, Settings, Verdicts
 
 
 @dataclass(frozen=True)

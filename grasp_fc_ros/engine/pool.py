@@ -21,7 +21,6 @@ from concurrent.futures import TimeoutError as FutureTimeout
 
 from grasp_fc_ros.engine.chunking import CHUNK_CONTACTS, SOFT_CHUNK_DIVISOR, chunk_size
 from grasp_fc_ros.engine.evaluation import evaluate
-from grasp_fc_ros.engine.packed import PackedGrasps, Settings, Verdicts
 from grasp_fc_ros.engine.worker_crew import (
     START_TIMEOUT_S,
     WARM_EPSILON_FLAG,
@@ -29,6 +28,7 @@ from grasp_fc_ros.engine.worker_crew import (
     WORKER_TIMEOUT_S,
     WorkerCrew,
 )
+from grasp_fc_ros.packed import PackedGrasps, Settings, Verdicts
 
 # Requests up to this many grasps are decided inline (one core call; tuned:
 # docs/performance.md#service-latency): a service call or a trickle of single queries

@@ -8,7 +8,7 @@ import tempfile
 
 import numpy as np
 
-from grasp_fc_ros.engine.packed import PackedGrasps
+from grasp_fc_ros.packed import PackedGrasps
 
 # Bytes of the memory each worker shares with its owner for the chunks' arrays: a chunk
 # of CHUNK_CONTACTS hard contacts takes 16 * grasps + 56 * contacts bytes, at most

@@ -15,9 +15,9 @@ from collections.abc import Callable
 from grasp_fc_ros.core import warm_up
 from grasp_fc_ros.engine.child_process import read_message, write_message
 from grasp_fc_ros.engine.evaluation import evaluate, warm_up_epsilon
-from grasp_fc_ros.engine.packed import PackedGrasps, Settings, Verdicts
 from grasp_fc_ros.engine.shared_chunk import SHARED, SharedChunk
 from grasp_fc_ros.engine.worker_crew import WARM_EPSILON_FLAG
+from grasp_fc_ros.packed import PackedGrasps, Settings, Verdicts
 
 #: What a worker does with a chunk: :func:`~.evaluation.evaluate`'s signature.
 Decide = Callable[[PackedGrasps, Settings], tuple[Verdicts, dict]]

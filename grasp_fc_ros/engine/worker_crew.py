@@ -33,8 +33,8 @@ from typing import IO
 from grasp_fc_ros.core import Status
 from grasp_fc_ros.engine.child_process import ONE_THREAD_ENV, read_message, write_message
 from grasp_fc_ros.engine.evaluation import evaluate
-from grasp_fc_ros.engine.packed import PackedGrasps, Settings, Verdicts
 from grasp_fc_ros.engine.shared_chunk import PICKLED, SHARED, SharedChunk
+from grasp_fc_ros.packed import PackedGrasps, Settings, Verdicts
 
 _logger = logging.getLogger(__name__)
 

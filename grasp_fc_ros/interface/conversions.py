@@ -25,8 +25,8 @@ from grasp_fc_msgs.msg import (
 from numpy.typing import ArrayLike, DTypeLike
 from std_msgs.msg import Header
 
-from grasp_fc_ros.engine.packed import OPTIONAL_FIELDS, PackedGrasps, Verdicts
 from grasp_fc_ros.interface import message_slots as slots
+from grasp_fc_ros.packed import OPTIONAL_FIELDS, PackedGrasps, Verdicts
 
 __all__ = [
     "BatchArrays", "MalformedBatch", "PackedGrasps", "Verdicts", "batch_arrays",

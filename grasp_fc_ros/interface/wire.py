@@ -38,9 +38,9 @@ from grasp_fc_msgs.msg import (
 from numpy.typing import ArrayLike
 from std_msgs.msg import Header
 
-from grasp_fc_ros.engine.packed import PackedGrasps, Verdicts
 from grasp_fc_ros.interface import message_slots as slots
 from grasp_fc_ros.interface.conversions import BatchArrays, batch_msg, grasps_to_batch_msg
+from grasp_fc_ros.packed import PackedGrasps, Verdicts
 
 __all__ = ["ContactQueries", "decode_contact_array_batch", "decode_contact_arrays",
            "decode_verdict", "decode_verdict_array", "encode_contact_array",

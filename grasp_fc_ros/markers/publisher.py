@@ -39,13 +39,13 @@ from visualization_msgs.msg import MarkerArray
 
 from grasp_fc_ros.core import Status, check_force_closure
 from grasp_fc_ros.engine.child_process import ONE_THREAD_ENV, read_message, write_message
-from grasp_fc_ros.engine.packed import Verdicts
 from grasp_fc_ros.interface.conversions import (
     MalformedBatch,
     batch_to_packed,
     contact_arrays_to_packed,
 )
 from grasp_fc_ros.markers.build import DEFAULT_LIFETIME_S, delete_all_markers, grasp_markers
+from grasp_fc_ros.packed import Verdicts
 
 # Messages whose markers may wait to be built; beyond, the oldest are dropped. A few
 # seconds of work at most (a message holds at most MAX_MARKER_SAMPLE grasps).

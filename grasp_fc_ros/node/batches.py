@@ -23,7 +23,6 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.serialization import deserialize_message
 
 from grasp_fc_ros.core import Status
-from grasp_fc_ros.engine.packed import Verdicts
 from grasp_fc_ros.engine.pool import PRIORITY_BATCH, Cancelled, Decision
 from grasp_fc_ros.interface import wire
 from grasp_fc_ros.interface.conversions import MalformedBatch, batch_size, batch_to_packed
@@ -31,6 +30,7 @@ from grasp_fc_ros.interface.names import CONTACTS_BATCH_TOPIC, QUERY_QOS
 from grasp_fc_ros.node.lane import Drained, LaneContext, Refusal, start_thread
 from grasp_fc_ros.node.marker_lane import MarkerLane
 from grasp_fc_ros.node.replies import Replies, refused_verdicts
+from grasp_fc_ros.packed import Verdicts
 
 # Batches whose chunks may be queued for the workers at once: with one, the workers
 # idle while a decided batch is answered and the next one converted and chunked.

@@ -19,9 +19,9 @@ from rclpy.task import Future
 
 from grasp_fc_ros.core import Status
 from grasp_fc_ros.engine.long_jobs import Progress
-from grasp_fc_ros.engine.packed import Verdicts
 from grasp_fc_ros.interface.conversions import verdicts_to_array_msg
 from grasp_fc_ros.node.statistics import Statistics
+from grasp_fc_ros.packed import Verdicts
 
 
 class LabelGoal:

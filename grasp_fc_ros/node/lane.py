@@ -23,9 +23,9 @@ from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.impl.rcutils_logger import RcutilsLogger
 
 from grasp_fc_ros.core import Status
-from grasp_fc_ros.engine.packed import PackedGrasps, Settings, Verdicts
 from grasp_fc_ros.engine.pool import PRIORITY_INTERACTIVE, Cancelled, EvaluationPool
 from grasp_fc_ros.node.statistics import Statistics, Throttle
+from grasp_fc_ros.packed import PackedGrasps, Settings, Verdicts
 
 # Verdict message of queries still queued when the node is destroyed.
 SHUTDOWN_MESSAGE = "node shutting down: query not evaluated"

@@ -15,7 +15,6 @@ from grasp_fc_msgs.msg import ContactArray, ContactArrayBatch
 from rclpy.node import Node
 from std_srvs.srv import Empty
 
-from grasp_fc_ros.engine.packed import Verdicts
 from grasp_fc_ros.interface.names import CLEAR_MARKERS_SERVICE
 from grasp_fc_ros.markers.publisher import (
     MarkerProcess,
@@ -25,6 +24,7 @@ from grasp_fc_ros.markers.publisher import (
 )
 from grasp_fc_ros.node.lane import Drained
 from grasp_fc_ros.node.parameters import LiveParameters
+from grasp_fc_ros.packed import Verdicts
 
 
 class MarkerLane:

@@ -21,7 +21,6 @@ from rclpy.parameter import Parameter
 
 from grasp_fc_ros.core import ORIGIN_CHOICES
 from grasp_fc_ros.core.tolerances import MAX_FRICTION_COEFFICIENT
-from grasp_fc_ros.engine.packed import MIN_CONTACTS, Settings
 from grasp_fc_ros.engine.worker_crew import WORKER_TIMEOUT_S
 from grasp_fc_ros.markers.build import DEFAULT_LIFETIME_S
 from grasp_fc_ros.markers.publisher import (
@@ -29,6 +28,7 @@ from grasp_fc_ros.markers.publisher import (
     MAX_MARKER_SAMPLE,
     MarkerSettings,
 )
+from grasp_fc_ros.packed import MIN_CONTACTS, Settings
 
 # Upper bounds of the integer parameters: beyond these a single message would not fit
 # any sensible memory budget.
@@ -150,7 +150,7 @@ class LiveParameters:
     """Declares the node's parameters, checks every change, and keeps the values the
     lanes read as snapshots.
 
-    :attr:`settings` (the :class:`~grasp_fc_ros.engine.packed.Settings` that decide
+    :attr:`settings` (the :class:`~grasp_fc_ros.packed.Settings` that decide
     queries) and :attr:`markers` (:class:`~grasp_fc_ros.markers.publisher.MarkerSettings`)
     are replaced whole on a change, so that a reader sees either the old or the new
     values, and read without looking parameters up on the hot path. Unknown parameter

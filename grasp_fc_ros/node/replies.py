@@ -29,7 +29,6 @@ from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
-from grasp_fc_ros.engine.packed import Verdicts
 from grasp_fc_ros.interface import wire
 from grasp_fc_ros.interface.conversions import batch_ids, verdicts_to_array_msg
 from grasp_fc_ros.interface.names import (
@@ -39,6 +38,7 @@ from grasp_fc_ros.interface.names import (
     reply_topic,
 )
 from grasp_fc_ros.node.lane import Refusal
+from grasp_fc_ros.packed import Verdicts
 
 # How long shutdown waits for readers to acknowledge the answers it publishes (s).
 SHUTDOWN_ACK_TIMEOUT_S = 0.5

@@ -24,7 +24,7 @@ from grasp_fc_msgs.srv import CheckForceClosure, ComputeContactForces
 from rclpy.node import Node
 
 from grasp_fc_ros.core import Status
-from grasp_fc_ros.engine.contact_forces import ContactForces, contact_forces_for_load
+from grasp_fc_ros.engine.contact_forces import contact_forces_for_load
 from grasp_fc_ros.engine.pool import Cancelled
 from grasp_fc_ros.interface.conversions import contact_arrays_to_packed, verdicts_to_msgs
 from grasp_fc_ros.interface.names import CHECK_SERVICE, CONTACT_FORCES_SERVICE
@@ -32,6 +32,7 @@ from grasp_fc_ros.interface.wait_sets import ServiceLoop
 from grasp_fc_ros.node.lane import Drained, LaneContext, Refusal
 from grasp_fc_ros.node.marker_lane import MarkerLane
 from grasp_fc_ros.node.single_queries import failure_replies
+from grasp_fc_ros.packed import ContactForces
 
 
 class ServiceLane:

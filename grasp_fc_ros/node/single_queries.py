@@ -26,7 +26,6 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.serialization import deserialize_message
 
 from grasp_fc_ros.core import Status
-from grasp_fc_ros.engine.packed import PackedGrasps, Verdicts
 from grasp_fc_ros.engine.pool import Cancelled
 from grasp_fc_ros.interface import wire
 from grasp_fc_ros.interface.conversions import contact_arrays_to_packed, verdicts_to_msgs
@@ -36,6 +35,7 @@ from grasp_fc_ros.interface.wait_sets import SubscriptionLoop
 from grasp_fc_ros.node.lane import Drained, LaneContext, Refusal, start_thread
 from grasp_fc_ros.node.marker_lane import MarkerLane
 from grasp_fc_ros.node.replies import Replies
+from grasp_fc_ros.packed import PackedGrasps, Verdicts
 
 # Queries taken per wake-up of the contacts loop at most (whatever the subscription
 # holds): one wake-up costs about as much as deciding a query. A GraspClient keeps at

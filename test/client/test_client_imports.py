@@ -11,10 +11,9 @@ from pathlib import Path
 from grasp_fc_ros.interface import names
 
 CLIENT = Path(__file__).resolve().parents[2] / "grasp_fc_ros" / "client"
-# What a client must never load: the node, the worker pool, long jobs, the marker process.
-SERVER_MODULES = ("grasp_fc_ros.node", "grasp_fc_ros.engine.pool",
-                  "grasp_fc_ros.engine.long_jobs", "grasp_fc_ros.engine.worker",
-                  "grasp_fc_ros.markers.publisher")
+# What a client must never load: the node, its engine (the worker pool, long jobs, the
+# evaluation of packed grasps), the marker process.
+SERVER_MODULES = ("grasp_fc_ros.node", "grasp_fc_ros.engine", "grasp_fc_ros.markers.publisher")
 
 
 def test_importing_the_client_loads_no_server_module():

@@ -26,8 +26,8 @@ import time
 from pathlib import Path
 
 from grasp_fc_ros.engine.evaluation import evaluate
-from grasp_fc_ros.engine.packed import PackedGrasps, Settings, Verdicts
 from grasp_fc_ros.engine.worker import serve
+from grasp_fc_ros.packed import PackedGrasps, Settings, Verdicts
 
 DIE_CODE = 3
 NO_START_CODE = 4

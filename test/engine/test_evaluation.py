@@ -11,8 +11,8 @@ from hypothesis import strategies as st
 from grasp_fc_ros.core import Status, check_force_closure
 from grasp_fc_ros.core.grasp_input import show_value
 from grasp_fc_ros.engine.evaluation import InvalidGrasp, evaluate, find_invalid
-from grasp_fc_ros.engine.packed import PackedGrasps, Settings, Verdicts
 from grasp_fc_ros.objects import make_object, sample_grasps
+from grasp_fc_ros.packed import PackedGrasps, Settings, Verdicts
 
 # The exact test's margin depends on which grasps share a solver call, to solver accuracy.
 MARGIN_ABS_TOL = 1e-6

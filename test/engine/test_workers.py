@@ -26,11 +26,11 @@ from grasp_fc_ros.engine import shared_chunk
 from grasp_fc_ros.engine.chunking import chunk_size
 from grasp_fc_ros.engine.evaluation import evaluate
 from grasp_fc_ros.engine.long_jobs import decide_in_chunks
-from grasp_fc_ros.engine.packed import PackedGrasps, Settings, Verdicts
 from grasp_fc_ros.engine.pool import Cancelled, EvaluationPool
 from grasp_fc_ros.engine.shared_chunk import SharedChunk
 from grasp_fc_ros.engine.worker_crew import answer_bound_s
 from grasp_fc_ros.objects import make_object, sample_grasps
+from grasp_fc_ros.packed import PackedGrasps, Settings, Verdicts
 
 pytestmark = pytest.mark.timeout(180)
 

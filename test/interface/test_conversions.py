@@ -11,7 +11,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from grasp_fc_ros.core import Status
-from grasp_fc_ros.engine.packed import Verdicts
 from grasp_fc_ros.interface.conversions import (
     MalformedBatch,
     batch_size,
@@ -23,6 +22,7 @@ from grasp_fc_ros.interface.conversions import (
     verdicts_to_array_msg,
     verdicts_to_msgs,
 )
+from grasp_fc_ros.packed import Verdicts
 
 
 @settings(max_examples=40, deadline=None)
@@ -131,7 +131,7 @@ def mixed_batch(seed=5):
 
 def decide(msg, **settings):
     from grasp_fc_ros.engine.evaluation import evaluate
-    from grasp_fc_ros.engine.packed import Settings
+    from grasp_fc_ros.packed import Settings
 
     verdicts, _ = evaluate(batch_to_packed(msg), Settings(**settings))
     return verdicts
@@ -254,8 +254,8 @@ def soft_pairs(seed=8, n_grasps=30):
 def test_soft_certificates_carry_torques_in_both_verdict_kinds():
     from grasp_fc_ros.core import verify_certificates
     from grasp_fc_ros.engine.evaluation import evaluate
-    from grasp_fc_ros.engine.packed import Settings
     from grasp_fc_ros.interface.conversions import verdict_msgs_to_numpy
+    from grasp_fc_ros.packed import Settings
 
     positions, normals, gamma = soft_pairs()
     msg = grasps_to_batch_msg(np.arange(30), positions, normals, 0.5,

@@ -169,7 +169,7 @@ def verdict_arrays(draw):
     or not, so that both the numpy and the rclpy paths run) and optional certificates."""
     from std_msgs.msg import Header
 
-    from grasp_fc_ros.engine.packed import Verdicts
+    from grasp_fc_ros.packed import Verdicts
 
     n = draw(st.integers(0, 40))
     header = Header(frame_id=draw(TEXT))
@@ -231,7 +231,7 @@ def test_a_refusal_is_encoded_in_bulk_and_reads_back_in_rclpy(text):
     from grasp_fc_msgs.msg import ForceClosureVerdictArray
     from std_msgs.msg import Header
 
-    from grasp_fc_ros.engine.packed import Verdicts
+    from grasp_fc_ros.packed import Verdicts
 
     raw = wire.encode_verdict_array(Header(frame_id="palm"), 5, 6,
                                     Verdicts.failed(np.arange(7) + 3, 1, text))
@@ -263,7 +263,7 @@ def test_decoded_verdict_array_equals_rclpy_deserialization(case):
 def test_a_truncated_verdict_array_is_refused():
     from std_msgs.msg import Header
 
-    from grasp_fc_ros.engine.packed import Verdicts
+    from grasp_fc_ros.packed import Verdicts
 
     raw = wire.encode_verdict_array(Header(), 1, 2, Verdicts.failed(np.arange(5), 1, ""))
     with pytest.raises(ValueError):

@@ -22,10 +22,10 @@ from grasp_fc_ros.core import (
     verify_certificates,
 )
 from grasp_fc_ros.engine.evaluation import evaluate
-from grasp_fc_ros.engine.packed import Settings
 from grasp_fc_ros.engine.pool import EvaluationPool
 from grasp_fc_ros.interface.conversions import batch_to_packed, grasps_to_batch_msg
 from grasp_fc_ros.objects import make_object, sample_grasps
+from grasp_fc_ros.packed import Settings
 
 pytestmark = pytest.mark.timeout(180)
 

@@ -14,10 +14,10 @@ from grasp_fc_msgs.msg import ForceClosureVerdict, ForceClosureVerdictArray
 from grasp_fc_ros.client import GraspClient
 from grasp_fc_ros.core import Status, epsilon_quality
 from grasp_fc_ros.engine.evaluation import evaluate
-from grasp_fc_ros.engine.packed import Settings
 from grasp_fc_ros.engine.pool import EvaluationPool
 from grasp_fc_ros.interface.conversions import batch_to_packed, grasps_to_batch_msg
 from grasp_fc_ros.objects import make_object, sample_grasps
+from grasp_fc_ros.packed import Settings
 
 # A cold start compiles the epsilon kernels (docs/epsilon.md#cost) in the node's
 # process and in the worker: far more than a verdict.

@@ -9,7 +9,6 @@ from rclpy.parameter import Parameter
 from grasp_fc_ros.core import Status, check_force_closure
 from grasp_fc_ros.engine.chunking import SOFT_CHUNK_DIVISOR
 from grasp_fc_ros.engine.evaluation import evaluate
-from grasp_fc_ros.engine.packed import Settings
 from grasp_fc_ros.engine.pool import EvaluationPool
 from grasp_fc_ros.interface.conversions import (
     MalformedBatch,
@@ -20,6 +19,7 @@ from grasp_fc_ros.interface.conversions import (
     verdict_array_to_numpy,
 )
 from grasp_fc_ros.node import ForceClosureNode
+from grasp_fc_ros.packed import Settings
 from ros_fixtures import Client, SpinThread
 
 pytestmark = pytest.mark.timeout(120)

@@ -1,10 +1,11 @@
-"""The node's data layout, without ROS: packed grasps in, verdicts out, and the settings
-that decide them.
+"""The data the node, its engine and its clients share, without ROS: packed grasps in,
+verdicts out, the settings that decide them, and the contact forces that hold a load.
 
 :class:`PackedGrasps` holds many grasps stacked contact after contact plus one contact
 count per grasp, the layout of ``ContactArrayBatch``; :class:`Verdicts` the answers, one
-row per grasp. Only numpy and the core's :class:`~grasp_fc_ros.core.Status`: a client
-imports this module without the pool.
+row per grasp; :class:`ContactForces` the answer of ``compute_contact_forces``. Only
+numpy and the core's :class:`~grasp_fc_ros.core.Status`: a client imports this module
+and no part of the node or its engine.
 """
 
 from __future__ import annotations
@@ -243,3 +244,40 @@ def _concatenate_optional(arrays: list) -> np.ndarray | None:
     if any(a is None for a in arrays):
         return None
     return np.concatenate(arrays)
+
+
+@dataclass(frozen=True)
+class ContactForces:
+    """The answer to one grasp-force optimisation request.
+
+    Attributes
+    ----------
+    feasible : bool
+        Forces inside the cones (and under the limits) balance the load.
+    max_normal_force : float
+        The least largest normal force s* (N); inf when infeasible, NaN when the request
+        is invalid or the solver could not decide.
+    contact_forces : (n, 3) float64
+        The optimal force per contact (N); shape (0, 3) unless feasible.
+    contact_torques : (n,) float64
+        The torsional moment about each contact's normal (N m; 0 at hard contacts);
+        shape (0,) unless feasible.
+    message : str
+        Empty, or why there is no answer (naming the query and contact).
+    """
+
+    feasible: bool
+    max_normal_force: float
+    contact_forces: np.ndarray
+    contact_torques: np.ndarray
+    message: str = ""
+
+    @classmethod
+    def refused(cls, message: str) -> ContactForces:
+        """No answer: ``message`` says why."""
+        return cls(False, float("nan"), np.empty((0, 3)), np.empty(0), message)
+
+    @classmethod
+    def infeasible(cls, max_normal_force: float) -> ContactForces:
+        """No forces hold the load (s* = inf), or none within the limits."""
+        return cls(False, max_normal_force, np.empty((0, 3)), np.empty(0))
