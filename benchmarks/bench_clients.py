@@ -29,6 +29,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -89,7 +90,7 @@ def run_client(namespace: str, singles: int, batch: int, timeout: float, seed: i
         rclpy.try_shutdown()
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="several GraspClients at once")
     parser.add_argument("--clients", type=int, default=4)
     parser.add_argument("--singles", type=int, default=20_000, help="single queries per client")

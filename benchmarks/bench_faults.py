@@ -35,7 +35,7 @@ import numpy as np
 import rclpy
 
 from bench_ros import process_cpu_s, start_node, stop_node, verdict
-from grasp_fc_ros.core import Status, check_force_closure, warm_up
+from grasp_fc_ros.core import ForceClosureResult, Status, check_force_closure, warm_up
 from grasp_fc_ros.engine.pool import EvaluationPool
 from grasp_fc_ros.objects import make_object, sample_grasps
 from grasp_fc_ros.packed import PackedGrasps, Settings, Verdicts
@@ -94,8 +94,8 @@ def kill_when_busy(before: dict[int, float], done: Callable[[], bool],
     return None, False
 
 
-def report(where: str, verdicts: Verdicts, expected, killed: int | None, pending: bool,
-           seconds: float) -> bool:
+def report(where: str, verdicts: Verdicts, expected: ForceClosureResult,
+           killed: int | None, pending: bool, seconds: float) -> bool:
     """Print the failures and disagreements with the core; whether both are 0 and the
     kill came while the request was being decided."""
     failures = int(np.count_nonzero(verdicts.status == Status.SOLVER_FAILURE))
@@ -115,7 +115,7 @@ def report(where: str, verdicts: Verdicts, expected, killed: int | None, pending
     return ok
 
 
-def through_node(positions: np.ndarray, normals: np.ndarray, expected,
+def through_node(positions: np.ndarray, normals: np.ndarray, expected: ForceClosureResult,
                  timeout_s: float) -> bool:
     node, client = start_node("faults", ["-p", f"max_batch:={len(positions)}"])
     try:
@@ -133,7 +133,7 @@ def through_node(positions: np.ndarray, normals: np.ndarray, expected,
         stop_node(node, client)
 
 
-def on_pool(positions: np.ndarray, normals: np.ndarray, expected,
+def on_pool(positions: np.ndarray, normals: np.ndarray, expected: ForceClosureResult,
             log: Callable[[str], None], timeout_s: float) -> bool:
     n_grasps = len(positions)
     request = PackedGrasps(ids=np.arange(n_grasps, dtype=np.uint64),

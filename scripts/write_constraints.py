@@ -16,17 +16,23 @@ import re
 SKIPPED = {"pip", "grasp-fc-ros"}
 
 
-def normalized(name):
+def normalized(name: str) -> str:
     """Return the PEP 503 normalized form of a distribution name."""
     return re.sub(r"[-_.]+", "-", name).lower()
 
 
-def pins():
+def metadata_dir(dist: importlib.metadata.Distribution) -> str:
+    """Where ``dist``'s metadata lives; importlib.metadata keeps it only as the private
+    ``_path`` of a PathDistribution (empty for any other kind)."""
+    return str(getattr(dist, "_path", ""))
+
+
+def pins() -> list[str]:
     """Return sorted ``name==version`` lines for the venv's real distributions."""
     lines = set()
     for dist in importlib.metadata.distributions():
         name = dist.metadata["Name"]
-        if normalized(name) in SKIPPED or str(dist._path).endswith(".egg-info"):
+        if normalized(name) in SKIPPED or metadata_dir(dist).endswith(".egg-info"):
             continue
         lines.add(f"{name}=={dist.version}")
     return sorted(lines, key=str.lower)
