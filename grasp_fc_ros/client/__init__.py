@@ -10,6 +10,6 @@ from grasp_fc_ros.engine.contact_forces import ContactForces
 from grasp_fc_ros.engine.packed import Verdicts
 
 from .grasp_client import GraspClient
-from .label_action import request_on_spin_thread
+from .label_job import request_on_spin_thread
 
 __all__ = ["ContactForces", "GraspClient", "Verdicts", "request_on_spin_thread"]
