@@ -48,7 +48,8 @@ def tiled(grasps, n_grasps):
 
 @pytest.fixture(scope="module")
 def served(ros):
-    """A node with one worker in a namespace of its own, and a GraspClient of it."""
+    """A node with one worker in a namespace of its own, and a GraspClient of it; it takes
+    raw goals of any number of contacts (these tests send long goals as one message)."""
     from rclpy.parameter import Parameter
 
     from grasp_fc_ros.client import GraspClient
@@ -57,7 +58,8 @@ def served(ros):
 
     namespace = "/action_test"
     node = ForceClosureNode(namespace=namespace, parameter_overrides=[
-        Parameter("workers", value=1), Parameter("max_batch", value=500_000)])
+        Parameter("workers", value=1), Parameter("max_batch", value=500_000),
+        Parameter("max_message_contacts", value=0)])
     spinner = SpinThread(node)
     client = GraspClient(f"{namespace}/force_closure")
     assert client.wait_for_node(timeout=30.0)
@@ -261,6 +263,17 @@ def test_malformed_and_oversized_goals_get_invalid_input_verdicts(grasps, served
     assert status == GoalStatus.STATUS_SUCCEEDED and len(verdicts.status) == 1001
     assert set(verdicts.status) == {Status.INVALID_INPUT}
     assert verdicts.messages[0] == "1001 grasps exceed max_batch=1000"
+
+    node.set_parameters([Parameter("max_message_contacts", value=20)])
+    try:
+        status, verdicts = Goal(action_client, batch_msg(positions[:4], normals[:4])).result()
+    finally:
+        node.set_parameters([Parameter("max_message_contacts", value=0)])
+    assert status == GoalStatus.STATUS_SUCCEEDED
+    assert list(verdicts.status) == [Status.INVALID_INPUT] * 4
+    assert verdicts.messages[0] == ("24 contacts in one message exceed "
+                                    "max_message_contacts=20: split it into messages of "
+                                    "whole grasps (GraspClient does)")
 
     zero_normal = normals[:3].copy()
     zero_normal[1, 0] = 0.0  # grasp 1, contact 0
@@ -474,7 +487,8 @@ def test_sigterm_aborts_a_running_goal_with_its_prefix_and_the_node_exits(grasps
 
     namespace = f"/action_sigterm_{os.getpid()}"
     process = NodeProcess(node_command() + ["--ros-args", "-r", f"__ns:={namespace}",
-                                            "-p", "workers:=1"])
+                                            "-p", "workers:=1",
+                                            "-p", "max_message_contacts:=0"])
     client = GraspClient(f"{namespace}/force_closure")
     try:
         action = ActionClient(client.node, LabelGrasps, f"{namespace}/label_grasps")
