@@ -12,7 +12,8 @@ while a batch of --grasps grasps of --contacts contacts each (100,000 x 12 by de
 3. ``raw``: the same grasps as ONE ContactArrayBatch from a plain rclpy publisher in
    another process (not GraspClient), answered on the shared ``verdicts_batch`` topic;
 4. ``this``: from this process (the same GraspClient that makes the service calls, its
-   batch sent from a second thread).
+   batch sent from a second thread);
+5. ``this-goal``: the same as a label_grasps job from this process.
 
 For each it prints the service round trips while the batch was on its way and being
 decided (p50, p99, max; targets p99 <= 50 ms, max <= 100 ms), the seconds from sending
@@ -20,7 +21,7 @@ the batch to its answer, and whether every grasp of it was answered (with how ma
 were refused, and why: the node refuses an oversized raw message).
 
 Usage: python benchmarks/bench_stall.py [--grasps N] [--contacts C] [--period S]
-       [--cases batch,goal,raw,this] [--node-args "-p max_message_contacts:=0"] [--quick]
+       [--cases batch,goal,raw,this,this-goal] [--node-args "-p max_message_contacts:=0"] [--quick]
        (--send NODE --how HOW is the child process's own form)
 """
 
@@ -35,6 +36,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future
 
 import numpy as np
 import rclpy
@@ -108,7 +110,7 @@ def summary(calls: tuple[np.ndarray, np.ndarray], sent_at: float | None = None) 
 # What the child process sends, by case: the heading of its lines of results.
 SENT_AS = {"batch": "batch from another process", "goal": "goal from another process",
            "raw": "raw batch from another process"}
-CASES = (*SENT_AS, "this")
+CASES = (*SENT_AS, "this", "this-goal")
 
 
 def from_another_process(client: GraspClient, node_name: str, args, grasp, how: str) -> str:
@@ -140,19 +142,27 @@ def from_another_process(client: GraspClient, node_name: str, args, grasp, how: 
         sender.wait()
 
 
-def from_this_process(client: GraspClient, args, grasp) -> str:
-    """Time calls while this process's client sends the batch from another thread."""
+def from_this_process(client: GraspClient, args, grasp, goal: bool) -> str:
+    """Time calls while this process's client sends the batch (or, with ``goal``, the
+    label_grasps job) from another thread."""
     positions, normals = batch_grasps(args.grasps, args.contacts)
-    sent: list = []
+    answer: Future = Future()
+
+    def send() -> None:
+        if goal:
+            answer.set_result(client.label_grasps(positions, normals, progress=False,
+                                                  timeout=REPLY_TIMEOUT_S))
+        else:
+            client.submit_batch(positions, normals).add_done_callback(
+                lambda done: answer.set_result(done.result()))
+
     began = time.perf_counter()
-    thread = threading.Thread(target=lambda: sent.append(client.submit_batch(positions,
-                                                                             normals)))
+    thread = threading.Thread(target=send)
     thread.start()
-    times = time_calls(client, grasp, args.period,
-                       lambda: bool(sent) and sent[0].done())
+    times = time_calls(client, grasp, args.period, answer.done)
     thread.join()
-    verdicts = sent[0].result(REPLY_TIMEOUT_S)
-    return (f"batch from this process: {summary(times, began)}\n"
+    verdicts = answer.result(REPLY_TIMEOUT_S)
+    return (f"{'goal' if goal else 'batch'} from this process: {summary(times, began)}\n"
             f"    the batch answered in {time.perf_counter() - began:.1f} s, {len(verdicts)} "
             f"of {args.grasps} grasps")
 
@@ -254,7 +264,8 @@ def main(argv: list[str] | None = None) -> int:
         idle = time_calls(client, grasp, args.period, lambda: next(calls) == IDLE_CALLS)
         print(f"idle: {summary(idle)}")
         for case in cases:
-            print(from_this_process(client, args, grasp) if case == "this" else
+            print(from_this_process(client, args, grasp, case == "this-goal")
+                  if case.startswith("this") else
                   from_another_process(client, node_name, args, grasp, case))
         return 0
     finally:

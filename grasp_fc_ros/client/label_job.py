@@ -152,7 +152,8 @@ class LabelJob:
             if index not in self._ended:
                 break
             status, verdicts = self._ended[index]
-            joined.append(verdicts)
+            if len(verdicts):  # an empty one may lack the optional fields the others have
+                joined.append(verdicts)
             if status != GoalStatus.STATUS_SUCCEEDED:
                 break
         return joined[0] if len(joined) == 1 else Verdicts.concatenate(joined)
