@@ -10,7 +10,9 @@ while a batch of --grasps grasps of --contacts contacts each (100,000 x 12 by de
 2. ``goal``: the same grasps as a label_grasps job from another process
    (``GraspClient.label_grasps``);
 3. ``raw``: the same grasps as ONE ContactArrayBatch from a plain rclpy publisher in
-   another process (not GraspClient), answered on the shared ``verdicts_batch`` topic;
+   another process (not GraspClient), answered on the shared ``verdicts_batch`` topic
+   (refused whole beyond the node's ``max_message_contacts``: ``--node-args
+   "-p max_message_contacts:=0"`` has it decided);
 4. ``this``: from this process (the same GraspClient that makes the service calls, its
    batch sent from a second thread);
 5. ``this-goal``: the same as a label_grasps job from this process.
