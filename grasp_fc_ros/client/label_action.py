@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
 from action_msgs.msg import GoalStatus
 from grasp_fc_msgs.action import LabelGrasps
 from rclpy.action import ActionClient
@@ -84,9 +85,10 @@ class LabelActionClient:
                 raise RuntimeError("the node rejected the label_grasps goal (shutting down?)")
             verdicts = job.verdicts()
             # The last feedback may predate the end (a short goal may have none after its
-            # first): the bar ends on the verdicts themselves.
-            show_progress(bar, job.progress(), started)
-            bar.update(len(verdicts) - bar.n)
+            # first), and a cancelled job drops what its later parts decided: the bar
+            # ends on the verdicts themselves.
+            show_progress(bar, JobProgress(len(verdicts), job.total, int(
+                np.count_nonzero(verdicts.force_closure))), started)
         self.last_goal_status = job.status()
         return verdicts
 

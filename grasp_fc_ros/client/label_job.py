@@ -95,6 +95,7 @@ class LabelJob:
         self._handles: dict[int, Any] = {}  # parts accepted and not ended: goal handles
         self._feedback: dict[int, Any] = {}  # their latest LabelGrasps feedback
         self._ended: dict[int, tuple[int, Verdicts]] = {}  # part -> (GoalStatus, verdicts)
+        self._ended_counts = JobProgress(0, self.total, 0)  # the ended parts' verdicts
         self._stopped = False  # send no more parts
         self.canceled = False
         self.rejected_part: int | None = None
@@ -135,10 +136,7 @@ class LabelJob:
     def progress(self) -> JobProgress:
         """Grasps decided so far: the ended parts' verdicts and the feedback of those
         in flight."""
-        done = force_closure = 0
-        for _, verdicts in self._ended.values():
-            done += len(verdicts)
-            force_closure += int(np.count_nonzero(verdicts.status == _FORCE_CLOSURE))
+        done, _, force_closure = self._ended_counts
         for feedback in self._feedback.values():
             done += int(feedback.done)
             force_closure += int(feedback.force_closure)
@@ -202,8 +200,12 @@ class LabelJob:
         response = future.result()
         del self._handles[index]
         self._feedback.pop(index, None)
-        self._ended[index] = (response.status,
-                              verdict_array_to_numpy(response.result.verdicts))
+        verdicts = verdict_array_to_numpy(response.result.verdicts)
+        self._ended[index] = (response.status, verdicts)
+        done, total, force_closure = self._ended_counts
+        self._ended_counts = JobProgress(
+            done + len(verdicts), total,
+            force_closure + int(np.count_nonzero(verdicts.status == _FORCE_CLOSURE)))
         if response.status != GoalStatus.STATUS_SUCCEEDED and not self._stopped:
             self._stopped = True  # aborted: the node is stopping; end the others too
             for handle in self._handles.values():
