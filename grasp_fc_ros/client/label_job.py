@@ -78,6 +78,15 @@ class LabelJob:
     parts : list of ContactArrayBatch
         The job's grasps, in order, in parts of whole grasps.
 
+    Attributes
+    ----------
+    total : int
+        Grasps in the job.
+    canceled : bool
+        :meth:`cancel` was called.
+    rejected_part : int or None
+        The part the node rejected (it is shutting down), if any: none is sent after it.
+
     The caller's thread drives the job: :meth:`step` sends what may be sent and takes
     one event from the spin thread (a goal accepted or rejected, a feedback, a result).
     """
