@@ -154,7 +154,8 @@ def main(argv=None) -> int:
     batch = grasps_to_batch_msg(np.arange(args.goal_grasps), positions, normals)
 
     rclpy.init()
-    node, client = start_node("action")
+    # Goals as one message each, of up to max_batch grasps: no limit on their contacts.
+    node, client = start_node("action", ["-p", "max_message_contacts:=0"])
     try:
         namespace = f"/grasp_fc_action_{os.getpid()}"  # as start_node("action") names it
         action_client = ActionClient(client.node, LabelGrasps, f"{namespace}/label_grasps")

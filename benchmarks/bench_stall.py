@@ -3,36 +3,58 @@
 The force_closure node runs in its own process. This process calls check_force_closure
 with one 6-finger grasp every --period seconds through grasp_fc_ros.client.GraspClient,
 while a batch of --grasps grasps of --contacts contacts each (100,000 x 12 by default,
-~58 MB as one message) is sent to the node, decided and answered:
+~58 MB as one message) is sent to the node, decided and answered (--cases picks some):
 
-1. from another process (a GraspClient in a child process of this script);
-2. from this process (the same GraspClient that makes the service calls, its batch
-   sent from a second thread).
+1. ``batch``: from another process (``GraspClient.check_batch`` in a child process of
+   this script);
+2. ``goal``: the same grasps as a label_grasps job from another process
+   (``GraspClient.label_grasps``);
+3. ``raw``: the same grasps as ONE ContactArrayBatch from a plain rclpy publisher in
+   another process (not GraspClient), answered on the shared ``verdicts_batch`` topic
+   (refused whole beyond the node's ``max_message_contacts``: ``--node-args
+   "-p max_message_contacts:=0"`` has it decided);
+4. ``this``: from this process (the same GraspClient that makes the service calls, its
+   batch sent from a second thread);
+5. ``this-goal``: the same as a label_grasps job from this process.
 
 For each it prints the service round trips while the batch was on its way and being
 decided (p50, p99, max; targets p99 <= 50 ms, max <= 100 ms), the seconds from sending
-the batch to its answer, and whether every grasp of it was answered.
+the batch to its answer, and whether every grasp of it was answered (with how many
+were refused, and why: the node refuses an oversized raw message).
 
-Usage: python benchmarks/bench_stall.py [--grasps N] [--contacts C] [--period S] [--quick]
-       (--send NODE is the child process's own form)
+Usage: python benchmarks/bench_stall.py [--grasps N] [--contacts C] [--period S]
+       [--cases batch,goal,raw,this,this-goal] [--node-args "-p max_message_contacts:=0"] [--quick]
+       (--send NODE --how HOW is the child process's own form)
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import queue
+import shlex
 import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future
 
 import numpy as np
 import rclpy
+from grasp_fc_msgs.msg import ContactArrayBatch, ForceClosureVerdictArray
+from rclpy.node import Node
 
 from bench_ros import CONNECT_TIMEOUT_S, start_node, stop_node, verdict
 from grasp_fc_ros.client import GraspClient
-from grasp_fc_ros.core import warm_up
+from grasp_fc_ros.core import Status, warm_up
+from grasp_fc_ros.interface.conversions import grasps_to_batch_msg
+from grasp_fc_ros.interface.names import (
+    CONTACTS_BATCH_TOPIC,
+    QUERY_QOS,
+    VERDICTS_BATCH_TOPIC,
+    resolve,
+)
 from grasp_fc_ros.objects import make_object, sample_grasps
 
 GRASPS = 100_000
@@ -55,33 +77,50 @@ def batch_grasps(n_grasps: int, n_contacts: int) -> tuple[np.ndarray, np.ndarray
 
 
 def time_calls(client: GraspClient, grasp: tuple[np.ndarray, np.ndarray],
-               period_s: float, until: Callable[[], bool]) -> np.ndarray:
-    """Round trips (ms) of one-grasp calls, one every ``period_s``, until ``until()``."""
-    times = []
+               period_s: float, until: Callable[[], bool]) -> tuple[np.ndarray, np.ndarray]:
+    """Round trips (ms) of one-grasp calls, one every ``period_s``, until ``until()``,
+    and when each began (``time.perf_counter``, s)."""
+    times, starts = [], []
     positions, normals = grasp
     while not until():
         began = time.perf_counter()
         verdicts = client.call(positions, normals, timeout=REPLY_TIMEOUT_S)
         times.append(time.perf_counter() - began)
+        starts.append(began)
         assert len(verdicts) == 1
         time.sleep(max(0.0, period_s - (time.perf_counter() - began)))
-    return np.array(times) * 1e3
+    return np.array(times) * 1e3, np.array(starts)
 
 
-def summary(times_ms: np.ndarray) -> str:
+def summary(calls: tuple[np.ndarray, np.ndarray], sent_at: float | None = None) -> str:
+    """p50, p99 and max of timed calls against the targets; with ``sent_at`` (when the
+    batch was sent), a second line saying when the calls over the p99 target began."""
+    times_ms, starts = calls
     if not len(times_ms):
         return "no calls"
     p99, worst = np.percentile(times_ms, 99), times_ms.max()
-    return (f"p50 {np.percentile(times_ms, 50):.2f} ms, p99 {p99:.2f} ms, max {worst:.1f} ms "
+    line = (f"p50 {np.percentile(times_ms, 50):.2f} ms, p99 {p99:.2f} ms, max {worst:.1f} ms "
             f"over {len(times_ms)} calls  [target p99 <= {TARGET_P99_MS:g} ms, max <= "
             f"{TARGET_MAX_MS:g} ms: {verdict(p99 <= TARGET_P99_MS and worst <= TARGET_MAX_MS)}]")
+    slow = times_ms > TARGET_P99_MS
+    if sent_at is not None and slow.any():
+        began = ", ".join(f"{start - sent_at:.2f}" for start in starts[slow][:10])
+        line += f"\n    calls over {TARGET_P99_MS:g} ms began {began} s after the send"
+    return line
 
 
-def from_another_process(client: GraspClient, node_name: str, args, grasp) -> str:
-    """Time calls while a child process sends the batch; its line of results."""
+# What the child process sends, by case: the heading of its lines of results.
+SENT_AS = {"batch": "batch from another process", "goal": "goal from another process",
+           "raw": "raw batch from another process"}
+CASES = (*SENT_AS, "this", "this-goal")
+
+
+def from_another_process(client: GraspClient, node_name: str, args, grasp, how: str) -> str:
+    """Time calls while a child process sends the grasps as ``how`` says; its lines of
+    results."""
     sender = subprocess.Popen(
-        [sys.executable, __file__, "--send", node_name, "--grasps", str(args.grasps),
-         "--contacts", str(args.contacts)],
+        [sys.executable, __file__, "--send", node_name, "--how", how,
+         "--grasps", str(args.grasps), "--contacts", str(args.contacts)],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     assert sender.stdin is not None and sender.stdout is not None
     try:
@@ -89,56 +128,105 @@ def from_another_process(client: GraspClient, node_name: str, args, grasp) -> st
             raise RuntimeError("the sending process did not connect to the node")
         sender.stdin.write("go\n")
         sender.stdin.flush()
+        sent_at = time.perf_counter()
         finished = threading.Event()
         result: list[str] = []
         reader = threading.Thread(target=lambda: (result.append(sender.stdout.readline()),
                                                   finished.set()), daemon=True)
         reader.start()
         times = time_calls(client, grasp, args.period, finished.is_set)
-        answered, seconds = result[0].split()
-        return (f"batch from another process: {summary(times)}\n"
+        answered, seconds, refused = result[0].rstrip("\n").split(" ", 2)
+        return (f"{SENT_AS[how]}: {summary(times, sent_at)}\n"
                 f"    the batch answered in {float(seconds):.1f} s, {answered} of "
-                f"{args.grasps} grasps")
+                f"{args.grasps} grasps{refused}")
     finally:
         sender.kill()
         sender.wait()
 
 
-def from_this_process(client: GraspClient, args, grasp) -> str:
-    """Time calls while this process's client sends the batch from another thread."""
+def from_this_process(client: GraspClient, args, grasp, goal: bool) -> str:
+    """Time calls while this process's client sends the batch (or, with ``goal``, the
+    label_grasps job) from another thread."""
     positions, normals = batch_grasps(args.grasps, args.contacts)
-    sent: list = []
+    answer: Future = Future()
+
+    def send() -> None:
+        if goal:
+            answer.set_result(client.label_grasps(positions, normals, progress=False,
+                                                  timeout=REPLY_TIMEOUT_S))
+        else:
+            client.submit_batch(positions, normals).add_done_callback(
+                lambda done: answer.set_result(done.result()))
+
     began = time.perf_counter()
-    thread = threading.Thread(target=lambda: sent.append(client.submit_batch(positions,
-                                                                             normals)))
+    thread = threading.Thread(target=send)
     thread.start()
-    times = time_calls(client, grasp, args.period,
-                       lambda: bool(sent) and sent[0].done())
+    times = time_calls(client, grasp, args.period, answer.done)
     thread.join()
-    verdicts = sent[0].result(REPLY_TIMEOUT_S)
-    return (f"batch from this process: {summary(times)}\n"
+    verdicts = answer.result(REPLY_TIMEOUT_S)
+    return (f"{'goal' if goal else 'batch'} from this process: {summary(times, began)}\n"
             f"    the batch answered in {time.perf_counter() - began:.1f} s, {len(verdicts)} "
             f"of {args.grasps} grasps")
 
 
-def send(node_name: str, n_grasps: int, n_contacts: int) -> int:
-    """The child process: connect, say ready, send the batch on 'go', print
-    '<grasps answered> <seconds>' once answered."""
+def refusals(status: np.ndarray, messages: Sequence[str]) -> str:
+    """' (K refused: <first message>)' for INVALID_INPUT verdicts, '' if none."""
+    refused = np.flatnonzero(np.asarray(status) == Status.INVALID_INPUT)
+    return f" ({len(refused)} refused: {messages[refused[0]]})" if len(refused) else ""
+
+
+def send(node_name: str, how: str, n_grasps: int, n_contacts: int) -> int:
+    """The child process: connect, say ready, send the grasps as ``how`` says on 'go',
+    print '<grasps answered> <seconds> <refusals>' once answered."""
     positions, normals = batch_grasps(n_grasps, n_contacts)
     rclpy.init()
     client = GraspClient(node_name)
     try:
         if not client.wait_for_node(CONNECT_TIMEOUT_S):
             return 1
+        if how == "raw":
+            return send_raw(client.node, node_name, positions, normals)
         print("ready", flush=True)
         sys.stdin.readline()
         began = time.perf_counter()
-        verdicts = client.check_batch(positions, normals, timeout=REPLY_TIMEOUT_S)
-        print(f"{len(verdicts)} {time.perf_counter() - began:.3f}", flush=True)
+        if how == "goal":
+            verdicts = client.label_grasps(positions, normals, progress=False,
+                                           timeout=REPLY_TIMEOUT_S)
+        else:
+            verdicts = client.check_batch(positions, normals, timeout=REPLY_TIMEOUT_S)
+        print(f"{len(verdicts)} {time.perf_counter() - began:.3f} "
+              f"{refusals(verdicts.status, verdicts.messages)}", flush=True)
         return 0
     finally:
         client.close()
         rclpy.try_shutdown()
+
+
+def send_raw(node: Node, node_name: str, positions: np.ndarray, normals: np.ndarray) -> int:
+    """Publish the grasps as one ContactArrayBatch (client id 0) from a plain rclpy
+    publisher on ``node`` and wait for its answer on the shared verdicts_batch topic."""
+    answers: queue.SimpleQueue = queue.SimpleQueue()
+    publisher = node.create_publisher(
+        ContactArrayBatch, resolve(node_name, CONTACTS_BATCH_TOPIC), QUERY_QOS)
+    node.create_subscription(ForceClosureVerdictArray,
+                             resolve(node_name, VERDICTS_BATCH_TOPIC), answers.put, QUERY_QOS)
+    msg = grasps_to_batch_msg(np.arange(len(positions)), positions, normals,
+                              request_id=os.getpid())
+    deadline = time.monotonic() + CONNECT_TIMEOUT_S
+    while (publisher.get_subscription_count() == 0
+           or node.count_publishers(resolve(node_name, VERDICTS_BATCH_TOPIC)) == 0):
+        if time.monotonic() > deadline:
+            return 1
+        time.sleep(0.05)
+    print("ready", flush=True)
+    sys.stdin.readline()
+    began = time.perf_counter()
+    publisher.publish(msg)
+    while (answer := answers.get(timeout=REPLY_TIMEOUT_S)).request_id != os.getpid():
+        pass
+    print(f"{len(answer.ids)} {time.perf_counter() - began:.3f} "
+          f"{refusals(answer.status, answer.messages)}", flush=True)
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -148,17 +236,26 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--contacts", type=int, default=CONTACTS, help="contacts per grasp")
     parser.add_argument("--period", type=float, default=PERIOD_S,
                         help="seconds between the starts of two service calls")
+    parser.add_argument("--cases", default=",".join(CASES),
+                        help=f"comma-separated, of {', '.join(CASES)} (default all)")
+    parser.add_argument("--node-args", default="",
+                        help="extra --ros-args for the node, e.g. '-p max_message_contacts:=0'")
     parser.add_argument("--quick", action="store_true", help="the smoke test's short form")
     parser.add_argument("--send", metavar="NODE", help=argparse.SUPPRESS)
+    parser.add_argument("--how", choices=SENT_AS, default="batch", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     args.grasps = args.grasps or (QUICK_GRASPS if args.quick else GRASPS)
     if args.send:
-        return send(args.send, args.grasps, args.contacts)
+        return send(args.send, args.how, args.grasps, args.contacts)
+    cases = args.cases.split(",")
+    if unknown := set(cases) - set(CASES):
+        parser.error(f"unknown cases {sorted(unknown)}; choose from {', '.join(CASES)}")
     warm_up()  # a fresh clone compiles the kernels here, not in the node's start
     rng = np.random.default_rng(0)
     grasp = sample_grasps(make_object("box"), 1, SERVICE_FINGERS, rng)
     rclpy.init()
-    node, client = start_node("stall", ["-p", f"max_batch:={args.grasps}"])
+    node, client = start_node("stall", ["-p", f"max_batch:={args.grasps}",
+                                        *shlex.split(args.node_args)])
     node_name = f"/grasp_fc_stall_{os.getpid()}/force_closure"  # as start_node names it
     try:
         megabytes = args.grasps * args.contacts * 6 * 8 / 1e6  # positions, normals
@@ -168,8 +265,10 @@ def main(argv: list[str] | None = None) -> int:
         calls = iter(range(IDLE_CALLS + 1))
         idle = time_calls(client, grasp, args.period, lambda: next(calls) == IDLE_CALLS)
         print(f"idle: {summary(idle)}")
-        print(from_another_process(client, node_name, args, grasp))
-        print(from_this_process(client, args, grasp))
+        for case in cases:
+            print(from_this_process(client, args, grasp, case == "this-goal")
+                  if case.startswith("this") else
+                  from_another_process(client, node_name, args, grasp, case))
         return 0
     finally:
         stop_node(node, client)

@@ -3,9 +3,9 @@
 The demo starts the node *in this process*, spun by its own executor on a separate
 thread, with its ``publish_markers`` parameter on, and a client node that sends random
 6-finger grasps on a built-in object to it: a few single-grasp ``ContactArray``
-queries on ``contacts``, then the rest through the ``label_grasps`` action (goals of
+queries on ``contacts``, then the rest through the ``label_grasps`` action (jobs of
 :data:`GOAL_GRASPS` at most), with a progress bar fed by the action's feedback (Ctrl-C
-cancels the goal and keeps the verdicts decided so far), and one service call. Every
+cancels the job and keeps the verdicts decided so far), and one service call. Every
 message still goes through DDS (serialised, delivered, deserialised); only the process
 is shared, which keeps start-up fast and needs no discovery of a second process. Both
 nodes live in a namespace of their own (``/grasp_fc_demo_<pid>``) so a node started
@@ -43,8 +43,9 @@ from grasp_fc_ros.objects import OBJECT_NAMES, ContactSurface, make_object, samp
 
 N_FINGERS = 6
 SINGLE_QUERIES = 20
-# Grasps per label_grasps goal: the node's default max_batch (a larger goal would be
-# refused as INVALID_INPUT); more grasps go as several goals, one after the other.
+# Grasps per label_grasps job (one progress bar, one REPLY_TIMEOUT_S each); more grasps
+# go as several jobs, one after the other. The client sends each job as goals of at
+# most MAX_MESSAGE_CONTACTS contacts.
 GOAL_GRASPS = 100_000
 # The node's default friction, which the demo's grasps use (for the PNG's certificates).
 DEMO_MU = 0.5
@@ -157,13 +158,13 @@ def _stream(client: GraspClient, args: argparse.Namespace, node_name: str) -> in
         verdicts = client.label_grasps(positions[ids], normals[ids], ids=ids,
                                        timeout=REPLY_TIMEOUT_S)
         if not np.array_equal(verdicts.ids, ids[:len(verdicts)]):
-            print("a label_grasps goal came back with other ids", file=sys.stderr)
+            print("a label_grasps job came back with other ids", file=sys.stderr)
             return 1
         statuses = np.concatenate([statuses, verdicts.status])
         margins = np.concatenate([margins, verdicts.margin])
         complete = len(verdicts) == len(ids)
         if not complete:
-            break  # Ctrl-C cancelled the goal
+            break  # Ctrl-C cancelled the job
     elapsed = time.perf_counter() - start
     served = client.call(positions[:1], normals[:1], timeout=REPLY_TIMEOUT_S)
     if served.status[0] != statuses[0]:

@@ -38,6 +38,9 @@ class Settings:
         Largest accepted number of contacts in one grasp.
     max_batch : int
         Largest accepted number of grasps in one message.
+    max_message_contacts : int
+        Largest accepted number of contacts in one batch message or label_grasps goal
+        (0: no limit); the node refuses a larger one whole.
     certificates : bool
         Also return each verdict's certificate: contact forces of FORCE_CLOSURE grasps,
         separating wrenches of rejected ones (the core's ``certificates=True``).
@@ -53,6 +56,7 @@ class Settings:
     filter_origins: str = "seed"
     max_contacts: int = 64
     max_batch: int = 100_000
+    max_message_contacts: int = 491_520
     certificates: bool = False
     compute_min_friction: bool = False
     compute_epsilon: bool = False

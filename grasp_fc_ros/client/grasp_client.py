@@ -34,11 +34,12 @@ import threading
 from concurrent.futures import Future
 from typing import Any
 
+import numpy as np
 from numpy.typing import ArrayLike
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
-from grasp_fc_ros.client.batches import BatchQueries
+from grasp_fc_ros.client.batches import BatchQueries, n_grasps_of
 from grasp_fc_ros.client.connection import DiagnosticsReader, NodeWatch
 from grasp_fc_ros.client.label_action import LabelActionClient
 from grasp_fc_ros.client.pending import RESEND_AFTER_S
@@ -49,7 +50,7 @@ from grasp_fc_ros.client.single_queries import (
     SingleQueries,
 )
 from grasp_fc_ros.interface import wire
-from grasp_fc_ros.interface.conversions import friction_or_default
+from grasp_fc_ros.interface.conversions import batch_arrays, friction_or_default
 from grasp_fc_ros.interface.names import (
     NODE_NAME,
     VERDICTS_BATCH_TOPIC,
@@ -277,10 +278,14 @@ class GraspClient:
                      progress: bool = True, timeout: float | None = None) -> Verdicts:
         """Decide grasps through the node's ``label_grasps`` action; their :class:`Verdicts`.
 
-        The grasps go as one goal (packed as for :meth:`submit_batch`); the node's
-        feedback (about 4 per second) drives a tqdm progress bar on stderr. Ctrl-C
-        (KeyboardInterrupt) while waiting cancels the goal and returns the verdicts
-        decided so far; a second Ctrl-C while waiting for them raises.
+        The grasps go as one job (packed as for :meth:`submit_batch`): one goal, or,
+        beyond MAX_MESSAGE_CONTACTS contacts, several goals of whole grasps, sent one
+        after the other (at most two unfinished at once) so that no large message holds
+        up the node's service calls (docs/client.md). The goals' feedback (about 4 per
+        second), added up over the job, drives a tqdm progress bar on stderr. Ctrl-C
+        (KeyboardInterrupt) while waiting cancels the job (the goals in flight; no more
+        are sent) and returns the verdicts decided so far, a prefix; a second Ctrl-C
+        while waiting for them raises.
 
         Parameters
         ----------
@@ -299,23 +304,25 @@ class GraspClient:
         Returns
         -------
         Verdicts
-            One per grasp, in order; fewer (a prefix) when the goal was cancelled
-            (Ctrl-C) or aborted (the node shut down): :attr:`last_goal_status` says
-            which (an ``action_msgs/GoalStatus`` code).
+            One per grasp, in order; fewer (a prefix) when the job was cancelled
+            (Ctrl-C) or aborted (the node shut down, or rejected a later goal of the
+            job): :attr:`last_goal_status` says which (an ``action_msgs/GoalStatus``
+            code).
 
         Raises
         ------
         TimeoutError
             No action server, or the goal did not end within ``timeout``.
         RuntimeError
-            The node rejected the goal (it is shutting down).
+            The node rejected the job's first goal (it is shutting down).
         """
-        batch = self._batches.message(positions, normals, mu, counts, ids)
-        return self.label_action.label(batch, progress, timeout)
+        ids = np.arange(n_grasps_of(positions, counts)) if ids is None else ids
+        return self.label_action.label(batch_arrays(ids, positions, normals, mu, counts),
+                                       progress, timeout, self.client_id)
 
     @property
     def last_goal_status(self) -> int:
-        """``action_msgs/GoalStatus`` code of the last label_grasps goal."""
+        """``action_msgs/GoalStatus`` code of the last label_grasps job."""
         return self.label_action.last_goal_status
 
     # --- diagnostics --------------------------------------------------------------------

@@ -68,6 +68,12 @@ def batch_size(msg: ContactArrayBatch) -> int:
     return len(msg.ids)
 
 
+def batch_contacts(msg: ContactArrayBatch) -> int:
+    """Number of contacts a batch carries (its positions over 3), read without
+    converting it."""
+    return len(msg.positions) // 3
+
+
 def batch_ids(msg: ContactArrayBatch) -> np.ndarray:
     """The (N,) uint64 ids of a batch, without copying them."""
     return _as_numpy(msg.ids, np.uint64)

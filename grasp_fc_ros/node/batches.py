@@ -1,8 +1,9 @@
 """The batch lane: ContactArrayBatch messages on ``contacts_batch``, one verdict array
 each on ``verdicts_batch``.
 
-The subscription only queues (a batch of more than ``max_batch`` grasps is refused at
-once, and so is one that would make more than ``max_batch`` grasps wait). The
+The subscription only queues (a batch of more than ``max_batch`` grasps or
+``max_message_contacts`` contacts is refused at once, and so is one that would make more
+than ``max_batch`` grasps wait). The
 ``next_batch`` thread converts the oldest queued batch and queues its chunks for the
 workers, once fewer than :data:`BATCHES_IN_PROGRESS` are in progress; the
 ``answer_batch`` thread waits for the oldest batch in progress and publishes its
@@ -25,7 +26,12 @@ from rclpy.serialization import deserialize_message
 from grasp_fc_ros.core import Status
 from grasp_fc_ros.engine.pool import PRIORITY_BATCH, Cancelled, Decision
 from grasp_fc_ros.interface import wire
-from grasp_fc_ros.interface.conversions import MalformedBatch, batch_size, batch_to_packed
+from grasp_fc_ros.interface.conversions import (
+    MalformedBatch,
+    batch_contacts,
+    batch_size,
+    batch_to_packed,
+)
 from grasp_fc_ros.interface.names import CONTACTS_BATCH_TOPIC, QUERY_QOS
 from grasp_fc_ros.node.lane import Drained, LaneContext, Refusal, start_thread
 from grasp_fc_ros.node.marker_lane import MarkerLane
@@ -131,7 +137,7 @@ class BatchLane:
             n_grasps = batch_size(query)
             context.statistics.count_received(n_grasps)
             settings = context.settings()
-            refusal = context.refusals.oversize(n_grasps, settings)
+            refusal = context.refusals.oversize(n_grasps, settings, batch_contacts(query))
             if refusal is None:
                 with self._lock:
                     queued = self._queued_grasps

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import os
 import signal
 import sys
@@ -161,6 +162,11 @@ def main(args: list[str] | None = None) -> int:
         node = ForceClosureNode()
         _warn_params_file_keys(argv, node)
         executor.add_node(node)
+        # Out of the cyclic garbage collector's full scans: everything imported and set up
+        # so far (numba, rclpy, the message types). A full scan of it, now and then during
+        # a long label_grasps job, held every thread of the node, its service included,
+        # beyond the service's latency target (tuned: docs/performance.md#big-label-jobs).
+        gc.freeze()
         while not stop.is_set():
             executor.spin_once(timeout_sec=SIGNAL_POLL_S)
     except ExternalShutdownException:

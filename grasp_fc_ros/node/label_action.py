@@ -7,7 +7,8 @@ executor. Its callbacks only queue or flag: each goal's execute coroutine waits
 decide goals in chunks on the workers (:func:`~grasp_fc_ros.engine.long_jobs.decide_in_chunks`)
 and publish their feedback; so a running goal holds up neither cancel requests, nor
 other goals, nor the other lanes. A goal is answered as the batch topic answers
-(invalid and oversized goals get INVALID_INPUT verdicts); a cancel or the node's
+(invalid and oversized goals, beyond ``max_batch`` grasps or ``max_message_contacts``
+contacts, get INVALID_INPUT verdicts); a cancel or the node's
 shutdown ends it with the verdicts decided so far, a prefix.
 """
 
@@ -28,6 +29,7 @@ from grasp_fc_ros.core import Status
 from grasp_fc_ros.engine.long_jobs import Progress, decide_in_chunks
 from grasp_fc_ros.interface.conversions import (
     MalformedBatch,
+    batch_contacts,
     batch_size,
     batch_to_packed,
     verdicts_to_array_msg,
@@ -42,8 +44,11 @@ ACTION_THREADS = 4
 # How long the action server keeps an ended goal, its request (the whole batch) and
 # result for late result requests (s). rclpy's default, 15 minutes, would hold ~60 MB per
 # 100,000-grasp goal that long; clients ask for the result as soon as a goal is
-# accepted (GraspClient does), so they get it when the goal ends.
-ACTION_RESULT_TIMEOUT_S = 30
+# accepted (GraspClient does), so they get it when the goal ends. Short, because every
+# goal kept is in every status message the server sends and each action client converts
+# in Python: a GraspClient job of many parts (goals) slowed down with the list
+# (tuned: docs/performance.md#big-batches).
+ACTION_RESULT_TIMEOUT_S = 5
 # At shutdown, how long the goals ended then may take to have their result responses
 # sent (s): the action's executor sends each one when the goal's client has asked for it
 # (GraspClient asks at acceptance), so this is only waited out in full for a client that
@@ -206,7 +211,7 @@ class LabelAction:
         n_grasps = batch_size(query)
         context.statistics.count_received(n_grasps)
         settings = context.settings()
-        refusal = context.refusals.oversize(n_grasps, settings)
+        refusal = context.refusals.oversize(n_grasps, settings, batch_contacts(query))
         if refusal is not None:
             return self._refused(query, refusal), True
         try:

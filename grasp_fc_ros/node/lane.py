@@ -74,14 +74,23 @@ class Refusals:
         self._logger = logger
         self._may_log = may_log
 
-    def oversize(self, n_grasps: int, settings: Settings) -> Refusal | None:
-        """INVALID_INPUT for a message of more than ``max_batch`` grasps (counted as
-        answered); None if it is not oversized."""
-        if n_grasps <= settings.max_batch:
+    def oversize(self, n_grasps: int, settings: Settings,
+                 n_contacts: int | None = None) -> Refusal | None:
+        """INVALID_INPUT for a message of more than ``max_batch`` grasps, or (where
+        ``n_contacts`` is given: batch messages and goals) of more than
+        ``max_message_contacts`` contacts (counted as answered); None if it is not
+        oversized."""
+        cap = settings.max_message_contacts
+        if n_grasps > settings.max_batch:
+            message = f"{n_grasps} grasps exceed max_batch={settings.max_batch}"
+        elif n_contacts is not None and cap and n_contacts > cap:
+            message = (f"{n_contacts} contacts in one message exceed "
+                       f"max_message_contacts={cap}: split it into messages of whole "
+                       "grasps (GraspClient does)")
+        else:
             return None
         self._statistics.record_refused(Status.INVALID_INPUT, n_grasps)
-        return Refusal(Status.INVALID_INPUT,
-                       f"{n_grasps} grasps exceed max_batch={settings.max_batch}")
+        return Refusal(Status.INVALID_INPUT, message)
 
     def overloaded(self, what: str, n_queries: int, settings: Settings) -> Refusal:
         """SOLVER_FAILURE for queries beyond a full queue (``what`` says which)."""

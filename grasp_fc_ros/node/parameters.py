@@ -34,6 +34,12 @@ from grasp_fc_ros.packed import MIN_CONTACTS, Settings
 # any sensible memory budget.
 MAX_CONTACTS_LIMIT = 10_000
 MAX_BATCH_LIMIT = 10_000_000
+MAX_MESSAGE_CONTACTS_LIMIT = 100_000_000
+# Contacts in one batch message or goal by default: 80 parts of GraspClient's
+# MAX_MESSAGE_CONTACTS, the largest one-message batch from another process measured to
+# keep service calls within their targets; much larger ones held them up for 0.2 s
+# (tuned: docs/performance.md#big-batches).
+DEFAULT_MAX_MESSAGE_CONTACTS = 491_520
 MAX_WORKERS = 64
 # Worker processes by default: the 2 cores of the machines this was measured on. A fixed
 # number, so that a params file and the docs say the same on every machine.
@@ -84,6 +90,12 @@ PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
         "single-grasp topic queries waiting to be decided, and of batch grasps waiting; "
         "beyond that a query is answered at once with SOLVER_FAILURE 'node overloaded'",
         1, MAX_BATCH_LIMIT)),
+    "max_message_contacts": (DEFAULT_MAX_MESSAGE_CONTACTS, _int_descriptor(
+        "Largest number of contacts accepted in one batch message or label_grasps goal "
+        "(0: no limit); a larger one is answered whole with INVALID_INPUT saying to split "
+        "it (GraspClient does). A message that large has already held up the node's "
+        "service calls while it arrived: the limit tells its sender, it cannot prevent "
+        "that", 0, MAX_MESSAGE_CONTACTS_LIMIT)),
     "certificates": (False, _bool_descriptor(
         "Every verdict carries its certificate: contact forces of a "
         "force-closure grasp, the separating wrench of a rejected one "

@@ -48,7 +48,8 @@ def tiled(grasps, n_grasps):
 
 @pytest.fixture(scope="module")
 def served(ros):
-    """A node with one worker in a namespace of its own, and a GraspClient of it."""
+    """A node with one worker in a namespace of its own, and a GraspClient of it; it takes
+    raw goals of any number of contacts (these tests send long goals as one message)."""
     from rclpy.parameter import Parameter
 
     from grasp_fc_ros.client import GraspClient
@@ -57,7 +58,8 @@ def served(ros):
 
     namespace = "/action_test"
     node = ForceClosureNode(namespace=namespace, parameter_overrides=[
-        Parameter("workers", value=1), Parameter("max_batch", value=500_000)])
+        Parameter("workers", value=1), Parameter("max_batch", value=500_000),
+        Parameter("max_message_contacts", value=0)])
     spinner = SpinThread(node)
     client = GraspClient(f"{namespace}/force_closure")
     assert client.wait_for_node(timeout=30.0)
@@ -262,6 +264,17 @@ def test_malformed_and_oversized_goals_get_invalid_input_verdicts(grasps, served
     assert set(verdicts.status) == {Status.INVALID_INPUT}
     assert verdicts.messages[0] == "1001 grasps exceed max_batch=1000"
 
+    node.set_parameters([Parameter("max_message_contacts", value=20)])
+    try:
+        status, verdicts = Goal(action_client, batch_msg(positions[:4], normals[:4])).result()
+    finally:
+        node.set_parameters([Parameter("max_message_contacts", value=0)])
+    assert status == GoalStatus.STATUS_SUCCEEDED
+    assert list(verdicts.status) == [Status.INVALID_INPUT] * 4
+    assert verdicts.messages[0] == ("24 contacts in one message exceed "
+                                    "max_message_contacts=20: split it into messages of "
+                                    "whole grasps (GraspClient does)")
+
     zero_normal = normals[:3].copy()
     zero_normal[1, 0] = 0.0  # grasp 1, contact 0
     bad = batch_msg(positions[:3], zero_normal)
@@ -314,7 +327,7 @@ def test_client_makes_its_action_requests_on_its_spin_thread(grasps, served, mon
     positions, normals, expected = grasps
     verdicts = client.label_grasps(positions, normals, progress=False, timeout=WAIT_S)
     np.testing.assert_array_equal(verdicts.status, expected)
-    assert len(callers) == 2  # the goal and its result
+    assert len(callers) == 2 * n_parts(positions)  # each part's goal and its result
     assert threading.current_thread() not in callers
     assert all(caller.name == "grasp_client" for caller in callers)  # the spin thread
 
@@ -331,25 +344,88 @@ def test_client_progress_bar_ends_on_the_verdicts_counts(grasps, served, capsys)
     assert f"force_closure={np.count_nonzero(expected == Status.FORCE_CLOSURE)}" in last_line
 
 
-def test_client_ctrl_c_cancels_and_returns_the_decided_prefix(grasps, served, long_goal,
-                                                              monkeypatch):
+def test_client_ctrl_c_cancels_the_job_sends_no_more_parts_and_returns_the_prefix(
+        grasps, served, long_goal, monkeypatch):
     import grasp_fc_ros.client.label_action as client_module
 
     _, client = served
     positions, normals, expected = tiled(grasps, long_goal)
+    assert n_parts(positions) > 10
+    sent_at_cancel = []
 
-    def interrupted(done, latest, bar, deadline, goal_handle):
-        # Ctrl-C once some verdicts were reported (the real loop, then the interrupt).
-        while latest[0] is None or latest[0].done == 0:
-            assert not done.wait(0.01), "goal ended before it could be interrupted"
+    def interrupted(job, bar, started, deadline):
+        # Ctrl-C once some verdicts were reported (the real steps, then the interrupt).
+        while job.progress().done == 0 or job.sent < 3:
+            assert not job.ended(), "job ended before it could be interrupted"
+            job.step(0.01)
+        sent_at_cancel.append(job.sent)
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(client_module, "follow_goal", interrupted)
+    sent = []
+    real_send = client_module.LabelJob._send_next
+
+    def counting_send(job):
+        real_send(job)
+        sent.append(job.sent)
+
+    monkeypatch.setattr(client_module, "follow_job", interrupted)
+    monkeypatch.setattr(client_module.LabelJob, "_send_next", counting_send)
     verdicts = client.label_grasps(positions, normals, progress=True, timeout=WAIT_S)
     assert client.last_goal_status == GoalStatus.STATUS_CANCELED
+    assert max(sent) == sent_at_cancel[0] < n_parts(positions)  # none sent after Ctrl-C
     assert 0 < len(verdicts) < long_goal
     np.testing.assert_array_equal(verdicts.ids, np.arange(len(verdicts)))
     np.testing.assert_array_equal(verdicts.status, expected[:len(verdicts)])
+
+
+def test_client_sends_a_big_job_in_parts_of_whole_grasps_answered_in_order(grasps, served,
+                                                                          capsys):
+    # Grasps of 4 to 16 contacts, mixed: the parts end between grasps of any size.
+    from grasp_fc_ros.interface.names import MAX_MESSAGE_CONTACTS
+
+    _, client = served
+    rng = np.random.default_rng(3)
+    counts = rng.choice([4, 7, 16], size=2500)
+    surface = make_object("ellipsoid")
+    groups = {n: sample_grasps(surface, int(np.sum(counts == n)), int(n), rng)
+              for n in np.unique(counts)}
+    expected = np.empty(len(counts), np.uint8)
+    for n, group in groups.items():
+        expected[counts == n] = check_force_closure(*group, 0.5).status
+    taken = dict.fromkeys(groups, 0)
+    grasp_list = []
+    for n in counts:
+        grasp_list.append((groups[n][0][taken[n]], groups[n][1][taken[n]]))
+        taken[n] += 1
+    positions = np.concatenate([grasp[0] for grasp in grasp_list])
+    normals = np.concatenate([grasp[1] for grasp in grasp_list])
+    assert len(positions) > 3 * MAX_MESSAGE_CONTACTS
+    parts = n_parts(positions, counts)
+    before = client.next_diagnostics(timeout=10.0)
+    ids = np.arange(len(counts)) + 10
+    verdicts = client.label_grasps(positions, normals, mu=0.5, counts=counts, ids=ids,
+                                   progress=True, timeout=WAIT_S)
+    assert client.last_goal_status == GoalStatus.STATUS_SUCCEEDED
+    np.testing.assert_array_equal(verdicts.ids, ids)
+    np.testing.assert_array_equal(verdicts.status, expected)
+    # The progress bar counts the whole job, not a part.
+    last_line = capsys.readouterr().err.replace("\r", "\n").strip().splitlines()[-1]
+    assert f"{len(counts)}/{len(counts)}" in last_line
+    assert f"force_closure={np.count_nonzero(expected == Status.FORCE_CLOSURE)}" in last_line
+    time.sleep(0.1)
+    after = client.next_diagnostics(timeout=10.0)
+    assert int(after["action_goals_received"]) - int(before["action_goals_received"]) == parts
+
+
+def n_parts(positions, counts=None):
+    """Goals that GraspClient.label_grasps sends for these grasps."""
+    from grasp_fc_ros.client.batches import split_batch
+    from grasp_fc_ros.interface.conversions import batch_arrays
+    from grasp_fc_ros.interface.names import MAX_MESSAGE_CONTACTS
+
+    n_grasps = len(positions) if counts is None else len(counts)
+    fields = batch_arrays(np.arange(n_grasps), positions, normals=positions, counts=counts)
+    return len(split_batch(fields, MAX_MESSAGE_CONTACTS))
 
 
 def test_destroying_the_node_aborts_its_goals_with_their_prefixes(grasps, ros):
@@ -411,7 +487,8 @@ def test_sigterm_aborts_a_running_goal_with_its_prefix_and_the_node_exits(grasps
 
     namespace = f"/action_sigterm_{os.getpid()}"
     process = NodeProcess(node_command() + ["--ros-args", "-r", f"__ns:={namespace}",
-                                            "-p", "workers:=1"])
+                                            "-p", "workers:=1",
+                                            "-p", "max_message_contacts:=0"])
     client = GraspClient(f"{namespace}/force_closure")
     try:
         action = ActionClient(client.node, LabelGrasps, f"{namespace}/label_grasps")

@@ -120,6 +120,29 @@ def test_an_oversized_batch_is_refused_whole_in_one_answer(own_node):
     assert set(answer.messages) == {"200001 grasps exceed max_batch=100000"}
 
 
+
+def test_a_batch_of_more_contacts_than_max_message_contacts_is_refused_saying_why(
+        own_node, grasps):
+    # A raw publisher's message (GraspClient splits its batches below the limit).
+    node, _, client = own_node("/delivery_contact_cap", max_message_contacts=100)
+    positions, normals = (np.concatenate([a] * 3) for a in grasps)  # 6 contacts each
+    over = grasps_to_batch_msg(np.arange(17), positions[:17], normals[:17])  # 102 contacts
+    answer = verdict_array_to_numpy(client.request_batch(over))
+    np.testing.assert_array_equal(answer.ids, np.arange(17))
+    assert (answer.status == Status.INVALID_INPUT).all()
+    assert set(answer.messages) == {
+        "102 contacts in one message exceed max_message_contacts=100: split it into "
+        "messages of whole grasps (GraspClient does)"}
+    within = grasps_to_batch_msg(np.arange(16), positions[:16], normals[:16])  # 96 contacts
+    answer = verdict_array_to_numpy(client.request_batch(within))
+    assert answer.status.tolist() == core_statuses(positions[:16], normals[:16])
+
+    from rclpy.parameter import Parameter
+
+    node.set_parameters([Parameter("max_message_contacts", value=0)])  # 0: no limit
+    answer = verdict_array_to_numpy(client.request_batch(over))
+    assert answer.status.tolist() == core_statuses(positions[:17], normals[:17])
+
 # --- GraspClient: nothing is lost while no node is up, and nothing waits forever ------
 
 

@@ -186,7 +186,8 @@ ONE_WORKER = ["--ros-args", "-p", "workers:=1"]
 
 
 def test_sigterm_during_a_large_batch_exits_within_a_second(client, grasps):
-    process = NodeProcess(node_command() + ONE_WORKER)
+    # One message of 600,000 contacts: beyond the default max_message_contacts.
+    process = NodeProcess(node_command() + ONE_WORKER + ["-p", "max_message_contacts:=0"])
     try:
         client.wait_connected()
         positions, normals = grasps
