@@ -27,19 +27,24 @@ import statistics
 import sys
 import threading
 import time
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import rclpy
 from action_msgs.msg import GoalStatus
 from grasp_fc_msgs.action import LabelGrasps
+from grasp_fc_msgs.msg import ContactArrayBatch
 from rclpy.action import ActionClient
 from rclpy.node import Node
+from rclpy.task import Future
 
 from bench_ros import REPLY_TIMEOUT_S, start_node, stop_node  # noqa: E402
 from grasp_fc_ros.client import request_on_spin_thread
 from grasp_fc_ros.core import check_force_closure
 from grasp_fc_ros.interface.conversions import grasps_to_batch_msg, verdict_array_to_numpy
 from grasp_fc_ros.objects import make_object, sample_grasps
+from grasp_fc_ros.packed import Verdicts
 
 N_FINGERS = 6
 N_UNIQUE = 5000
@@ -50,7 +55,7 @@ TARGET_CANCEL_S = 0.1
 class TimedGoal:
     """A goal, its feedback arrival times, and when its result came."""
 
-    def __init__(self, action: tuple[ActionClient, Node], batch):
+    def __init__(self, action: tuple[ActionClient, Node], batch: ContactArrayBatch) -> None:
         """``action``: the ActionClient and the node it is on, which another thread
         spins; requests are made on that thread (rclpy's ActionClient loses a response
         taken between sending a request and registering its future)."""
@@ -66,32 +71,34 @@ class TimedGoal:
         if not accepted.wait(REPLY_TIMEOUT_S) or not future.result().accepted:
             raise RuntimeError("goal not accepted")
         self.handle = future.result()
-        self.ended = None
+        self.ended: float | None = None
         self._done = threading.Event()
         self._result = self._request(self.handle.get_result_async)
         self._result.add_done_callback(self._on_result)
 
-    def cancel(self):
+    def cancel(self) -> None:
         self._request(self.handle.cancel_goal_async)
 
-    def _on_feedback(self, msg):
+    def _on_feedback(self, msg: Any) -> None:
         self.feedback_times.append(time.monotonic())
         self.done_reported = msg.feedback.done
 
-    def _on_result(self, _):
+    def _on_result(self, _: Future) -> None:
         self.ended = time.monotonic()
         self._done.set()
 
-    def result(self):
+    def result(self) -> tuple[int, Verdicts]:
         if not self._done.wait(REPLY_TIMEOUT_S):
             raise RuntimeError("no result")
         response = self._result.result()
         return response.status, verdict_array_to_numpy(response.result.verdicts)
 
 
-def bench_feedback(action, batch, n_grasps):
+def bench_feedback(action: tuple[ActionClient, Node], batch: ContactArrayBatch,
+                   n_grasps: int) -> float:
     goal = TimedGoal(action, batch)
     status, verdicts = goal.result()
+    assert goal.ended is not None  # result() waited for it
     duration = goal.ended - goal.sent
     gaps = np.diff([goal.sent] + goal.feedback_times + [goal.ended])
     ok = status == GoalStatus.STATUS_SUCCEEDED and len(verdicts) == n_grasps
@@ -103,7 +110,8 @@ def bench_feedback(action, batch, n_grasps):
     return n_grasps / duration
 
 
-def bench_cancel(action, batch, expected, n_cancels, after_s):
+def bench_cancel(action: tuple[ActionClient, Node], batch: ContactArrayBatch,
+                 expected: np.ndarray, n_cancels: int, after_s: float) -> bool:
     latencies, lossless, prefixes = [], True, []
     for _ in range(n_cancels):
         goal = TimedGoal(action, batch)
@@ -113,6 +121,7 @@ def bench_cancel(action, batch, expected, n_cancels, after_s):
         cancel_at = time.monotonic()
         goal.cancel()
         status, verdicts = goal.result()
+        assert goal.ended is not None
         latencies.append(goal.ended - cancel_at)
         n = len(verdicts)
         prefixes.append(n)
@@ -128,7 +137,7 @@ def bench_cancel(action, batch, expected, n_cancels, after_s):
     return lossless
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="Benchmark of the label_grasps action")
     parser.add_argument("--goal-grasps", type=int, default=100_000,
                         help="grasps per goal (at most the node's max_batch, 100,000)")

@@ -76,7 +76,7 @@ def batch_grasps(n_grasps: int, n_contacts: int) -> tuple[np.ndarray, np.ndarray
     return sample_grasps(make_object("box"), n_grasps, n_contacts, np.random.default_rng(1))
 
 
-def time_calls(client: GraspClient, grasp: tuple[np.ndarray, np.ndarray],
+def time_calls(client: GraspClient, grasp: Grasp,
                period_s: float, until: Callable[[], bool]) -> tuple[np.ndarray, np.ndarray]:
     """Round trips (ms) of one-grasp calls, one every ``period_s``, until ``until()``,
     and when each began (``time.perf_counter``, s)."""
@@ -109,13 +109,18 @@ def summary(calls: tuple[np.ndarray, np.ndarray], sent_at: float | None = None) 
     return line
 
 
+# One grasp: its positions and normals, (n, 3) each.
+Grasp = tuple[np.ndarray, np.ndarray]
+
+
 # What the child process sends, by case: the heading of its lines of results.
 SENT_AS = {"batch": "batch from another process", "goal": "goal from another process",
            "raw": "raw batch from another process"}
 CASES = (*SENT_AS, "this", "this-goal")
 
 
-def from_another_process(client: GraspClient, node_name: str, args, grasp, how: str) -> str:
+def from_another_process(client: GraspClient, node_name: str, args: argparse.Namespace,
+                         grasp: Grasp, how: str) -> str:
     """Time calls while a child process sends the grasps as ``how`` says; its lines of
     results."""
     sender = subprocess.Popen(
@@ -131,8 +136,13 @@ def from_another_process(client: GraspClient, node_name: str, args, grasp, how: 
         sent_at = time.perf_counter()
         finished = threading.Event()
         result: list[str] = []
-        reader = threading.Thread(target=lambda: (result.append(sender.stdout.readline()),
-                                                  finished.set()), daemon=True)
+        output = sender.stdout
+
+        def read_result() -> None:
+            result.append(output.readline())
+            finished.set()
+
+        reader = threading.Thread(target=read_result, daemon=True)
         reader.start()
         times = time_calls(client, grasp, args.period, finished.is_set)
         answered, seconds, refused = result[0].rstrip("\n").split(" ", 2)
@@ -144,7 +154,8 @@ def from_another_process(client: GraspClient, node_name: str, args, grasp, how: 
         sender.wait()
 
 
-def from_this_process(client: GraspClient, args, grasp, goal: bool) -> str:
+def from_this_process(client: GraspClient, args: argparse.Namespace, grasp: Grasp,
+                      goal: bool) -> str:
     """Time calls while this process's client sends the batch (or, with ``goal``, the
     label_grasps job) from another thread."""
     positions, normals = batch_grasps(args.grasps, args.contacts)
