@@ -10,9 +10,14 @@ by its residual, a rank bound with its own margin).
 
 from __future__ import annotations
 
+from typing import TypeAlias
+
 import numpy as np
 
 from .jit import jit
+
+#: The six reciprocals of a 6 x 6 triangular factor's diagonal.
+Diagonal6: TypeAlias = tuple[float, float, float, float, float, float]
 
 
 @jit
@@ -62,9 +67,44 @@ def cholesky_solve(factor: np.ndarray, rhs: np.ndarray, x: np.ndarray,
     y : ndarray, shape (6,)
         Scratch.
     """
-    i0, i1, i2 = 1.0 / factor[0, 0], 1.0 / factor[1, 1], 1.0 / factor[2, 2]
-    i3, i4, i5 = 1.0 / factor[3, 3], 1.0 / factor[4, 4], 1.0 / factor[5, 5]
-    inverse = (i0, i1, i2, i3, i4, i5)
+    substitute(factor, diagonal_reciprocals(factor), rhs, x, y)
+
+
+@jit
+def diagonal_reciprocals(factor: np.ndarray) -> Diagonal6:
+    """1 / L_rr for r = 0..5: what :func:`substitute` takes, for callers that solve
+    with one factor several times.
+
+    Parameters
+    ----------
+    factor : ndarray, shape (6, 6)
+        Lower-triangular L with a nonzero diagonal.
+
+    Returns
+    -------
+    Diagonal6
+    """
+    return (1.0 / factor[0, 0], 1.0 / factor[1, 1], 1.0 / factor[2, 2], 1.0 / factor[3, 3],
+            1.0 / factor[4, 4], 1.0 / factor[5, 5])
+
+
+@jit
+def substitute(factor: np.ndarray, inverse: Diagonal6, rhs: np.ndarray, x: np.ndarray,
+               y: np.ndarray) -> None:
+    """:func:`cholesky_solve` with the reciprocals of L's diagonal given.
+
+    Parameters
+    ----------
+    factor : ndarray, shape (6, 6)
+        Lower-triangular L (from :func:`cholesky`).
+    inverse : Diagonal6
+        :func:`diagonal_reciprocals` of ``factor``.
+    rhs : ndarray, shape (6,)
+    x : ndarray, shape (6,)
+        Output; may be ``rhs`` itself.
+    y : ndarray, shape (6,)
+        Scratch.
+    """
     for r in range(6):
         acc = rhs[r]
         for c in range(r):
