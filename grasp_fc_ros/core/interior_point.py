@@ -60,7 +60,7 @@ from ._kernels.cones import (
 )
 from ._kernels.frames import normal_split, tangent_frames, work_at, wrench_rows
 from ._kernels.grasp_map import apply_grasp_map, certified_rank, normalise_grasp
-from ._kernels.jit import jit, jit_fused, kernel_array, row
+from ._kernels.jit import Vector3, jit, jit_fused, kernel_array, row
 from ._kernels.linear_algebra import Diagonal6, cholesky, diagonal_reciprocals, substitute
 from .tolerances import (
     MARGIN_ACCURACY,
@@ -230,6 +230,46 @@ def _bound(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, w: np.ndarray,
     return bound, raw_level <= SEPARATION_TARGET * largest
 
 
+#: A 6-vector (a wrench) passed by value between kernels.
+Vector6: TypeAlias = tuple[float, float, float, float, float, float]
+
+
+@jit_fused
+def _block_times(a_mat: np.ndarray, i: int, x: Vector3) -> Vector6:
+    """A_i x for contact i's 6 x 3 block ``a_mat[i]`` and a 3-vector x.
+
+    As a tuple, and with x passed by value: the callers' loops store into arrays that
+    the compiler cannot tell apart from their operands, and would reload those after
+    every store (tuned: docs/performance.md#exact-stage).
+    """
+    x0, x1, x2 = x
+    return (a_mat[i, 0, 0] * x0 + a_mat[i, 0, 1] * x1 + a_mat[i, 0, 2] * x2,
+            a_mat[i, 1, 0] * x0 + a_mat[i, 1, 1] * x1 + a_mat[i, 1, 2] * x2,
+            a_mat[i, 2, 0] * x0 + a_mat[i, 2, 1] * x1 + a_mat[i, 2, 2] * x2,
+            a_mat[i, 3, 0] * x0 + a_mat[i, 3, 1] * x1 + a_mat[i, 3, 2] * x2,
+            a_mat[i, 4, 0] * x0 + a_mat[i, 4, 1] * x1 + a_mat[i, 4, 2] * x2,
+            a_mat[i, 5, 0] * x0 + a_mat[i, 5, 1] * x1 + a_mat[i, 5, 2] * x2)
+
+
+@jit_fused
+def _block_transposed_times(a_mat: np.ndarray, i: int, v: Vector6) -> Vector3:
+    """A_i^T v for contact i's 6 x 3 block ``a_mat[i]`` and a 6-vector v (see
+    :func:`_block_times`)."""
+    v0, v1, v2, v3, v4, v5 = v
+    return (a_mat[i, 0, 0] * v0 + a_mat[i, 1, 0] * v1 + a_mat[i, 2, 0] * v2
+            + a_mat[i, 3, 0] * v3 + a_mat[i, 4, 0] * v4 + a_mat[i, 5, 0] * v5,
+            a_mat[i, 0, 1] * v0 + a_mat[i, 1, 1] * v1 + a_mat[i, 2, 1] * v2
+            + a_mat[i, 3, 1] * v3 + a_mat[i, 4, 1] * v4 + a_mat[i, 5, 1] * v5,
+            a_mat[i, 0, 2] * v0 + a_mat[i, 1, 2] * v1 + a_mat[i, 2, 2] * v2
+            + a_mat[i, 3, 2] * v3 + a_mat[i, 4, 2] * v4 + a_mat[i, 5, 2] * v5)
+
+
+@jit_fused
+def _vector6(values: np.ndarray) -> Vector6:
+    """A (6,) array as a tuple (see :func:`_block_times`)."""
+    return values[0], values[1], values[2], values[3], values[4], values[5]
+
+
 @jit_fused
 def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_optimum: bool,
                  want_wrench: bool, signed_gap: float, signed_level: float,
@@ -249,16 +289,16 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
 
     The remaining arguments are scratch space of the batch, reused from grasp to grasp
     (allocating it per grasp would cost a large share of the run time): work3 (12, n, 3),
-    work6 (14, 6), rows (3, n, 6), a_mat (n, 6, 3), scalings (n, 6), mats (4, 6, 6),
+    work6 (13, 6), rows (3, n, 6), a_mat (n, 6, 3), scalings (n, 6), mats (4, 6, 6),
     work_n (2, n), a_gram (n, 6, 6).
     """
     n = unit.shape[0]
     (tangent, bitangent, z, s, z_affine, jv, lam, dz, ds, u_aff, winv_q,
      projected) = (work3[0], work3[1], work3[2], work3[3], work3[4], work3[5], work3[6],
                    work3[7], work3[8], work3[9], work3[10], work3[11])
-    d, trial, g_sum, solved, gg_d, y6, w, g, rhs, dw, scratch, check, y, w_affine = (
+    d, trial, g_sum, solved, gg_d, y6, w, rhs, dw, scratch, check, y, w_affine = (
         work6[0], work6[1], work6[2], work6[3], work6[4], work6[5], work6[6], work6[7],
-        work6[8], work6[9], work6[10], work6[11], work6[12], work6[13])
+        work6[8], work6[9], work6[10], work6[11], work6[12])
     b_n, b_t1, b_t2 = rows[0], rows[1], rows[2]
     gram, gram_factor, hessian, factor = mats[0], mats[1], mats[2], mats[3]
     inv_eta2, normal_work = work_n[0], work_n[1]
@@ -414,9 +454,8 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
         hessian[:] = 0.0
         gap = 0.0
         for i in range(n):
-            for r in range(6):
-                g[r] = (a_mat[i, r, 0] * jv[i, 0] + a_mat[i, r, 1] * jv[i, 1]
-                        + a_mat[i, r, 2] * jv[i, 2])
+            g_i = _block_times(a_mat, i, row(jv, i))
+            weight = inv_eta2[i]
             if iteration == 0:
                 for r in range(6):
                     for c in range(r + 1):
@@ -425,7 +464,7 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
                                            - a_mat[i, r, 0] * a_mat[i, c, 0])
             for r in range(6):
                 for c in range(r + 1):
-                    hessian[r, c] += inv_eta2[i] * (2.0 * g[r] * g[c] + a_gram[i, r, c])
+                    hessian[r, c] += weight * (2.0 * g_i[r] * g_i[c] + a_gram[i, r, c])
             gap += z[i, 0] * s[i, 0] + z[i, 1] * s[i, 1] + z[i, 2] * s[i, 2]
         if not cholesky(hessian, factor):          # (it reads the lower triangle only)
             last = True
@@ -441,12 +480,10 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
         substitute(factor, inverse, rhs, dw, scratch)
         # (Only steps up to 1 are used below: the search stops there.)
         alpha_dual = alpha_primal = 1.0
+        step = _vector6(dw)
         for i in range(n):
-            for k in range(3):
-                acc = 0.0
-                for r in range(6):
-                    acc -= a_mat[i, r, k] * dw[r]
-                ds[i, k] = acc
+            ds_i = _block_transposed_times(a_mat, i, step)
+            ds[i, 0], ds[i, 1], ds[i, 2] = -ds_i[0], -ds_i[1], -ds_i[2]
             u = scaled_inverse_apply(scaling_of(scalings, i), inv_eta2[i], row(ds, i))
             u_aff[i, 0], u_aff[i, 1], u_aff[i, 2] = u
             lam_i = row(lam, i)
@@ -504,19 +541,17 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
                                       second_order[2]))
             winv_q[i, 0], winv_q[i, 1], winv_q[i, 2] = scaled_inverse_apply(
                 scaling_of(scalings, i), inv_eta2[i], q)
+            pushed = _block_times(a_mat, i, row(winv_q, i))
             for r in range(6):
-                rhs[r] -= (a_mat[i, r, 0] * winv_q[i, 0] + a_mat[i, r, 1] * winv_q[i, 1]
-                           + a_mat[i, r, 2] * winv_q[i, 2])
+                rhs[r] -= pushed[r]
         substitute(factor, inverse, rhs, dw, scratch)
         # The step to the nearest cone boundary, searched only up to where STEP_FRACTION
         # of it is a full step.
         alpha = FULL_REACH
+        step = _vector6(dw)
         for i in range(n):
-            for k in range(3):
-                acc = 0.0
-                for r in range(6):
-                    acc -= a_mat[i, r, k] * dw[r]
-                ds[i, k] = acc
+            ds_i = _block_transposed_times(a_mat, i, step)
+            ds[i, 0], ds[i, 1], ds[i, 2] = -ds_i[0], -ds_i[1], -ds_i[2]
             w2_ds = inverse_square_apply(row(jv, i), inv_eta2[i], row(ds, i))
             for k in range(3):
                 dz[i, k] = winv_q[i, k] - z[i, k] - w2_ds[k]
@@ -574,7 +609,7 @@ def _workspace(n_contacts: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.
                                          np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Scratch of :func:`_solve_grasp` for grasps of ``n_contacts`` contacts: work3,
     work6, rows, a_mat, scalings, mats, work_n, a_gram."""
-    return (np.empty((12, n_contacts, 3)), np.empty((14, 6)), np.empty((3, n_contacts, 6)),
+    return (np.empty((12, n_contacts, 3)), np.empty((13, 6)), np.empty((3, n_contacts, 6)),
             np.empty((n_contacts, 6, 3)), np.empty((n_contacts, 6)), np.empty((4, 6, 6)),
             np.empty((2, n_contacts)), np.empty((n_contacts, 6, 6)))
 
