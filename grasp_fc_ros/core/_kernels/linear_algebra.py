@@ -37,18 +37,23 @@ def cholesky(matrix: np.ndarray, factor: np.ndarray) -> bool:
         False on a pivot that is not positive (``factor`` is then incomplete).
     """
     factor[:] = 0.0
-    for r in range(6):
-        for c in range(r + 1):
+    # Column by column, so that each column's reciprocal is taken once and held in a
+    # register (by rows, the compiler took it again for every entry: it cannot tell the
+    # factor from the matrix and reloads the pivot after every store).
+    for c in range(6):
+        acc = matrix[c, c]
+        for k in range(c):
+            acc -= factor[c, k] * factor[c, k]
+        if not acc > 0.0:
+            return False
+        pivot = np.sqrt(acc)
+        factor[c, c] = pivot
+        inverse = 1.0 / pivot
+        for r in range(c + 1, 6):
             acc = matrix[r, c]
             for k in range(c):
                 acc -= factor[r, k] * factor[c, k]
-            if r == c:
-                if not acc > 0.0:
-                    return False
-                factor[r, r] = np.sqrt(acc)
-            else:
-                # (one reciprocal per column: the unrolled loops share it)
-                factor[r, c] = acc * (1.0 / factor[c, c])
+            factor[r, c] = acc * inverse
     return True
 
 
