@@ -52,7 +52,7 @@ from ._kernels.cones import (
     inverse_square_apply,
     jordan_divide,
     jordan_product,
-    nt_scaling,
+    nt_unit_scaling,
     scaled_apply,
     scaled_inverse_apply,
     scaling_of,
@@ -440,7 +440,7 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
         # (tuned: docs/performance.md#exact-stage).
         finite = True
         for i in range(n):
-            inv_eta2[i], scaling, inverse_vector = nt_scaling(row(z, i), row(s, i))
+            inv_eta2[i], scaling, inverse_vector = nt_unit_scaling(row(z, i), row(s, i))
             if not np.isfinite(inv_eta2[i]):
                 finite = False
                 break
@@ -474,7 +474,9 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
         # W dz + W^-1 ds = -lam, W^-1 (-lam) = -z, and the right-hand side -r_p + sum_i
         # A_i z_i is -d exactly (r_p = sum_i A_i z_i + d): no residual, no Jordan division.
         # In scaled form, u = W^-1 ds and W dz = -lam - u; W maps the cone onto itself,
-        # so the step to its boundary is that of lam along u and along -lam - u.
+        # so the step to its boundary is that of lam along u and along -lam - u. With
+        # W = eta Wbar, the arrays hold lam / eta = Wbar z and u / eta = J Wbar J ds /
+        # eta^2, which give the same steps without the root eta (nt_unit_scaling).
         for r in range(6):
             rhs[r] = -d[r]
         substitute(factor, inverse, rhs, dw, scratch)
@@ -530,6 +532,8 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
         # Corrector: lam o (W dz + W^-1 ds) = -lam o lam - u o (-lam - u) + target e, so
         # W dz + W^-1 ds = -lam + p with p = lam \ (u o (lam + u) + target e); as above
         # the right-hand side becomes -d - sum_i A_i W^-1 p_i and dz = -z + W^-1 p - W^-2 ds.
+        # In the arrays' lam / eta and u / eta: W^-1 p = J Wbar J (lam/eta) \ ((u/eta) o
+        # (lam/eta + u/eta) + target / eta^2 e).
         for r in range(6):
             rhs[r] = -d[r]
         for i in range(n):
@@ -537,10 +541,10 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
             # -W dz of the predictor is lam + u.
             second_order = jordan_product(u, (lam_i[0] + u[0], lam_i[1] + u[1],
                                               lam_i[2] + u[2]))
-            q = jordan_divide(lam_i, (second_order[0] + target, second_order[1],
-                                      second_order[2]))
+            q = jordan_divide(lam_i, (second_order[0] + target * inv_eta2[i],
+                                      second_order[1], second_order[2]))
             winv_q[i, 0], winv_q[i, 1], winv_q[i, 2] = scaled_inverse_apply(
-                scaling_of(scalings, i), inv_eta2[i], q)
+                scaling_of(scalings, i), 1.0, q)
             pushed = _block_times(a_mat, i, row(winv_q, i))
             for r in range(6):
                 rhs[r] -= pushed[r]

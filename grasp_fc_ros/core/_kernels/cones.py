@@ -51,6 +51,34 @@ def nt_scaling(z: Vector3, s: Vector3) -> tuple[float, Scaling, Vector3]:
     inverse_vector : Vector3
         J v.
     """
+    inv_eta2, unit, inverse_vector = nt_unit_scaling(z, s)
+    if not np.isfinite(inv_eta2):
+        return inv_eta2, unit, inverse_vector
+    eta = 1.0 / np.sqrt(inv_eta2)
+    return inv_eta2, (eta * unit[0], eta * unit[1], eta * unit[2], eta * unit[3],
+                      eta * unit[4], eta * unit[5]), inverse_vector
+
+
+@jit_fused
+def nt_unit_scaling(z: Vector3, s: Vector3) -> tuple[float, Scaling, Vector3]:
+    """:func:`nt_scaling` without its factor eta: Wbar (det Wbar = 1) and 1/eta^2.
+
+    A method that needs only 1/eta^2 (scaled points lam/eta = Wbar z, steps W^-1 ds / eta
+    = J Wbar J ds / eta^2, and Jordan divisions by lam/eta) saves the fourth root eta.
+
+    Parameters
+    ----------
+    z, s : Vector3
+
+    Returns
+    -------
+    inv_eta2 : float
+        1/eta^2, or NaN if z or s has left the cone interior (the rest is then 0).
+    scaling : Scaling
+        Wbar.
+    inverse_vector : Vector3
+        J v.
+    """
     z0, z1, z2 = z
     s0, s1, s2 = s
     z_det = z0 * z0 - z1 * z1 - z2 * z2
@@ -72,10 +100,8 @@ def nt_scaling(z: Vector3, s: Vector3) -> tuple[float, Scaling, Vector3]:
     v0 = twice_v0 * half_inv_gamma
     v1 = (s1 * s_inv - z1 * z_inv) * half_inv_gamma
     v2 = (s2 * s_inv - z2 * z_inv) * half_inv_gamma
-    eta = np.sqrt(s_root * z_inv)
-    off = 2.0 * eta * gamma * gamma * both_inv
-    scaling = (eta * v0, eta * v1, eta * v2, eta + off * v1 * v1, off * v1 * v2,
-               eta + off * v2 * v2)
+    off = 2.0 * gamma * gamma * both_inv                   # 1 / (1 + v0)
+    scaling = (v0, v1, v2, 1.0 + off * v1 * v1, off * v1 * v2, 1.0 + off * v2 * v2)
     return z_root * s_inv, scaling, (v0, -v1, -v2)
 
 
