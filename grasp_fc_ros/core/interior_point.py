@@ -48,21 +48,20 @@ import numpy as np
 
 from ._kernels.cones import (
     MIN_STEP,
-    NO_LIMIT,
     STEP_FRACTION,
     inverse_square_apply,
     jordan_divide,
     jordan_product,
-    max_step,
-    nt_scaling,
+    nt_unit_scaling,
     scaled_apply,
     scaled_inverse_apply,
     scaling_of,
+    step_within,
 )
 from ._kernels.frames import normal_split, tangent_frames, work_at, wrench_rows
 from ._kernels.grasp_map import apply_grasp_map, certified_rank, normalise_grasp
-from ._kernels.jit import jit, kernel_array, row
-from ._kernels.linear_algebra import cholesky, cholesky_solve
+from ._kernels.jit import Vector3, jit, jit_fused, kernel_array, row
+from ._kernels.linear_algebra import Diagonal6, cholesky, diagonal_reciprocals, substitute
 from .tolerances import (
     MARGIN_ACCURACY,
     MARGIN_TOL,
@@ -83,15 +82,18 @@ FastResult: TypeAlias = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np
 #: grasp.
 MAX_ITERATIONS = 40
 
-#: Centring with the optimum asked for: sigma = min(CAP, (1 - alpha_aff)^POWER) instead
+#: Centring with the optimum asked for: sigma = min(CAP, (1 - alpha_aff)^1.5) instead
 #: of Mehrotra's (1 - alpha_aff)^3, which is kept for verdicts. Iterating to the optimum,
 #: the cube centres too little in the late iterations (short affine steps, slowly
 #: shrinking gaps); this rule takes fewer iterations to the margin, while on verdicts the
 #: cube is the faster (tuned: docs/performance.md#exact-stage).
-OPTIMUM_CENTRING_POWER = 1.5
 OPTIMUM_CENTRING_CAP = 0.1
 
 _EPS = float(np.finfo(np.float64).eps)
+
+#: The step to the cone boundary whose STEP_FRACTION is a full step: the corrector's
+#: search for the boundary stops there.
+FULL_REACH = 1.0 / STEP_FRACTION
 
 #: For verdicts, the witness is computed only where it could raise max(t_lo, 0): where
 #: :func:`_unprojected_depth` exceeds it less this allowance, which covers the
@@ -129,12 +131,13 @@ TRIVIAL_BOUND_SLACK = 1e-12
 @jit
 def _witness(unit: np.ndarray, normals: np.ndarray, tangent: np.ndarray,
              bitangent: np.ndarray, mu: np.ndarray, z: np.ndarray, sigma: float,
-             gram_factor: np.ndarray, sigma_min: float, grasp_norm: float,
-             forces: np.ndarray, y: np.ndarray, check: np.ndarray,
+             gram_factor: np.ndarray, gram_inverse: Diagonal6, sigma_min: float,
+             grasp_norm: float, forces: np.ndarray, y: np.ndarray, check: np.ndarray,
              scratch: np.ndarray) -> tuple[float, float]:
     """Certified depth of the forces of primal iterate z (n, 3), and their total normal
     force; the projected forces go to ``forces`` (n, 3), to be scaled by the total (only
-    where the depth is kept). Depth -inf when the total is not positive."""
+    where the depth is kept). Depth -inf when the total is not positive. ``gram_inverse``
+    is :func:`._kernels.linear_algebra.diagonal_reciprocals` of ``gram_factor``."""
     n = unit.shape[0]
     total_z0 = 0.0
     for i in range(n):
@@ -146,7 +149,7 @@ def _witness(unit: np.ndarray, normals: np.ndarray, tangent: np.ndarray,
             forces[i, k] = c_n * normals[i, k] - mu[i] * (z[i, 1] * tangent[i, k]
                                                           + z[i, 2] * bitangent[i, k])
     apply_grasp_map(unit, forces, check)
-    cholesky_solve(gram_factor, check, y, scratch)
+    substitute(gram_factor, gram_inverse, check, y, scratch)
     size = 0.0
     for i in range(n):
         g0, g1, g2 = work_at(y, row(unit, i))                         # G_i^T y
@@ -227,7 +230,47 @@ def _bound(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, w: np.ndarray,
     return bound, raw_level <= SEPARATION_TARGET * largest
 
 
-@jit
+#: A 6-vector (a wrench) passed by value between kernels.
+Vector6: TypeAlias = tuple[float, float, float, float, float, float]
+
+
+@jit_fused
+def _block_times(a_mat: np.ndarray, i: int, x: Vector3) -> Vector6:
+    """A_i x for contact i's 6 x 3 block ``a_mat[i]`` and a 3-vector x.
+
+    As a tuple, and with x passed by value: the callers' loops store into arrays that
+    the compiler cannot tell apart from their operands, and would reload those after
+    every store (tuned: docs/performance.md#exact-stage).
+    """
+    x0, x1, x2 = x
+    return (a_mat[i, 0, 0] * x0 + a_mat[i, 0, 1] * x1 + a_mat[i, 0, 2] * x2,
+            a_mat[i, 1, 0] * x0 + a_mat[i, 1, 1] * x1 + a_mat[i, 1, 2] * x2,
+            a_mat[i, 2, 0] * x0 + a_mat[i, 2, 1] * x1 + a_mat[i, 2, 2] * x2,
+            a_mat[i, 3, 0] * x0 + a_mat[i, 3, 1] * x1 + a_mat[i, 3, 2] * x2,
+            a_mat[i, 4, 0] * x0 + a_mat[i, 4, 1] * x1 + a_mat[i, 4, 2] * x2,
+            a_mat[i, 5, 0] * x0 + a_mat[i, 5, 1] * x1 + a_mat[i, 5, 2] * x2)
+
+
+@jit_fused
+def _block_transposed_times(a_mat: np.ndarray, i: int, v: Vector6) -> Vector3:
+    """A_i^T v for contact i's 6 x 3 block ``a_mat[i]`` and a 6-vector v (see
+    :func:`_block_times`)."""
+    v0, v1, v2, v3, v4, v5 = v
+    return (a_mat[i, 0, 0] * v0 + a_mat[i, 1, 0] * v1 + a_mat[i, 2, 0] * v2
+            + a_mat[i, 3, 0] * v3 + a_mat[i, 4, 0] * v4 + a_mat[i, 5, 0] * v5,
+            a_mat[i, 0, 1] * v0 + a_mat[i, 1, 1] * v1 + a_mat[i, 2, 1] * v2
+            + a_mat[i, 3, 1] * v3 + a_mat[i, 4, 1] * v4 + a_mat[i, 5, 1] * v5,
+            a_mat[i, 0, 2] * v0 + a_mat[i, 1, 2] * v1 + a_mat[i, 2, 2] * v2
+            + a_mat[i, 3, 2] * v3 + a_mat[i, 4, 2] * v4 + a_mat[i, 5, 2] * v5)
+
+
+@jit_fused
+def _vector6(values: np.ndarray) -> Vector6:
+    """A (6,) array as a tuple (see :func:`_block_times`)."""
+    return values[0], values[1], values[2], values[3], values[4], values[5]
+
+
+@jit_fused
 def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_optimum: bool,
                  want_wrench: bool, signed_gap: float, signed_level: float,
                  forces_out: np.ndarray, wrench_out: np.ndarray, work3: np.ndarray,
@@ -246,16 +289,16 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
 
     The remaining arguments are scratch space of the batch, reused from grasp to grasp
     (allocating it per grasp would cost a large share of the run time): work3 (12, n, 3),
-    work6 (14, 6), rows (3, n, 6), a_mat (n, 6, 3), scalings (n, 6), mats (4, 6, 6),
+    work6 (13, 6), rows (3, n, 6), a_mat (n, 6, 3), scalings (n, 6), mats (4, 6, 6),
     work_n (2, n), a_gram (n, 6, 6).
     """
     n = unit.shape[0]
     (tangent, bitangent, z, s, z_affine, jv, lam, dz, ds, u_aff, winv_q,
      projected) = (work3[0], work3[1], work3[2], work3[3], work3[4], work3[5], work3[6],
                    work3[7], work3[8], work3[9], work3[10], work3[11])
-    d, trial, g_sum, solved, gg_d, y6, w, g, rhs, dw, scratch, check, y, w_affine = (
+    d, trial, g_sum, solved, gg_d, y6, w, rhs, dw, scratch, check, y, w_affine = (
         work6[0], work6[1], work6[2], work6[3], work6[4], work6[5], work6[6], work6[7],
-        work6[8], work6[9], work6[10], work6[11], work6[12], work6[13])
+        work6[8], work6[9], work6[10], work6[11], work6[12])
     b_n, b_t1, b_t2 = rows[0], rows[1], rows[2]
     gram, gram_factor, hessian, factor = mats[0], mats[1], mats[2], mats[3]
     inv_eta2, normal_work = work_n[0], work_n[1]
@@ -263,6 +306,7 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
     sigma_min, grasp_norm = certified_rank(unit, gram, gram_factor, scratch)
     if not sigma_min > 0.0:
         return UNDECIDED, -np.inf, np.inf, 0
+    gram_inverse = diagonal_reciprocals(gram_factor)
     # A first trial wrench: pull against the mean inward normal. It separates every
     # grasp whose normals all lie in one open half-space around it, e.g. contacts
     # sharing a face, which the interior-point start below cannot handle.
@@ -295,16 +339,16 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
     for i in range(n):
         for r in range(6):
             g_sum[r] += b_n[i, r]
-    cholesky_solve(gram_factor, g_sum, solved, scratch)
+    substitute(gram_factor, gram_inverse, g_sum, solved, scratch)
     schur = n - np.dot(g_sum, solved)
     if not schur > SHARED_NORMAL_TOL * n:
         return UNDECIDED, -np.inf, np.inf, 0
     # y = (y6, y7) of (M M^T) y = (d, 0): y7 = -g.GG^-1 d / schur, y6 = GG^-1 (d - g y7).
-    cholesky_solve(gram_factor, d, gg_d, scratch)
+    substitute(gram_factor, gram_inverse, d, gg_d, scratch)
     y7 = -np.dot(g_sum, gg_d) / schur
     for r in range(6):
         solved[r] = d[r] - g_sum[r] * y7
-    cholesky_solve(gram_factor, solved, y6, scratch)
+    substitute(gram_factor, gram_inverse, solved, y6, scratch)
     start_t = np.inf
     for i in range(n):
         u = unit[i]
@@ -334,19 +378,16 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
     separated = False
     iteration = 0
     last = False     # a breakdown: check the current iterate in full, then stop
+    # The dual slacks s_i = e - A_i^T w, here at w = 0; each step updates them along
+    # with w (s moves by -A_i^T dw, the ds of the step), which saves recomputing them
+    # from w (tuned: docs/performance.md#exact-stage). Rounding of the update only: no
+    # certificate reads s.
+    for i in range(n):
+        s[i, 0], s[i, 1], s[i, 2] = 1.0, 0.0, 0.0
     while True:
         d_w = 0.0
         for r in range(6):
             d_w += d[r] * w[r]
-        for i in range(n):
-            n_w = t1_w = t2_w = 0.0
-            for r in range(6):
-                n_w += b_n[i, r] * w[r]
-                t1_w += b_t1[i, r] * w[r]
-                t2_w += b_t2[i, r] * w[r]
-            s[i, 0] = 1.0 + d_w - n_w
-            s[i, 1] = mu[i] * t1_w
-            s[i, 2] = mu[i] * t2_w
         total_z0 = 0.0
         for i in range(n):
             total_z0 += z[i, 0]
@@ -362,8 +403,8 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
                 want_optimum or signed
                 or _unprojected_depth(z, mu, t_p) > max(t_lo, 0.0) - WITNESS_SKIP_SLACK):
             depth, total = _witness(unit, normals, tangent, bitangent, mu, z, sigma,
-                                    gram_factor, sigma_min, grasp_norm, projected, y, check,
-                                    scratch)
+                                    gram_factor, gram_inverse, sigma_min, grasp_norm,
+                                    projected, y, check, scratch)
             if depth > t_lo:
                 t_lo = depth
                 for i in range(n):
@@ -394,11 +435,12 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
         # - J) / eta^2: A_i W_i^-2 A_i^T = (2 g g^T - A_i J A_i^T) / eta^2, g = A_i J v;
         # A_i J A_i^T does not change, so it is kept from the first iteration (a_gram)
         # and each later one costs a rank-one update.
-        hessian[:] = 0.0
-        gap = 0.0
+        # The scalings first, in a loop of their own: each is a chain of roots and
+        # divisions, and only a short loop body lets those of several contacts overlap
+        # (tuned: docs/performance.md#exact-stage).
         finite = True
         for i in range(n):
-            inv_eta2[i], scaling, inverse_vector = nt_scaling(row(z, i), row(s, i))
+            inv_eta2[i], scaling, inverse_vector = nt_unit_scaling(row(z, i), row(s, i))
             if not np.isfinite(inv_eta2[i]):
                 finite = False
                 break
@@ -406,9 +448,14 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
             scalings[i, 3], scalings[i, 4], scalings[i, 5] = scaling[3], scaling[4], scaling[5]
             jv[i, 0], jv[i, 1], jv[i, 2] = inverse_vector
             lam[i, 0], lam[i, 1], lam[i, 2] = scaled_apply(scaling, row(z, i))
-            for r in range(6):
-                g[r] = (a_mat[i, r, 0] * jv[i, 0] + a_mat[i, r, 1] * jv[i, 1]
-                        + a_mat[i, r, 2] * jv[i, 2])
+        if not finite:
+            last = True
+            continue
+        hessian[:] = 0.0
+        gap = 0.0
+        for i in range(n):
+            g_i = _block_times(a_mat, i, row(jv, i))
+            weight = inv_eta2[i]
             if iteration == 0:
                 for r in range(6):
                     for c in range(r + 1):
@@ -417,43 +464,40 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
                                            - a_mat[i, r, 0] * a_mat[i, c, 0])
             for r in range(6):
                 for c in range(r + 1):
-                    hessian[r, c] += inv_eta2[i] * (2.0 * g[r] * g[c] + a_gram[i, r, c])
+                    hessian[r, c] += weight * (2.0 * g_i[r] * g_i[c] + a_gram[i, r, c])
             gap += z[i, 0] * s[i, 0] + z[i, 1] * s[i, 1] + z[i, 2] * s[i, 2]
-        if not finite:
-            last = True
-            continue
         if not cholesky(hessian, factor):          # (it reads the lower triangle only)
             last = True
             continue
+        inverse = diagonal_reciprocals(factor)
         # Predictor (affine) direction: lam o (W dz + W^-1 ds) = -lam o lam gives
         # W dz + W^-1 ds = -lam, W^-1 (-lam) = -z, and the right-hand side -r_p + sum_i
         # A_i z_i is -d exactly (r_p = sum_i A_i z_i + d): no residual, no Jordan division.
         # In scaled form, u = W^-1 ds and W dz = -lam - u; W maps the cone onto itself,
-        # so the step to its boundary is that of lam along u and along -lam - u.
+        # so the step to its boundary is that of lam along u and along -lam - u. With
+        # W = eta Wbar, the arrays hold lam / eta = Wbar z and u / eta = J Wbar J ds /
+        # eta^2, which give the same steps without the root eta (nt_unit_scaling).
         for r in range(6):
             rhs[r] = -d[r]
-        cholesky_solve(factor, rhs, dw, scratch)
-        alpha_dual = alpha_primal = NO_LIMIT
+        substitute(factor, inverse, rhs, dw, scratch)
+        # (Only steps up to 1 are used below: the search stops there.)
+        alpha_dual = alpha_primal = 1.0
+        step = _vector6(dw)
         for i in range(n):
-            for k in range(3):
-                acc = 0.0
-                for r in range(6):
-                    acc -= a_mat[i, r, k] * dw[r]
-                ds[i, k] = acc
+            ds_i = _block_transposed_times(a_mat, i, step)
+            ds[i, 0], ds[i, 1], ds[i, 2] = -ds_i[0], -ds_i[1], -ds_i[2]
             u = scaled_inverse_apply(scaling_of(scalings, i), inv_eta2[i], row(ds, i))
             u_aff[i, 0], u_aff[i, 1], u_aff[i, 2] = u
             lam_i = row(lam, i)
-            alpha_dual = min(alpha_dual, max_step(lam_i, u))
-            alpha_primal = min(alpha_primal, max_step(
-                lam_i, (-lam_i[0] - u[0], -lam_i[1] - u[1], -lam_i[2] - u[2])))
+            alpha_dual = step_within(lam_i, u, alpha_dual)
+            alpha_primal = step_within(
+                lam_i, (-lam_i[0] - u[0], -lam_i[1] - u[1], -lam_i[2] - u[2]), alpha_primal)
         alpha = min(alpha_dual, alpha_primal)
         # With the optimum asked for, the affine point (each side's step to its cone
         # boundary, at most 1) is often near enough to close the interval one corrector
         # and one iteration earlier: its certificates are checked where the gap it would
         # leave, (1 - alpha) gap, is small enough for that to be likely.
-        if (want_optimum and not signed
-                and (1.0 - min(1.0, alpha)) * gap / sigma < AFFINE_CHECK_GAP):
-            alpha_primal, alpha_dual = min(1.0, alpha_primal), min(1.0, alpha_dual)
+        if want_optimum and not signed and (1.0 - alpha) * gap / sigma < AFFINE_CHECK_GAP:
             for i in range(n):
                 w2_ds = inverse_square_apply(row(jv, i), inv_eta2[i], row(ds, i))
                 for k in range(3):     # dz of the affine step: -z - W^-2 ds
@@ -461,8 +505,8 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
             for r in range(6):
                 w_affine[r] = w[r] + alpha_dual * dw[r]
             depth, total = _witness(unit, normals, tangent, bitangent, mu, z_affine, sigma,
-                                    gram_factor, sigma_min, grasp_norm, projected, y, check,
-                                    scratch)
+                                    gram_factor, gram_inverse, sigma_min, grasp_norm,
+                                    projected, y, check, scratch)
             if depth > t_lo:
                 t_lo = depth
                 for i in range(n):
@@ -478,15 +522,18 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
                 return code, t_lo, t_hi, iteration + 1
         # Mehrotra's centring from the affine step: for feasible iterates dz . ds = 0,
         # so that step would leave the gap (1 - alpha) gap.
-        shrink = 1.0 - min(1.0, alpha)
+        shrink = 1.0 - alpha
         if want_optimum:
-            centring = min(OPTIMUM_CENTRING_CAP, shrink ** OPTIMUM_CENTRING_POWER)
+            # (the power 1.5 as a root: a call of pow costs several times more)
+            centring = min(OPTIMUM_CENTRING_CAP, shrink * np.sqrt(shrink))
         else:
             centring = shrink ** 3
         target = centring * (gap / n)
         # Corrector: lam o (W dz + W^-1 ds) = -lam o lam - u o (-lam - u) + target e, so
         # W dz + W^-1 ds = -lam + p with p = lam \ (u o (lam + u) + target e); as above
         # the right-hand side becomes -d - sum_i A_i W^-1 p_i and dz = -z + W^-1 p - W^-2 ds.
+        # In the arrays' lam / eta and u / eta: W^-1 p = J Wbar J (lam/eta) \ ((u/eta) o
+        # (lam/eta + u/eta) + target / eta^2 e).
         for r in range(6):
             rhs[r] = -d[r]
         for i in range(n):
@@ -494,32 +541,34 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
             # -W dz of the predictor is lam + u.
             second_order = jordan_product(u, (lam_i[0] + u[0], lam_i[1] + u[1],
                                               lam_i[2] + u[2]))
-            q = jordan_divide(lam_i, (second_order[0] + target, second_order[1],
-                                      second_order[2]))
+            q = jordan_divide(lam_i, (second_order[0] + target * inv_eta2[i],
+                                      second_order[1], second_order[2]))
             winv_q[i, 0], winv_q[i, 1], winv_q[i, 2] = scaled_inverse_apply(
-                scaling_of(scalings, i), inv_eta2[i], q)
+                scaling_of(scalings, i), 1.0, q)
+            pushed = _block_times(a_mat, i, row(winv_q, i))
             for r in range(6):
-                rhs[r] -= (a_mat[i, r, 0] * winv_q[i, 0] + a_mat[i, r, 1] * winv_q[i, 1]
-                           + a_mat[i, r, 2] * winv_q[i, 2])
-        cholesky_solve(factor, rhs, dw, scratch)
-        alpha = NO_LIMIT
+                rhs[r] -= pushed[r]
+        substitute(factor, inverse, rhs, dw, scratch)
+        # The step to the nearest cone boundary, searched only up to where STEP_FRACTION
+        # of it is a full step.
+        alpha = FULL_REACH
+        step = _vector6(dw)
         for i in range(n):
-            for k in range(3):
-                acc = 0.0
-                for r in range(6):
-                    acc -= a_mat[i, r, k] * dw[r]
-                ds[i, k] = acc
+            ds_i = _block_transposed_times(a_mat, i, step)
+            ds[i, 0], ds[i, 1], ds[i, 2] = -ds_i[0], -ds_i[1], -ds_i[2]
             w2_ds = inverse_square_apply(row(jv, i), inv_eta2[i], row(ds, i))
             for k in range(3):
                 dz[i, k] = winv_q[i, k] - z[i, k] - w2_ds[k]
-            alpha = min(alpha, max_step(row(z, i), row(dz, i)), max_step(row(s, i), row(ds, i)))
-        alpha = min(1.0, STEP_FRACTION * alpha)
+            alpha = step_within(row(z, i), row(dz, i), alpha)
+            alpha = step_within(row(s, i), row(ds, i), alpha)
+        alpha = 1.0 if alpha == FULL_REACH else STEP_FRACTION * alpha
         if not alpha > MIN_STEP:
             last = True
             continue
         for i in range(n):
             for k in range(3):
                 z[i, k] += alpha * dz[i, k]
+                s[i, k] += alpha * ds[i, k]
         for r in range(6):
             w[r] += alpha * dw[r]
         iteration += 1
@@ -564,7 +613,7 @@ def _workspace(n_contacts: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.
                                          np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Scratch of :func:`_solve_grasp` for grasps of ``n_contacts`` contacts: work3,
     work6, rows, a_mat, scalings, mats, work_n, a_gram."""
-    return (np.empty((12, n_contacts, 3)), np.empty((14, 6)), np.empty((3, n_contacts, 6)),
+    return (np.empty((12, n_contacts, 3)), np.empty((13, 6)), np.empty((3, n_contacts, 6)),
             np.empty((n_contacts, 6, 3)), np.empty((n_contacts, 6)), np.empty((4, 6, 6)),
             np.empty((2, n_contacts)), np.empty((n_contacts, 6, 6)))
 

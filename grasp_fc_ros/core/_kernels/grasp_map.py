@@ -93,15 +93,19 @@ def apply_grasp_map(unit: np.ndarray, forces: np.ndarray, out: np.ndarray) -> No
     out : ndarray, shape (6,)
         Output.
     """
-    out[:] = 0.0
+    # Summed in locals, stored once: stores into ``out`` inside the loop made the
+    # compiler reload the operands after each (the same sums in the same order).
+    f0 = f1 = f2 = t0 = t1 = t2 = 0.0
     for i in range(unit.shape[0]):
-        u, f = unit[i], forces[i]
-        out[0] += f[0]
-        out[1] += f[1]
-        out[2] += f[2]
-        out[3] += u[1] * f[2] - u[2] * f[1]
-        out[4] += u[2] * f[0] - u[0] * f[2]
-        out[5] += u[0] * f[1] - u[1] * f[0]
+        u0, u1, u2 = unit[i, 0], unit[i, 1], unit[i, 2]
+        g0, g1, g2 = forces[i, 0], forces[i, 1], forces[i, 2]
+        f0 += g0
+        f1 += g1
+        f2 += g2
+        t0 += u1 * g2 - u2 * g1
+        t1 += u2 * g0 - u0 * g2
+        t2 += u0 * g1 - u1 * g0
+    out[0], out[1], out[2], out[3], out[4], out[5] = f0, f1, f2, t0, t1, t2
 
 
 @jit

@@ -31,10 +31,30 @@ def jit(function: Function) -> Dispatcher[Function]:
     a kernel that calls kernels of other files keeps its cached code after those files
     change, until its own file changes or the ``__pycache__/*.nbi`` files are removed.
     """
+    return _compile(function, set())
+
+
+def jit_fused(function: Function) -> Dispatcher[Function]:
+    """:func:`jit` that also lets the compiler fuse a multiplication and an addition
+    into one fused multiply-add (LLVM's ``contract`` flag; nothing else of fastmath).
+
+    For the interior-point steps only (the Newton systems, scalings and step lengths),
+    where it saves a sizeable share of the run time (tuned:
+    docs/performance.md#exact-stage): a fused operation rounds once instead of twice, so
+    the steps change in their last bits, which no result depends on. Every certificate
+    (witness depths, wrench bounds, rank bounds) and the normalisation of positions are
+    computed by :func:`jit` kernels, whose operations stay unfused even where the
+    compiler inlines them into a fused kernel (the flag belongs to each operation).
+    """
+    return _compile(function, {"contract"})
+
+
+def _compile(function: Function, fastmath: set[str]) -> Dispatcher[Function]:
+    """``numba.njit`` with the options of :func:`jit` and these fastmath flags."""
     try:
-        return numba.njit(cache=True, error_model="numpy")(function)
+        return numba.njit(cache=True, error_model="numpy", fastmath=fastmath)(function)
     except RuntimeError:  # no writable cache location at all: compile per process
-        return numba.njit(cache=False, error_model="numpy")(function)
+        return numba.njit(cache=False, error_model="numpy", fastmath=fastmath)(function)
 
 
 def kernel_array(values: Any) -> np.ndarray:

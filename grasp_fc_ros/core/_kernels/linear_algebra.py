@@ -10,9 +10,14 @@ by its residual, a rank bound with its own margin).
 
 from __future__ import annotations
 
+from typing import TypeAlias
+
 import numpy as np
 
 from .jit import jit
+
+#: The six reciprocals of a 6 x 6 triangular factor's diagonal.
+Diagonal6: TypeAlias = tuple[float, float, float, float, float, float]
 
 
 @jit
@@ -32,18 +37,23 @@ def cholesky(matrix: np.ndarray, factor: np.ndarray) -> bool:
         False on a pivot that is not positive (``factor`` is then incomplete).
     """
     factor[:] = 0.0
-    for r in range(6):
-        for c in range(r + 1):
+    # Column by column, so that each column's reciprocal is taken once and held in a
+    # register (by rows, the compiler took it again for every entry: it cannot tell the
+    # factor from the matrix and reloads the pivot after every store).
+    for c in range(6):
+        acc = matrix[c, c]
+        for k in range(c):
+            acc -= factor[c, k] * factor[c, k]
+        if not acc > 0.0:
+            return False
+        pivot = np.sqrt(acc)
+        factor[c, c] = pivot
+        inverse = 1.0 / pivot
+        for r in range(c + 1, 6):
             acc = matrix[r, c]
             for k in range(c):
                 acc -= factor[r, k] * factor[c, k]
-            if r == c:
-                if not acc > 0.0:
-                    return False
-                factor[r, r] = np.sqrt(acc)
-            else:
-                # (one reciprocal per column: the unrolled loops share it)
-                factor[r, c] = acc * (1.0 / factor[c, c])
+            factor[r, c] = acc * inverse
     return True
 
 
@@ -62,9 +72,44 @@ def cholesky_solve(factor: np.ndarray, rhs: np.ndarray, x: np.ndarray,
     y : ndarray, shape (6,)
         Scratch.
     """
-    i0, i1, i2 = 1.0 / factor[0, 0], 1.0 / factor[1, 1], 1.0 / factor[2, 2]
-    i3, i4, i5 = 1.0 / factor[3, 3], 1.0 / factor[4, 4], 1.0 / factor[5, 5]
-    inverse = (i0, i1, i2, i3, i4, i5)
+    substitute(factor, diagonal_reciprocals(factor), rhs, x, y)
+
+
+@jit
+def diagonal_reciprocals(factor: np.ndarray) -> Diagonal6:
+    """1 / L_rr for r = 0..5: what :func:`substitute` takes, for callers that solve
+    with one factor several times.
+
+    Parameters
+    ----------
+    factor : ndarray, shape (6, 6)
+        Lower-triangular L with a nonzero diagonal.
+
+    Returns
+    -------
+    Diagonal6
+    """
+    return (1.0 / factor[0, 0], 1.0 / factor[1, 1], 1.0 / factor[2, 2], 1.0 / factor[3, 3],
+            1.0 / factor[4, 4], 1.0 / factor[5, 5])
+
+
+@jit
+def substitute(factor: np.ndarray, inverse: Diagonal6, rhs: np.ndarray, x: np.ndarray,
+               y: np.ndarray) -> None:
+    """:func:`cholesky_solve` with the reciprocals of L's diagonal given.
+
+    Parameters
+    ----------
+    factor : ndarray, shape (6, 6)
+        Lower-triangular L (from :func:`cholesky`).
+    inverse : Diagonal6
+        :func:`diagonal_reciprocals` of ``factor``.
+    rhs : ndarray, shape (6,)
+    x : ndarray, shape (6,)
+        Output; may be ``rhs`` itself.
+    y : ndarray, shape (6,)
+        Scratch.
+    """
     for r in range(6):
         acc = rhs[r]
         for c in range(r):
