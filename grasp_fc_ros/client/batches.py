@@ -2,8 +2,9 @@
 their :class:`~grasp_fc_ros.engine.packed.Verdicts` from the client's reply topic
 ``verdicts_batch/c<client id>``.
 
-A batch of more than :data:`~grasp_fc_ros.interface.names.MAX_MESSAGE_CONTACTS`
-contacts goes out as several messages (parts) of whole grasps, each with a request id
+A batch larger than :data:`~grasp_fc_ros.interface.names.MAX_MESSAGE_CONTACTS`
+contacts with every per-contact field (:func:`part_contacts`: as many bytes) goes out as
+several messages (parts) of whole grasps, each with a request id
 of its own; its Future resolves once every part is answered, with their verdicts in
 order. The parts go out from a thread of their own, each once the node has
 acknowledged the one before (for at most :data:`PART_ACK_WAIT_S`): no message is then
@@ -20,6 +21,7 @@ import threading
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -52,11 +54,14 @@ from grasp_fc_ros.interface.names import (
     reply_topic,
     resolve,
 )
+from grasp_fc_ros.interface.wait_sets import SubscriptionLoop
 
 # Longest the sending thread waits for the node to acknowledge a part before it sends the
 # next one anyway (s): a slow or vanished node delays a batch's parts by this much each,
 # never forever (tuned: docs/performance.md#big-batches).
 PART_ACK_WAIT_S = 1.0
+# Verdict arrays taken at one wake-up of the reply loop (one per part of a batch).
+MAX_TAKE = 16
 
 
 @dataclass
@@ -103,9 +108,13 @@ class BatchQueries:
         self.publisher = node.create_publisher(
             ContactArrayBatch, resolve(node_name, CONTACTS_BATCH_TOPIC), QUERY_QOS)
         self.verdict_topic = resolve(node_name, reply_topic(VERDICTS_BATCH_TOPIC, client_id))
-        node.create_subscription(ForceClosureVerdictArray, self.verdict_topic,
-                                 self._on_serialized if serialized else self._on_message,
-                                 QUERY_QOS, raw=serialized)
+        # Taken by a loop of its own: on the client's executor each verdict array (one
+        # per part of a large batch) cost a rebuild of its wait set
+        # (docs/performance.md#batch-topic).
+        self._loop = SubscriptionLoop(
+            node, ForceClosureVerdictArray, self.verdict_topic, QUERY_QOS,
+            self._on_serialized if serialized else self._on_messages, self._on_loop_error,
+            raw=serialized, max_take=MAX_TAKE, name="grasp_client_batch_verdicts")
         # Parts of large batches, in order, for the sending thread; None ends it.
         self._parts: queue.SimpleQueue[ContactArrayBatch | None] = queue.SimpleQueue()
         self._sender = threading.Thread(target=self._send_parts, daemon=True,
@@ -137,11 +146,11 @@ class BatchQueries:
                counts: ArrayLike | None, ids: ArrayLike | None, frame_id: str = "",
                torsional_friction: ArrayLike | None = None) -> Future:
         """Publish a batch (arguments as :meth:`message`), in parts of at most
-        MAX_MESSAGE_CONTACTS contacts; a Future of all its Verdicts, in order. A failed
+        :func:`part_contacts` contacts; a Future of all its Verdicts, in order. A failed
         publish (no node up) leaves a part due: sent when a node is there."""
         ids = np.arange(n_grasps_of(positions, counts)) if ids is None else ids
         fields = batch_arrays(ids, positions, normals, mu, counts, torsional_friction)
-        parts = split_batch(fields, MAX_MESSAGE_CONTACTS)
+        parts = split_batch(fields, part_contacts(fields))
         batch = _Batch(Future(), [None] * len(parts))
         stamp = self._node.get_clock().now().to_msg()
         for index, part in enumerate(parts):
@@ -188,16 +197,21 @@ class BatchQueries:
         sent = publish_again(self.publisher, pendings, everything, lambda: self._closed)
         return sum(len(pending.msg.ids) for pending in sent)
 
-    def _on_message(self, msg: ForceClosureVerdictArray) -> None:
-        if msg.client_id == self._client_id:
-            self._answered(msg.request_id, lambda: verdict_array_to_numpy(msg))
+    def _on_messages(self, msgs: list[ForceClosureVerdictArray]) -> None:
+        for msg in msgs:
+            if msg.client_id == self._client_id:
+                self._answered(msg.request_id, partial(verdict_array_to_numpy, msg))
 
-    def _on_serialized(self, raw: bytes) -> None:
-        """A serialized verdict array: read with numpy; other clients' are skipped
+    def _on_serialized(self, raws: list[bytes]) -> None:
+        """Serialized verdict arrays: read with numpy; other clients' are skipped
         unread."""
-        client_id, request_id = wire.verdict_ids(raw)
-        if client_id == self._client_id:
-            self._answered(request_id, lambda: wire.decode_verdict_array(raw)[2])
+        for raw in raws:
+            client_id, request_id = wire.verdict_ids(raw)
+            if client_id == self._client_id:
+                self._answered(request_id, partial(_verdicts_of, raw))
+
+    def _on_loop_error(self, exc: Exception) -> None:
+        self._node.get_logger().error(f"reading batch verdicts failed: {exc!r}")
 
     def _answered(self, request_id: int, read: Callable[[], Verdicts]) -> None:
         with self._lock:
@@ -226,11 +240,29 @@ class BatchQueries:
         caller to cancel)."""
         self._closed = True
         self._parts.put(None)
+        self._loop.stop()
         with self._lock:
             pending = {id(batch.future): batch.future
                        for _, batch, _ in self._in_flight.values()}
             self._in_flight.clear()
         return list(pending.values())
+
+
+# Bytes a contact takes in a ContactArrayBatch: its position and normal (6 float64), and
+# 8 more for each per-contact field given (friction, torsional friction).
+CONTACT_BYTES = 48
+FIELD_BYTES = 8
+
+
+def part_contacts(fields: BatchArrays) -> int:
+    """Most contacts in one part of ``fields``: as many bytes as MAX_MESSAGE_CONTACTS
+    contacts with every per-contact field (the bound is the message's size), so a batch
+    without per-contact friction goes in fewer, larger parts; each part costs the client,
+    the node and its workers a fixed share (docs/performance.md#batch-topic)."""
+    given = sum(len(values) > 0 for values in
+                (fields.friction_coefficients, fields.torsional_friction))
+    most = MAX_MESSAGE_CONTACTS * (CONTACT_BYTES + 2 * FIELD_BYTES)
+    return most // (CONTACT_BYTES + given * FIELD_BYTES)
 
 
 def split_batch(fields: BatchArrays, max_contacts: int) -> list[BatchArrays]:
@@ -271,6 +303,11 @@ def split_batch(fields: BatchArrays, max_contacts: int) -> list[BatchArrays]:
                                  fields.normals[3 * base:3 * end], *per_contact))
         first = last
     return parts
+
+
+def _verdicts_of(raw: bytes) -> Verdicts:
+    """The verdicts of a serialized verdict array."""
+    return wire.decode_verdict_array(raw)[2]
 
 
 def n_grasps_of(positions: Any, counts: Any) -> int:
