@@ -110,7 +110,7 @@ class BatchQueries:
         self.verdict_topic = resolve(node_name, reply_topic(VERDICTS_BATCH_TOPIC, client_id))
         # Taken by a loop of its own: on the client's executor each verdict array (one
         # per part of a large batch) cost a rebuild of its wait set
-        # (docs/performance.md#batch-topic).
+        # (docs/performance.md#batches-in-parts-issue-22).
         self._loop = SubscriptionLoop(
             node, ForceClosureVerdictArray, self.verdict_topic, QUERY_QOS,
             self._on_serialized if serialized else self._on_messages, self._on_loop_error,
@@ -258,7 +258,7 @@ def part_contacts(fields: BatchArrays) -> int:
     """Most contacts in one part of ``fields``: as many bytes as MAX_MESSAGE_CONTACTS
     contacts with every per-contact field (the bound is the message's size), so a batch
     without per-contact friction goes in fewer, larger parts; each part costs the client,
-    the node and its workers a fixed share (docs/performance.md#batch-topic)."""
+    the node and its workers a fixed share (docs/performance.md#batches-in-parts-issue-22)."""
     given = sum(len(values) > 0 for values in
                 (fields.friction_coefficients, fields.torsional_friction))
     most = MAX_MESSAGE_CONTACTS * (CONTACT_BYTES + 2 * FIELD_BYTES)

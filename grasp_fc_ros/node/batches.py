@@ -36,8 +36,10 @@ from grasp_fc_ros.node.marker_lane import MarkerLane
 from grasp_fc_ros.node.replies import Replies, refused_verdicts
 
 # Batches whose chunks may be queued for the workers at once: with one, the workers
-# idle while a decided batch is answered and the next one converted and chunked.
-# Tuned: docs/performance.md#batch-topic.
+# idle while a decided batch is answered and the next one converted and chunked; a
+# client's large batch comes in parts of one chunk each, so that with fewer than two
+# per worker the workers wait for the answer of the oldest.
+# Tuned: docs/performance.md#batches-in-parts-issue-22.
 BATCHES_IN_PROGRESS = 4
 # Batches taken from the subscription at one wake-up: parts of a client's large batch
 # come one after the other, each a few hundred KB.
@@ -90,7 +92,7 @@ class BatchLane:
         serialized = replies.serialized
         # A loop of its own: on the node's executor every batch (a client's large batch
         # comes in parts of MAX_MESSAGE_CONTACTS contacts) cost a rebuild of its wait set
-        # (docs/performance.md#batch-topic).
+        # (docs/performance.md#batches-in-parts-issue-22).
         self._loop = SubscriptionLoop(
             node, ContactArrayBatch, CONTACTS_BATCH_TOPIC, copy.copy(QUERY_QOS),
             self._on_serialized_batches if serialized else self._on_batches,
