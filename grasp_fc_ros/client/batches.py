@@ -2,9 +2,8 @@
 their :class:`~grasp_fc_ros.engine.packed.Verdicts` from the client's reply topic
 ``verdicts_batch/c<client id>``.
 
-A batch larger than :data:`~grasp_fc_ros.interface.names.MAX_MESSAGE_CONTACTS`
-contacts with every per-contact field (:func:`part_contacts`: as many bytes) goes out as
-several messages (parts) of whole grasps, each with a request id
+A batch of more than :data:`~grasp_fc_ros.interface.names.MAX_MESSAGE_CONTACTS`
+contacts goes out as several messages (parts) of whole grasps, each with a request id
 of its own; its Future resolves once every part is answered, with their verdicts in
 order. The parts go out from a thread of their own, each once the node has
 acknowledged the one before (for at most :data:`PART_ACK_WAIT_S`): no message is then
@@ -146,11 +145,11 @@ class BatchQueries:
                counts: ArrayLike | None, ids: ArrayLike | None, frame_id: str = "",
                torsional_friction: ArrayLike | None = None) -> Future:
         """Publish a batch (arguments as :meth:`message`), in parts of at most
-        :func:`part_contacts` contacts; a Future of all its Verdicts, in order. A failed
+        MAX_MESSAGE_CONTACTS contacts; a Future of all its Verdicts, in order. A failed
         publish (no node up) leaves a part due: sent when a node is there."""
         ids = np.arange(n_grasps_of(positions, counts)) if ids is None else ids
         fields = batch_arrays(ids, positions, normals, mu, counts, torsional_friction)
-        parts = split_batch(fields, part_contacts(fields))
+        parts = split_batch(fields, MAX_MESSAGE_CONTACTS)
         batch = _Batch(Future(), [None] * len(parts))
         stamp = self._node.get_clock().now().to_msg()
         for index, part in enumerate(parts):
@@ -246,23 +245,6 @@ class BatchQueries:
                        for _, batch, _ in self._in_flight.values()}
             self._in_flight.clear()
         return list(pending.values())
-
-
-# Bytes a contact takes in a ContactArrayBatch: its position and normal (6 float64), and
-# 8 more for each per-contact field given (friction, torsional friction).
-CONTACT_BYTES = 48
-FIELD_BYTES = 8
-
-
-def part_contacts(fields: BatchArrays) -> int:
-    """Most contacts in one part of ``fields``: as many bytes as MAX_MESSAGE_CONTACTS
-    contacts with every per-contact field (the bound is the message's size), so a batch
-    without per-contact friction goes in fewer, larger parts; each part costs the client,
-    the node and its workers a fixed share (docs/performance.md#batches-in-parts-issue-22)."""
-    given = sum(len(values) > 0 for values in
-                (fields.friction_coefficients, fields.torsional_friction))
-    most = MAX_MESSAGE_CONTACTS * (CONTACT_BYTES + 2 * FIELD_BYTES)
-    return most // (CONTACT_BYTES + given * FIELD_BYTES)
 
 
 def split_batch(fields: BatchArrays, max_contacts: int) -> list[BatchArrays]:

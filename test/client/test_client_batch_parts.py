@@ -1,5 +1,4 @@
-"""GraspClient sends a large batch in parts of at most as many bytes as MAX_MESSAGE_CONTACTS
-contacts with every per-contact field (part_contacts), and
+"""GraspClient sends a large batch in parts of at most MAX_MESSAGE_CONTACTS contacts and
 joins their answers; a service call made meanwhile is answered (no timing asserted:
 bench_stall.py measures the latency)."""
 
@@ -12,7 +11,7 @@ import pytest
 from grasp_fc_msgs.msg import ContactArrayBatch
 
 from grasp_fc_ros.client import GraspClient
-from grasp_fc_ros.client.batches import part_contacts, split_batch
+from grasp_fc_ros.client.batches import split_batch
 from grasp_fc_ros.core import check_force_closure
 from grasp_fc_ros.interface.conversions import batch_arrays
 from grasp_fc_ros.interface.names import MAX_MESSAGE_CONTACTS, QUERY_QOS
@@ -92,19 +91,4 @@ def test_large_batch_goes_in_parts_and_comes_back_whole_beside_a_service_call(ow
     while sum(sizes) < counts.sum() and time.monotonic() < deadline:
         time.sleep(0.05)
     assert sum(sizes) == counts.sum()
-    assert len(sizes) > 2 and max(sizes) <= part_contacts(batch_arrays(ids, positions, normals,
-                                                                        mu, counts))
-
-
-def test_parts_are_bounded_in_bytes_whatever_fields_a_batch_carries():
-    positions, normals, counts, mu = mixed_batch(10, 5)
-    hard = batch_arrays(np.arange(10), positions, normals, None, counts)
-    with_mu = batch_arrays(np.arange(10), positions, normals, mu, counts)
-    soft = batch_arrays(np.arange(10), positions, normals, mu, counts,
-                        torsional_friction=np.full(len(mu), 0.01))
-    assert part_contacts(soft) == MAX_MESSAGE_CONTACTS  # every per-contact field
-    assert part_contacts(with_mu) > MAX_MESSAGE_CONTACTS
-    assert part_contacts(hard) > part_contacts(with_mu)
-    # A contact's bytes: 6 float64 for position and normal, one more per field given.
-    for fields, doubles in ((hard, 6), (with_mu, 7), (soft, 8)):
-        assert part_contacts(fields) * doubles * 8 <= MAX_MESSAGE_CONTACTS * 64
+    assert len(sizes) > 2 and max(sizes) <= MAX_MESSAGE_CONTACTS
