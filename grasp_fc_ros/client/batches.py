@@ -20,6 +20,7 @@ import threading
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -51,12 +52,15 @@ from grasp_fc_ros.interface.names import (
     reply_topic,
     resolve,
 )
+from grasp_fc_ros.interface.wait_sets import SubscriptionLoop
 from grasp_fc_ros.packed import Verdicts
 
 # Longest the sending thread waits for the node to acknowledge a part before it sends the
 # next one anyway (s): a slow or vanished node delays a batch's parts by this much each,
 # never forever (tuned: docs/performance.md#big-batches).
 PART_ACK_WAIT_S = 1.0
+# Verdict arrays taken at one wake-up of the reply loop (one per part of a batch).
+MAX_TAKE = 16
 
 
 @dataclass
@@ -103,9 +107,13 @@ class BatchQueries:
         self.publisher = node.create_publisher(
             ContactArrayBatch, resolve(node_name, CONTACTS_BATCH_TOPIC), QUERY_QOS)
         self.verdict_topic = resolve(node_name, reply_topic(VERDICTS_BATCH_TOPIC, client_id))
-        node.create_subscription(ForceClosureVerdictArray, self.verdict_topic,
-                                 self._on_serialized if serialized else self._on_message,
-                                 QUERY_QOS, raw=serialized)
+        # Taken by a loop of its own: on the client's executor each verdict array (one
+        # per part of a large batch) cost a rebuild of its wait set
+        # (docs/performance.md#batches-in-parts-issue-22).
+        self._loop = SubscriptionLoop(
+            node, ForceClosureVerdictArray, self.verdict_topic, QUERY_QOS,
+            self._on_serialized if serialized else self._on_messages, self._on_loop_error,
+            raw=serialized, max_take=MAX_TAKE, name="grasp_client_batch_verdicts")
         # Parts of large batches, in order, for the sending thread; None ends it.
         self._parts: queue.SimpleQueue[ContactArrayBatch | None] = queue.SimpleQueue()
         self._sender = threading.Thread(target=self._send_parts, daemon=True,
@@ -188,16 +196,21 @@ class BatchQueries:
         sent = publish_again(self.publisher, pendings, everything, lambda: self._closed)
         return sum(len(pending.msg.ids) for pending in sent)
 
-    def _on_message(self, msg: ForceClosureVerdictArray) -> None:
-        if msg.client_id == self._client_id:
-            self._answered(msg.request_id, lambda: verdict_array_to_numpy(msg))
+    def _on_messages(self, msgs: list[ForceClosureVerdictArray]) -> None:
+        for msg in msgs:
+            if msg.client_id == self._client_id:
+                self._answered(msg.request_id, partial(verdict_array_to_numpy, msg))
 
-    def _on_serialized(self, raw: bytes) -> None:
-        """A serialized verdict array: read with numpy; other clients' are skipped
+    def _on_serialized(self, raws: list[bytes]) -> None:
+        """Serialized verdict arrays: read with numpy; other clients' are skipped
         unread."""
-        client_id, request_id = wire.verdict_ids(raw)
-        if client_id == self._client_id:
-            self._answered(request_id, lambda: wire.decode_verdict_array(raw)[2])
+        for raw in raws:
+            client_id, request_id = wire.verdict_ids(raw)
+            if client_id == self._client_id:
+                self._answered(request_id, partial(_verdicts_of, raw))
+
+    def _on_loop_error(self, exc: Exception) -> None:
+        self._node.get_logger().error(f"reading batch verdicts failed: {exc!r}")
 
     def _answered(self, request_id: int, read: Callable[[], Verdicts]) -> None:
         with self._lock:
@@ -226,6 +239,7 @@ class BatchQueries:
         caller to cancel)."""
         self._closed = True
         self._parts.put(None)
+        self._loop.stop()
         with self._lock:
             pending = {id(batch.future): batch.future
                        for _, batch, _ in self._in_flight.values()}
@@ -271,6 +285,11 @@ def split_batch(fields: BatchArrays, max_contacts: int) -> list[BatchArrays]:
                                  fields.normals[3 * base:3 * end], *per_contact))
         first = last
     return parts
+
+
+def _verdicts_of(raw: bytes) -> Verdicts:
+    """The verdicts of a serialized verdict array."""
+    return wire.decode_verdict_array(raw)[2]
 
 
 def n_grasps_of(positions: Any, counts: Any) -> int:

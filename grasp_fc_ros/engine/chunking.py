@@ -36,7 +36,8 @@ def chunk_size(total_contacts: int, workers: int, chunk_contacts: int = CHUNK_CO
     """Contacts per chunk for a request of ``total_contacts`` on ``workers`` processes.
 
     At most ``chunk_contacts``; the chunks as equal as possible, and at least one per
-    worker while each keeps :data:`MIN_CHUNK_CONTACTS`.
+    worker while each keeps :data:`MIN_CHUNK_CONTACTS` (``workers`` 0 or 1: the bound
+    alone).
     """
     n_chunks = max(-(-total_contacts // chunk_contacts),
                    min(workers, total_contacts // MIN_CHUNK_CONTACTS), 1)

@@ -58,6 +58,11 @@ class Decision:
         self._futures = futures
         self._ready = ready
 
+    @property
+    def chunks(self) -> int:
+        """How many chunks the request went to the workers in (0: decided inline)."""
+        return len(self._futures)
+
     def done(self) -> bool:
         """Whether every chunk has been decided (or dropped): :meth:`result` would not
         wait."""
@@ -185,7 +190,12 @@ class EvaluationPool:
         # as short.
         limit = (self._chunk_contacts if packed.torsional is None
                  else max(1, self._chunk_contacts // SOFT_CHUNK_DIVISOR))
-        size = chunk_size(int(packed.counts.sum()), self.workers, limit)
+        # Split a small request across the workers only while fewer chunks than workers
+        # wait: behind a queue (a client's large batch comes in parts, each a request)
+        # the workers are kept busy anyway, and each chunk costs the node and its worker
+        # a fixed share (tuned: docs/performance.md#worker-chunks).
+        spread = max(0, self.workers - self._crew.queued())
+        size = chunk_size(int(packed.counts.sum()), spread, limit)
         return Decision([self._crew.submit(chunk, settings, priority)
                          for chunk in packed.chunks(size)])
 

@@ -175,6 +175,11 @@ class WorkerCrew:
         self._tasks.put((priority, order, Task(future, chunk, settings, priority, order)))
         return future
 
+    def queued(self) -> int:
+        """Chunks waiting for a worker now (approximate: others may queue or take
+        meanwhile)."""
+        return self._tasks.qsize()
+
     def next_task(self) -> Task | None:
         """The most urgent queued chunk, once there is one; None when closing."""
         task = self._tasks.get()[2]

@@ -1,14 +1,15 @@
 """The batch lane: ContactArrayBatch messages on ``contacts_batch``, one verdict array
 each on ``verdicts_batch``.
 
-The subscription only queues (a batch of more than ``max_batch`` grasps or
-``max_message_contacts`` contacts is refused at once, and so is one that would make more
-than ``max_batch`` grasps wait). The
-``next_batch`` thread converts the oldest queued batch and queues its chunks for the
-workers, once fewer than :data:`BATCHES_IN_PROGRESS` are in progress; the
-``answer_batch`` thread waits for the oldest batch in progress and publishes its
-answer: answers go out in arrival order. Batches are taken serialized and read with
-numpy where :mod:`grasp_fc_ros.interface.wire` reads this rmw's layout.
+The subscription, taken by a loop of its own
+(:class:`~grasp_fc_ros.interface.wait_sets.SubscriptionLoop`), only queues (a batch of
+more than ``max_batch`` grasps or ``max_message_contacts`` contacts is refused at once,
+and so is one that would make more than ``max_batch`` grasps wait). The ``next_batch``
+thread converts the oldest queued batch and queues its chunks for the workers, once
+fewer than :data:`BATCHES_IN_PROGRESS` are in progress; the ``answer_batch`` thread
+waits for the oldest batch in progress and publishes its answer: answers go out in
+arrival order. Batches are taken serialized and read with numpy where
+:mod:`grasp_fc_ros.interface.wire` reads this rmw's layout.
 """
 
 from __future__ import annotations
@@ -33,15 +34,21 @@ from grasp_fc_ros.interface.conversions import (
     batch_to_packed,
 )
 from grasp_fc_ros.interface.names import CONTACTS_BATCH_TOPIC, QUERY_QOS
+from grasp_fc_ros.interface.wait_sets import SubscriptionLoop
 from grasp_fc_ros.node.lane import Drained, LaneContext, Refusal, start_thread
 from grasp_fc_ros.node.marker_lane import MarkerLane
 from grasp_fc_ros.node.replies import Replies, refused_verdicts
 from grasp_fc_ros.packed import Verdicts
 
 # Batches whose chunks may be queued for the workers at once: with one, the workers
-# idle while a decided batch is answered and the next one converted and chunked.
-# Tuned: docs/performance.md#batch-topic.
-BATCHES_IN_PROGRESS = 2
+# idle while a decided batch is answered and the next one converted and chunked; a
+# client's large batch comes in parts of one chunk each, so that with fewer than two
+# per worker the workers wait for the answer of the oldest.
+# Tuned: docs/performance.md#batches-in-parts-issue-22.
+BATCHES_IN_PROGRESS = 4
+# Batches taken from the subscription at one wake-up: parts of a client's large batch
+# come one after the other, each a few hundred KB.
+MAX_TAKE = 16
 
 
 @dataclass
@@ -88,12 +95,16 @@ class BatchLane:
         self._busy_grasps = 0
         self._stopping = False
         serialized = replies.serialized
-        node.create_subscription(ContactArrayBatch, CONTACTS_BATCH_TOPIC,
-                                 self._on_serialized if serialized else self._on_batch,
-                                 copy.copy(QUERY_QOS), raw=serialized,
-                                 qos_overriding_options=QoSOverridingOptions.with_default_policies(),
-                                 event_callbacks=context.subscription_events(
-                                     CONTACTS_BATCH_TOPIC))
+        # A loop of its own: on the node's executor every batch (a client's large batch
+        # comes in parts of MAX_MESSAGE_CONTACTS contacts) cost a rebuild of its wait set
+        # (docs/performance.md#batches-in-parts-issue-22).
+        self._loop = SubscriptionLoop(
+            node, ContactArrayBatch, CONTACTS_BATCH_TOPIC, copy.copy(QUERY_QOS),
+            self._on_serialized_batches if serialized else self._on_batches,
+            lambda exc: context.internal_error("batches", exc),
+            raw=serialized, max_take=MAX_TAKE, name="contacts_batch",
+            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+            event_callbacks=context.subscription_events(CONTACTS_BATCH_TOPIC))
         self._threads = [start_thread("next_batch", self._start_next, self.stopping, context),
                          start_thread("answer_batch", self._answer_oldest, self.stopping,
                                       context)]
@@ -117,7 +128,15 @@ class BatchLane:
         with self._lock:
             return {"pending_batch_grasps": self._queued_grasps + self._busy_grasps}
 
-    # --- in: the node's executor ----------------------------------------------------------
+    # --- in: the subscription loop's thread ----------------------------------------------
+
+    def _on_serialized_batches(self, raws: list[bytes]) -> None:
+        for raw in raws:
+            self._on_serialized(raw)
+
+    def _on_batches(self, queries: list[ContactArrayBatch]) -> None:
+        for query in queries:
+            self._on_batch(query)
 
     def _on_serialized(self, raw: bytes) -> None:
         """A serialized batch: read with numpy, or by rclpy if in another layout."""
@@ -252,12 +271,13 @@ class BatchLane:
     # --- shutdown -------------------------------------------------------------------------
 
     def stop(self) -> None:
-        """Refuse new batches and end both threads (the batches in progress stay, for
-        :meth:`drain`)."""
+        """Refuse new batches, end the subscription loop and both threads (the batches in
+        progress stay, for :meth:`drain`)."""
         with self._lock:
             self._stopping = True
             self._startable.notify_all()
             self._started.notify_all()
+        self._loop.stop()
         for thread in self._threads:
             thread.join()
 

@@ -183,6 +183,21 @@ def test_chunks_are_balanced_over_the_workers(total, workers, expected):
     assert chunk_size(total, workers, 4096) == expected
 
 
+def test_a_request_is_spread_over_the_workers_only_when_no_chunks_wait(grasps, make_pool):
+    request, _ = grasps
+    small = request.slice(0, 400)  # 2,400 contacts: two chunks on an idle pool
+    pool, _ = make_pool(workers=2, chunk_contacts=4096)
+    assert pool.start(small, Settings()).chunks == 2
+    # Behind queued chunks (a client's large batch comes in parts) it stays whole.
+    ahead = [pool.start(request, Settings()) for _ in range(4)]  # 8 chunks of 600 grasps
+    behind = pool.start(small, Settings())
+    assert behind.chunks == 1
+    verdicts, _ = behind.result()
+    np.testing.assert_array_equal(verdicts.status, evaluate(small, Settings())[0].status)
+    for decision in ahead:
+        decision.result()
+
+
 # --- a worker that dies ------------------------------------------------------------------
 
 @pytest.mark.parametrize("how", ["start", "decide"])

@@ -16,6 +16,7 @@ from grasp_fc_ros.core import Status, check_force_closure
 from grasp_fc_ros.interface import wire
 from grasp_fc_ros.interface.conversions import grasp_to_contact_array, grasps_to_batch_msg
 from grasp_fc_ros.interface.names import QUERY_QOS, reply_topic
+from grasp_fc_ros.node.batches import BATCHES_IN_PROGRESS
 from grasp_fc_ros.node.lane import SHUTDOWN_MESSAGE
 from grasp_fc_ros.objects import make_object, sample_grasps
 from ros_fixtures import REPLY_TIMEOUT_S
@@ -143,25 +144,28 @@ def test_batches_in_progress_and_queued_are_answered_in_order_at_shutdown(own_no
                               np.tile(normals, (20, 1, 1)))  # seconds on one worker
     mispacked = grasps_to_batch_msg([0, 1], positions[:2], normals[:2])
     mispacked.contact_counts = [6, 5]  # refused at conversion, while big is decided
-    queued = grasps_to_batch_msg([0, 1, 2], positions[:3], normals[:3])
-    for request_id, msg in enumerate((big, mispacked, queued), start=1):
+    # Small batches (decided at once) fill the other places in progress behind big.
+    small = [grasps_to_batch_msg([0, 1, 2], positions[:3], normals[:3])
+             for _ in range(BATCHES_IN_PROGRESS - 1)]  # the last one stays queued
+    msgs = [big, mispacked, *small]
+    for request_id, msg in enumerate(msgs, start=1):
         msg.request_id = request_id
         client.batch_pub.publish(msg)
     deadline = time.monotonic() + LOAD_TIMEOUT_S
-    while not (node.batches.in_progress == 2 and node.batches.queued == 1):
+    while not (node.batches.in_progress == BATCHES_IN_PROGRESS and node.batches.queued == 1):
         assert time.monotonic() < deadline, "the batches never got in place"
         time.sleep(0.01)
     spinner.stop()
-    answers = client.wait_for("batches", 3)
-    assert [a.request_id for a in answers] == [1, 2, 3]
+    answers = client.wait_for("batches", len(msgs))
+    assert [a.request_id for a in answers] == list(range(1, len(msgs) + 1))
     # The mis-packed batch keeps the answer it got; the others say why they got none.
     assert set(answers[1].status) == {Status.INVALID_INPUT}
     assert answers[1].messages[0].startswith("malformed batch")
-    for answer in (answers[0], answers[2]):
+    for answer in (answers[0], *answers[2:]):
         assert set(answer.status) == {Status.SOLVER_FAILURE}
         assert set(answer.messages) == {SHUTDOWN_MESSAGE}
     time.sleep(0.5)
-    assert len(client.wait_for("batches", 3)) == 3, "a batch got two answers"
+    assert len(client.wait_for("batches", len(msgs))) == len(msgs), "a batch got two answers"
 
 
 def test_malformed_message_flood_is_answered_and_harmless(own_node, grasps):
