@@ -62,7 +62,10 @@ CONNECT_TIMEOUT_S = 30.0
 REPLY_TIMEOUT_S = 600.0
 # The issue's targets (benchmarks print them; tests never assert speed).
 TARGET_SINGLE_PER_S = 8000
-TARGET_BATCH_RATIO = 1.6
+# Batches: within 10% of the ceiling measured in the same run (the core alone in one
+# process per core at once), as issue 22 states it; a fixed ratio meant little on a
+# machine whose second core comes and goes with other work.
+TARGET_OF_CEILING = 0.9
 TARGET_SERVICE_P50_MS = 1.0
 TARGET_SERVICE_BUSY_P99_MS = 50.0
 BATCHES_IN_FLIGHT = 2
@@ -382,13 +385,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         core_cpu /= args.rounds
         batch_cpu = {part: seconds / args.rounds for part, seconds in batch_cpu.items()}
         ratio = float(np.median(ratios))
+        target = TARGET_OF_CEILING * float(np.median(ceilings))
         print(f"batches of {args.batch_size}: median of {args.rounds} rounds "
               f"{ratio:.2f}x the core alone in one process (rounds: "
               + ", ".join(f"{r:.0f}/{c:.0f} grasps/s = {r / c:.2f}x"
                           for r, c in zip(ros_rates, core_rates, strict=True))
               + f"){'' if complete else ' (INCOMPLETE replies)'}  "
-              f"[target >= {TARGET_BATCH_RATIO}x: "
-              f"{verdict(complete and ratio >= TARGET_BATCH_RATIO)}]")
+              f"[target >= {TARGET_OF_CEILING} x the ceiling below = {target:.2f}x: "
+              f"{verdict(complete and ratio >= target)}]")
         print(f"    the core alone in {n_cpus} processes at once (no ROS, no node): median "
               f"{np.median(ceilings):.2f}x one process (rounds: "
               + ", ".join(f"{c:.2f}x" for c in ceilings)
