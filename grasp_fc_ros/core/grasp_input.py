@@ -157,8 +157,16 @@ def unit_vectors(vectors: np.ndarray) -> np.ndarray:
     [1, sqrt(3)], so the norm neither overflows (lengths >= ~1e154) nor underflows
     (lengths <= ~1e-154); the result is a unit vector to a few ulps.
     """
-    scaled = vectors / _largest_component(vectors)[..., None]
-    return scaled / np.sqrt((scaled * scaled).sum(axis=-1))[..., None]
+    # Component by component: a division of (..., 3) by a broadcast (..., 1) runs numpy's
+    # inner loop over three elements at a time, and the reduction over the last axis
+    # likewise, which made this several times slower on a batch (tuned:
+    # docs/performance.md#exact-stage). The same divisions, and the sum in the order of
+    # numpy's reduction ((x0^2 + x1^2) + x2^2): results bit for bit those of the
+    # broadcast form.
+    largest = _largest_component(vectors)
+    x0, x1, x2 = (vectors[..., k] / largest for k in range(3))
+    length = np.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
+    return np.stack((x0 / length, x1 / length, x2 / length), axis=-1)
 
 
 def _first_per_grasp(bad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

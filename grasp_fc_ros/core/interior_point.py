@@ -211,15 +211,18 @@ def _bound(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, w: np.ndarray,
     torque_norm = np.sqrt(w[3] ** 2 + w[4] ** 2 + w[5] ** 2)
     error = ROUNDING_SLACK * _EPS * (force_norm + 2.0 * torque_norm)
     level = -np.inf
-    largest = 0.0
+    largest_square = 0.0
     mu_max = 0.0
     for i in range(n):
         a0, a1, a2 = work_at(w, row(unit, i))
         a_n, a_t = normal_split((a0, a1, a2), row(normals, i))
         normal_work[i] = a_n
         level = max(level, a_n + mu[i] * a_t)
-        largest = max(largest, np.sqrt(a0 * a0 + a1 * a1 + a2 * a2))
+        largest_square = max(largest_square, a0 * a0 + a1 * a1 + a2 * a2)
         mu_max = max(mu_max, mu[i])
+    # One root for max_j |a_j|: a correctly rounded root is monotone, so this is the
+    # largest of the n roots exactly.
+    largest = np.sqrt(largest_square)
     raw_level = level
     level += (1.0 + mu_max) * error
     spread = 0.0
