@@ -157,16 +157,27 @@ def unit_vectors(vectors: np.ndarray) -> np.ndarray:
     [1, sqrt(3)], so the norm neither overflows (lengths >= ~1e154) nor underflows
     (lengths <= ~1e-154); the result is a unit vector to a few ulps.
     """
-    # Component by component: a division of (..., 3) by a broadcast (..., 1) runs numpy's
-    # inner loop over three elements at a time, and the reduction over the last axis
-    # likewise, which made this several times slower on a batch (tuned:
+    # Component by component, into one output array: a division of (..., 3) by a
+    # broadcast (..., 1) runs numpy's inner loop over three elements at a time, the
+    # reduction over the last axis likewise, and each fresh temporary of a batch costs
+    # page faults; this made the normalisation several times slower on a batch (tuned:
     # docs/performance.md#exact-stage). The same divisions, and the sum in the order of
-    # numpy's reduction ((x0^2 + x1^2) + x2^2): results bit for bit those of the
-    # broadcast form.
-    largest = _largest_component(vectors)
-    x0, x1, x2 = (vectors[..., k] / largest for k in range(3))
-    length = np.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
-    return np.stack((x0 / length, x1 / length, x2 / length), axis=-1)
+    # numpy's reduction ((x0^2 + x1^2) + x2^2): results bit for bit those of
+    # ``scaled / |scaled|`` with ``scaled = vectors / largest[..., None]``.
+    out = np.abs(vectors)
+    largest = np.maximum(out[..., 0], out[..., 1], out=np.empty(vectors.shape[:-1]))
+    np.maximum(largest, out[..., 2], out=largest)              # _largest_component
+    for k in range(3):
+        np.divide(vectors[..., k], largest, out=out[..., k])
+    length = np.multiply(out[..., 0], out[..., 0], out=largest)
+    square = np.multiply(out[..., 1], out[..., 1], out=np.empty(vectors.shape[:-1]))
+    length += square
+    np.multiply(out[..., 2], out[..., 2], out=square)
+    length += square
+    np.sqrt(length, out=length)
+    for k in range(3):
+        np.divide(out[..., k], length, out=out[..., k])
+    return out
 
 
 def _first_per_grasp(bad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -261,7 +272,10 @@ def _all_valid(p: np.ndarray, nrm: np.ndarray, m: np.ndarray) -> bool:
     """
     with np.errstate(invalid="ignore"):
         return bool(p.shape[1] >= MIN_CONTACTS
-                    and (np.abs(p) <= MAX_ABS_COORDINATE).all()
+                    # |p| <= MAX everywhere, without a temporary of the batch's size
+                    # (NaN propagates through max and min and fails the comparison)
+                    and (p.size == 0 or (p.max() <= MAX_ABS_COORDINATE
+                                         and p.min() >= -MAX_ABS_COORDINATE))
                     and np.isfinite(nrm).all()
                     and (_largest_component(nrm) >= MIN_NORMAL_COMPONENT).all()
                     and ((m > 0) & (m <= MAX_FRICTION_COEFFICIENT)).all())
