@@ -14,7 +14,7 @@ from typing import TypeAlias
 
 import numpy as np
 
-from .jit import jit, jit_fused
+from .jit import jit
 
 #: The six reciprocals of a 6 x 6 triangular factor's diagonal.
 Diagonal6: TypeAlias = tuple[float, float, float, float, float, float]
@@ -122,14 +122,16 @@ def substitute(factor: np.ndarray, inverse: Diagonal6, rhs: np.ndarray, x: np.nd
         x[r] = acc * inverse[r]
 
 
-@jit_fused
+@jit
 def ldl(matrix: np.ndarray, factor: np.ndarray) -> bool:
     """L D L^T of a symmetric positive definite 6 x 6 matrix, for Newton systems.
 
     Each column costs one division and no root, where :func:`cholesky`'s costs a root
     and then a division: the columns form one chain of dependent operations, which this
-    shortens (tuned: docs/performance.md#exact-stage). For the interior-point steps only
-    (fused operations); certificates use :func:`cholesky`.
+    shortens (tuned: docs/performance.md#exact-stage). For the Newton systems only;
+    certificates use :func:`cholesky`. Unfused like the rest of this module: compiled with
+    fused multiply-adds, the one-grasp path and the batch path once disagreed in the last
+    bits of a margin bound in a test run (they must agree bit for bit).
 
     Parameters
     ----------
@@ -161,7 +163,7 @@ def ldl(matrix: np.ndarray, factor: np.ndarray) -> bool:
     return True
 
 
-@jit_fused
+@jit
 def ldl_substitute(factor: np.ndarray, rhs: np.ndarray, x: np.ndarray) -> None:
     """Solve (L D L^T) x = rhs with the factor of :func:`ldl`.
 
