@@ -30,6 +30,13 @@ from .tolerances import MAX_ABS_COORDINATE, MAX_FRICTION_COEFFICIENT, MIN_NORMAL
 
 MIN_CONTACTS = 2
 
+#: From this many vectors on, :func:`unit_vectors` and :func:`_largest_component` work
+#: component by component into preallocated arrays (fewer and smaller temporaries, no
+#: inner loops over three elements); below it their broadcast forms, which make fewer
+#: numpy calls, are the faster. The same results either way (tuned:
+#: docs/performance.md#exact-stage).
+COMPONENTWISE_MIN_VECTORS = 512
+
 
 @dataclass(frozen=True)
 class GraspBatch:
@@ -144,21 +151,53 @@ def _largest_component(vectors: np.ndarray) -> np.ndarray:
 
     Two elementwise maxima (exact, and propagating NaN as ``max`` does): numpy's reduction
     over a last axis of length 3 is several times slower, in every validation and
-    normalisation of the normals (tuned: docs/performance.md#one-grasp).
+    normalisation of the normals (tuned: docs/performance.md#one-grasp). From
+    ``COMPONENTWISE_MIN_VECTORS`` vectors on, into two arrays of shape (...), without a
+    temporary |vectors|.
     """
-    size = np.abs(vectors)
-    return np.maximum(np.maximum(size[..., 0], size[..., 1]), size[..., 2])
+    if vectors.size < 3 * COMPONENTWISE_MIN_VECTORS:
+        whole = np.abs(vectors)
+        return np.maximum(np.maximum(whole[..., 0], whole[..., 1]), whole[..., 2])
+    size = np.abs(vectors[..., 0], out=np.empty(vectors.shape[:-1]))
+    other = np.abs(vectors[..., 1], out=np.empty(vectors.shape[:-1]))
+    np.maximum(size, other, out=size)
+    np.abs(vectors[..., 2], out=other)
+    return np.maximum(size, other, out=size)
 
 
-def unit_vectors(vectors: np.ndarray) -> np.ndarray:
+def unit_vectors(vectors: np.ndarray, largest: np.ndarray | None = None) -> np.ndarray:
     """Directions of vectors (..., 3) whose largest |component| is a normal float.
 
     Dividing by the largest |component| first brings every vector to a length in
     [1, sqrt(3)], so the norm neither overflows (lengths >= ~1e154) nor underflows
-    (lengths <= ~1e-154); the result is a unit vector to a few ulps.
+    (lengths <= ~1e-154); the result is a unit vector to a few ulps. ``largest``: that
+    component, shape (...), where the caller has it already.
     """
-    scaled = vectors / _largest_component(vectors)[..., None]
-    return scaled / np.sqrt((scaled * scaled).sum(axis=-1))[..., None]
+    # From COMPONENTWISE_MIN_VECTORS vectors on, component by component into one output
+    # array: a division of (..., 3) by a
+    # broadcast (..., 1) runs numpy's inner loop over three elements at a time, the
+    # reduction over the last axis likewise, and each fresh temporary of a batch costs
+    # page faults; this made the normalisation several times slower on a batch (tuned:
+    # docs/performance.md#exact-stage). The same divisions, and the sum in the order of
+    # numpy's reduction ((x0^2 + x1^2) + x2^2): results bit for bit those of
+    # ``scaled / |scaled|`` with ``scaled = vectors / largest[..., None]``.
+    if largest is None:
+        largest = _largest_component(vectors)
+    if vectors.size < 3 * COMPONENTWISE_MIN_VECTORS:
+        scaled = vectors / largest[..., None]
+        return scaled / np.sqrt((scaled * scaled).sum(axis=-1))[..., None]
+    out = np.empty(vectors.shape)
+    for k in range(3):
+        np.divide(vectors[..., k], largest, out=out[..., k])
+    length = np.multiply(out[..., 0], out[..., 0], out=np.empty(vectors.shape[:-1]))
+    square = np.multiply(out[..., 1], out[..., 1], out=np.empty(vectors.shape[:-1]))
+    length += square
+    np.multiply(out[..., 2], out[..., 2], out=square)
+    length += square
+    np.sqrt(length, out=length)
+    for k in range(3):
+        np.divide(out[..., k], length, out=out[..., k])
+    return out
 
 
 def _first_per_grasp(bad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -192,7 +231,8 @@ def validate_grasps(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.Ar
     """
     p, nrm, m, single = _as_batch_arrays(positions, normals, mu)
     gamma = _torsional(torsional_friction, single, m.shape)
-    if _all_valid(p, nrm, m) and (gamma is None or torsional_all_valid(gamma)):
+    if _all_valid(p, nrm, m, _largest_component(nrm)) and (gamma is None
+                                                           or torsional_all_valid(gamma)):
         # the common case, without the per-check bookkeeping
         return GraspValidation(np.ones(p.shape[0], dtype=bool), [""] * p.shape[0])
     return _validate(p, nrm, m, gamma)
@@ -244,8 +284,9 @@ def show_value(value: np.ndarray | float) -> str:
     return "(" + ", ".join(f"{float(v):.6g}" for v in np.ravel(value)) + ")"
 
 
-def _all_valid(p: np.ndarray, nrm: np.ndarray, m: np.ndarray) -> bool:
-    """True iff :func:`_validate` finds no problem, in a few whole-array reductions.
+def _all_valid(p: np.ndarray, nrm: np.ndarray, m: np.ndarray, normal_size: np.ndarray) -> bool:
+    """True iff :func:`_validate` finds no problem, in a few whole-array reductions
+    (``normal_size``: :func:`_largest_component` of ``nrm``).
 
     The common case of good input then skips the per-check, per-grasp bookkeeping,
     which dominates the cost of a call with one grasp. NaN fails every comparison and
@@ -253,9 +294,12 @@ def _all_valid(p: np.ndarray, nrm: np.ndarray, m: np.ndarray) -> bool:
     """
     with np.errstate(invalid="ignore"):
         return bool(p.shape[1] >= MIN_CONTACTS
-                    and (np.abs(p) <= MAX_ABS_COORDINATE).all()
+                    # |p| <= MAX everywhere, without a temporary of the batch's size
+                    # (NaN propagates through max and min and fails the comparison)
+                    and (p.size == 0 or (p.max() <= MAX_ABS_COORDINATE
+                                         and p.min() >= -MAX_ABS_COORDINATE))
                     and np.isfinite(nrm).all()
-                    and (_largest_component(nrm) >= MIN_NORMAL_COMPONENT).all()
+                    and (normal_size >= MIN_NORMAL_COMPONENT).all()
                     and ((m > 0) & (m <= MAX_FRICTION_COEFFICIENT)).all())
 
 
@@ -284,11 +328,13 @@ def prepare_grasps(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.Arr
     """
     p, nrm, m, single = _as_batch_arrays(positions, normals, mu)
     gamma = _torsional(torsional_friction, single, m.shape)
-    good = _all_valid(p, nrm, m) and (gamma is None or torsional_all_valid(gamma))
+    normal_size = _largest_component(nrm)
+    good = _all_valid(p, nrm, m, normal_size) and (gamma is None
+                                                   or torsional_all_valid(gamma))
     validation = None if good else _validate(p, nrm, m, gamma)
     if validation is not None and not validation.valid.all():
         bad = [r for r in validation.reasons if r]
         more = f" (and {len(bad) - 3} more)" if len(bad) > 3 else ""
         raise ValueError("invalid grasp input: " + "; ".join(bad[:3]) + more)
-    return GraspBatch(p, unit_vectors(nrm), np.ascontiguousarray(m), single,
+    return GraspBatch(p, unit_vectors(nrm, normal_size), np.ascontiguousarray(m), single,
                       None if gamma is None else torsional_or_none(gamma))

@@ -61,7 +61,13 @@ from ._kernels.cones import (
 from ._kernels.frames import normal_split, tangent_frames, work_at, wrench_rows
 from ._kernels.grasp_map import apply_grasp_map, certified_rank, normalise_grasp
 from ._kernels.jit import Vector3, jit, jit_fused, kernel_array, row
-from ._kernels.linear_algebra import Diagonal6, cholesky, diagonal_reciprocals, substitute
+from ._kernels.linear_algebra import (
+    Diagonal6,
+    diagonal_reciprocals,
+    ldl,
+    ldl_substitute,
+    substitute,
+)
 from .tolerances import (
     MARGIN_ACCURACY,
     MARGIN_TOL,
@@ -211,15 +217,18 @@ def _bound(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, w: np.ndarray,
     torque_norm = np.sqrt(w[3] ** 2 + w[4] ** 2 + w[5] ** 2)
     error = ROUNDING_SLACK * _EPS * (force_norm + 2.0 * torque_norm)
     level = -np.inf
-    largest = 0.0
+    largest_square = 0.0
     mu_max = 0.0
     for i in range(n):
         a0, a1, a2 = work_at(w, row(unit, i))
         a_n, a_t = normal_split((a0, a1, a2), row(normals, i))
         normal_work[i] = a_n
         level = max(level, a_n + mu[i] * a_t)
-        largest = max(largest, np.sqrt(a0 * a0 + a1 * a1 + a2 * a2))
+        largest_square = max(largest_square, a0 * a0 + a1 * a1 + a2 * a2)
         mu_max = max(mu_max, mu[i])
+    # One root for max_j |a_j|: a correctly rounded root is monotone, so this is the
+    # largest of the n roots exactly.
+    largest = np.sqrt(largest_square)
     raw_level = level
     level += (1.0 + mu_max) * error
     spread = 0.0
@@ -466,10 +475,9 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
                 for c in range(r + 1):
                     hessian[r, c] += weight * (2.0 * g_i[r] * g_i[c] + a_gram[i, r, c])
             gap += z[i, 0] * s[i, 0] + z[i, 1] * s[i, 1] + z[i, 2] * s[i, 2]
-        if not cholesky(hessian, factor):          # (it reads the lower triangle only)
+        if not ldl(hessian, factor):               # (it reads the lower triangle only)
             last = True
             continue
-        inverse = diagonal_reciprocals(factor)
         # Predictor (affine) direction: lam o (W dz + W^-1 ds) = -lam o lam gives
         # W dz + W^-1 ds = -lam, W^-1 (-lam) = -z, and the right-hand side -r_p + sum_i
         # A_i z_i is -d exactly (r_p = sum_i A_i z_i + d): no residual, no Jordan division.
@@ -479,7 +487,7 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
         # eta^2, which give the same steps without the root eta (nt_unit_scaling).
         for r in range(6):
             rhs[r] = -d[r]
-        substitute(factor, inverse, rhs, dw, scratch)
+        ldl_substitute(factor, rhs, dw)
         # (Only steps up to 1 are used below: the search stops there.)
         alpha_dual = alpha_primal = 1.0
         step = _vector6(dw)
@@ -548,7 +556,7 @@ def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_opt
             pushed = _block_times(a_mat, i, row(winv_q, i))
             for r in range(6):
                 rhs[r] -= pushed[r]
-        substitute(factor, inverse, rhs, dw, scratch)
+        ldl_substitute(factor, rhs, dw)
         # The step to the nearest cone boundary, searched only up to where STEP_FRACTION
         # of it is a full step.
         alpha = FULL_REACH

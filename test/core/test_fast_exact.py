@@ -351,3 +351,20 @@ def test_read_only_input_compiles_nothing_after_warm_up():
     minimum_friction(positions, normals, mu)
     optimal_contact_forces(positions[0], normals[0], mu[0], np.array([0, 0, -1.0, 0, 0, 0]))
     assert _compiled_signatures() == before
+
+
+def test_the_newton_systems_ldl_factor_solves_and_refuses_an_indefinite_matrix():
+    from grasp_fc_ros.core._kernels.linear_algebra import ldl, ldl_substitute
+
+    rng = np.random.default_rng(5)
+    factor, x = np.empty((6, 6)), np.empty(6)
+    for _ in range(50):
+        half = rng.standard_normal((6, 6))
+        matrix = half @ half.T + 1e-3 * np.eye(6)
+        rhs = rng.standard_normal(6)
+        lower = np.tril(matrix) + np.triu(np.full((6, 6), np.nan), 1)    # reads the lower only
+        assert ldl(lower, factor)
+        ldl_substitute(factor, rhs, x)
+        np.testing.assert_allclose(matrix @ x, rhs, atol=1e-9 * np.linalg.cond(matrix))
+    indefinite = np.diag([1.0, 2.0, -1.0, 1.0, 1.0, 1.0])
+    assert not ldl(indefinite, factor)

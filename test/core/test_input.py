@@ -202,7 +202,7 @@ def test_complex_and_non_numeric_input_is_refused_naming_the_argument(argument):
 def test_quick_all_valid_check_agrees_with_the_per_grasp_validation(seed):
     """prepare_grasps skips the per-grasp validation when a few whole-array checks pass:
     those must pass exactly when the per-grasp validation finds nothing."""
-    from grasp_fc_ros.core.grasp_input import _all_valid, _validate
+    from grasp_fc_ros.core.grasp_input import _all_valid, _largest_component, _validate
     from grasp_fc_ros.core.tolerances import (
         MAX_ABS_COORDINATE,
         MAX_FRICTION_COEFFICIENT,
@@ -229,7 +229,8 @@ def test_quick_all_valid_check_agrees_with_the_per_grasp_validation(seed):
                 value * np.array([1.0, -1.0, 0.5]))
         else:
             positions[g, c, rng.integers(3)] = value
-    assert _all_valid(positions, normals, mu) == _validate(positions, normals, mu).valid.all()
+    quick = _all_valid(positions, normals, mu, _largest_component(normals))
+    assert quick == _validate(positions, normals, mu).valid.all()
 
 
 @settings(max_examples=60, deadline=None)
@@ -249,3 +250,16 @@ def test_validate_grasps_shortcut_reports_as_the_full_check(n_grasps, n_contacts
     fast, full = validate_grasps(p, nrm, m), _validate(p, nrm, m)
     np.testing.assert_array_equal(fast.valid, full.valid)
     assert fast.reasons == full.reasons
+
+
+def test_unit_vectors_of_a_large_batch_equal_those_of_its_small_pieces():
+    """unit_vectors works component by component from COMPONENTWISE_MIN_VECTORS vectors
+    on and in its broadcast form below: bit for bit the same directions."""
+    from grasp_fc_ros.core.grasp_input import COMPONENTWISE_MIN_VECTORS, unit_vectors
+    rng = np.random.default_rng(11)
+    vectors = rng.normal(size=(3 * COMPONENTWISE_MIN_VECTORS, 3)) * 10.0 ** rng.integers(
+        -300, 300, size=(3 * COMPONENTWISE_MIN_VECTORS, 1))
+    vectors[::7, 1] = 0.0
+    pieces = np.concatenate([unit_vectors(piece) for piece in np.split(vectors, 12)])
+    assert np.array_equal(unit_vectors(vectors), pieces)
+    np.testing.assert_allclose(np.linalg.norm(pieces, axis=1), 1.0, rtol=1e-15)

@@ -1,4 +1,4 @@
-"""The 6 x 6 Cholesky factor, its solves and the norm of its inverse (numba).
+"""The 6 x 6 Cholesky and L D L^T factors, their solves and the norm of an inverse (numba).
 
 Every loop runs over the literal size 6, which lets the compiler unroll it (faster than
 loops over ``shape[0]``), and each divides by a diagonal entry once, multiplying by its
@@ -120,6 +120,73 @@ def substitute(factor: np.ndarray, inverse: Diagonal6, rhs: np.ndarray, x: np.nd
         for c in range(r + 1, 6):
             acc -= factor[c, r] * x[c]
         x[r] = acc * inverse[r]
+
+
+@jit
+def ldl(matrix: np.ndarray, factor: np.ndarray) -> bool:
+    """L D L^T of a symmetric positive definite 6 x 6 matrix, for Newton systems.
+
+    Each column costs one division and no root, where :func:`cholesky`'s costs a root
+    and then a division: the columns form one chain of dependent operations, which this
+    shortens (tuned: docs/performance.md#exact-stage). For the Newton systems only;
+    certificates use :func:`cholesky`. Unfused like the rest of this module: compiled with
+    fused multiply-adds, the one-grasp path and the batch path once disagreed in the last
+    bits of a margin bound in a test run (they must agree bit for bit).
+
+    Parameters
+    ----------
+    matrix : ndarray, shape (6, 6)
+        Only its lower triangle is read.
+    factor : ndarray, shape (6, 6)
+        Output: L's strict lower triangle (unit diagonal implied), 1/D on the diagonal,
+        and L D (scratch) above it, transposed.
+
+    Returns
+    -------
+    bool
+        False on a pivot that is not positive (``factor`` is then incomplete).
+    """
+    for c in range(6):
+        acc = matrix[c, c]
+        for k in range(c):
+            acc -= factor[c, k] * factor[k, c]
+        if not acc > 0.0:
+            return False
+        inverse = 1.0 / acc
+        factor[c, c] = inverse
+        for r in range(c + 1, 6):
+            acc = matrix[r, c]
+            for k in range(c):
+                acc -= factor[r, k] * factor[k, c]
+            factor[c, r] = acc                         # (L D)[r, c]
+            factor[r, c] = acc * inverse
+    return True
+
+
+@jit
+def ldl_substitute(factor: np.ndarray, rhs: np.ndarray, x: np.ndarray) -> None:
+    """Solve (L D L^T) x = rhs with the factor of :func:`ldl`.
+
+    Parameters
+    ----------
+    factor : ndarray, shape (6, 6)
+        From :func:`ldl`.
+    rhs : ndarray, shape (6,)
+    x : ndarray, shape (6,)
+        Output; may be ``rhs`` itself.
+    """
+    for r in range(6):
+        acc = rhs[r]
+        for c in range(r):
+            acc -= factor[r, c] * x[c]
+        x[r] = acc
+    for r in range(6):
+        x[r] *= factor[r, r]
+    for r in range(5, -1, -1):
+        acc = x[r]
+        for c in range(r + 1, 6):
+            acc -= factor[c, r] * x[c]
+        x[r] = acc
 
 
 @jit
