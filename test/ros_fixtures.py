@@ -144,22 +144,31 @@ class Client:
         assert ok, f"received {len(items)} of {count} {attribute} within {timeout} s"
         return items
 
-    def request_batch(self, msg: ContactArrayBatch, timeout=REPLY_TIMEOUT_S):
-        """Publish a batch and return the ForceClosureVerdictArray answering it.
-
-        The reply is recognised by a unique request_id (the node copies it), so a
-        stray earlier reply cannot be mistaken for it.
-        """
+    def publish_batch(self, msg: ContactArrayBatch) -> int:
+        """Publish a batch under a request_id of its own (set in ``msg``); that id, for
+        :meth:`batch_reply`."""
         self._sent += 1
         msg.request_id = self._sent
         self.batch_pub.publish(msg)
+        return msg.request_id
+
+    def batch_reply(self, request_id: int, timeout=REPLY_TIMEOUT_S):
+        """The one ForceClosureVerdictArray answering the batch sent as ``request_id``.
+
+        Recognised by its request_id (the node copies it), so that a stray earlier reply
+        (this client may be shared by a module's tests) cannot be mistaken for it.
+        """
         with self._lock:
             ok = self._lock.wait_for(
-                lambda: any(b.request_id == msg.request_id for b in self.batches), timeout)
-            replies = [b for b in self.batches if b.request_id == msg.request_id]
-        assert ok, f"no reply to batch {msg.request_id} within {timeout} s"
+                lambda: any(b.request_id == request_id for b in self.batches), timeout)
+            replies = [b for b in self.batches if b.request_id == request_id]
+        assert ok, f"no reply to batch {request_id} within {timeout} s"
         assert len(replies) == 1, f"{len(replies)} replies to one batch"
         return replies[0]
+
+    def request_batch(self, msg: ContactArrayBatch, timeout=REPLY_TIMEOUT_S):
+        """Publish a batch and return the ForceClosureVerdictArray answering it."""
+        return self.batch_reply(self.publish_batch(msg), timeout)
 
     def diagnostics_after(self, t: float, node_name: str = "/force_closure",
                           timeout=REPLY_TIMEOUT_S) -> dict[str, str]:

@@ -180,21 +180,24 @@ def test_start_logs_settings_and_warns_about_unknown_parameters(tmp_path):
         assert_clean_exit(process, signal.SIGTERM)
 
 
-# One worker: a full batch of max_batch (100,000) grasps then takes seconds, so that a
-# signal lands while it is decided.
+# One worker: a large batch then keeps the node busy long enough that a signal lands
+# while it is decided.
 ONE_WORKER = ["--ros-args", "-p", "workers:=1"]
 
 
 def test_sigterm_during_a_large_batch_exits_within_a_second(client, grasps):
-    # One message of 600,000 contacts: beyond the default max_message_contacts.
-    process = NodeProcess(node_command() + ONE_WORKER + ["-p", "max_message_contacts:=0"])
+    # One message of 600,000 contacts: beyond the default max_message_contacts. With
+    # epsilon, its 100,000 grasps are about a minute of work on one worker (the verdicts
+    # alone now take under a second, which the signal could miss).
+    process = NodeProcess(node_command() + ONE_WORKER + ["-p", "max_message_contacts:=0",
+                                                         "-p", "compute_epsilon:=true"])
     try:
         client.wait_connected()
         positions, normals = grasps
-        big = 1000  # 100,000 grasps: seconds of work on one worker
+        big = 1000
         msg = grasps_to_batch_msg(np.arange(big * len(positions)), np.tile(positions, (big, 1, 1)),
                                   np.tile(normals, (big, 1, 1)))
-        client.batch_pub.publish(msg)
+        request_id = client.publish_batch(msg)
         wait_for_log(process, "ready")
         deadline = time.monotonic() + 60.0
         while int(client.diagnostics_after(time.time())["received"]) < len(msg.ids):
@@ -209,7 +212,7 @@ def test_sigterm_during_a_large_batch_exits_within_a_second(client, grasps):
     assert elapsed < 1.5, f"exit took {elapsed:.2f} s"  # 1 s, plus slack for a loaded machine
     # The node handles SIGTERM itself, so the context is still up while it stops: the
     # abandoned batch is answered (SOLVER_FAILURE, shutting down), not left silent.
-    [reply] = [b for b in client.wait_for("batches", 1) if b.request_id == msg.request_id]
+    reply = client.batch_reply(request_id)
     got = verdict_array_to_numpy(reply)
     np.testing.assert_array_equal(got.ids, np.arange(len(msg.ids)))
     assert (got.status == Status.SOLVER_FAILURE).all()
@@ -252,7 +255,7 @@ def test_client_resubmits_after_the_node_is_killed_and_restarted(ros, grasps):
     client = GraspClient(f"{namespace}/force_closure")
     try:
         assert client.wait_for_node(30.0)
-        big = 1000  # 100,000 grasps: seconds of work, so the kill lands mid-batch
+        big = 1000  # 100,000 grasps in ~100 parts, so the kill lands mid-batch
         batch = client.submit_batch(np.tile(positions, (big, 1, 1)), np.tile(normals, (big, 1, 1)))
         # The batch goes in parts (MAX_MESSAGE_CONTACTS): kill once the node has some.
         deadline = time.monotonic() + 60.0

@@ -9,8 +9,6 @@ verdicts; bytes that are no batch are logged and dropped.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 from rclpy.serialization import serialize_message
@@ -111,18 +109,6 @@ def test_invalid_query_on_the_serialized_path_names_its_id(own_node, grasps):
 # --- batches on the serialized path ---------------------------------------------------
 
 
-def wait_batch_reply(client, request_id, timeout=REPLY_TIMEOUT_S):
-    """The one ForceClosureVerdictArray answering ``request_id`` (after waiting for it)."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        replies = [b for b in client.wait_for("batches", 0) if b.request_id == request_id]
-        if replies:
-            assert len(replies) == 1, f"{len(replies)} replies to one batch"
-            return replies[0]
-        time.sleep(0.02)
-    raise AssertionError(f"no reply to batch {request_id} within {timeout} s")
-
-
 def mixed_batch(grasps):
     """batch_arrays arguments of the fixture's grasps with per-contact friction (some
     too low, some 0: the node's default) and an invalid grasp (4)."""
@@ -148,7 +134,7 @@ def test_a_batch_taken_serialized_keeps_its_header_ids_and_verdicts(own_node, gr
     msg.header.frame_id = "wrist_ü"
     msg.header.stamp.sec, msg.header.stamp.nanosec = -5, 999
     client.batch_pub.publish(msg)
-    reply = wait_batch_reply(client, 2**64 - 2)
+    reply = client.batch_reply(2**64 - 2)
     assert (reply.client_id, reply.header.frame_id, reply.header.stamp.sec,
             reply.header.stamp.nanosec) == (2**64 - 1, "wrist_ü", -5, 999)
     got = verdict_array_to_numpy(reply)
@@ -172,7 +158,7 @@ def test_a_big_endian_batch_is_read_by_rclpy_and_answered(own_node, grasps):
     ids = np.arange(len(positions), dtype=np.uint64) + 40
     client.batch_pub.publish(big_endian_batch(batch_arrays(ids, positions, normals),
                                               3, 77, "palm", (1, 2)))
-    reply = wait_batch_reply(client, 77)
+    reply = client.batch_reply(77)
     assert (reply.client_id, reply.header.frame_id) == (3, "palm")
     got = verdict_array_to_numpy(reply)
     np.testing.assert_array_equal(got.ids, ids)
