@@ -255,7 +255,9 @@ def test_client_resubmits_after_the_node_is_killed_and_restarted(ros, grasps):
     client = GraspClient(f"{namespace}/force_closure")
     try:
         assert client.wait_for_node(30.0)
-        big = 1000  # 100,000 grasps in ~100 parts, so the kill lands mid-batch
+        # 300,000 grasps in ~300 parts: seconds through the node, so the kill (after the
+        # next diagnostics, up to a period later) lands mid-batch.
+        big = 3000
         batch = client.submit_batch(np.tile(positions, (big, 1, 1)), np.tile(normals, (big, 1, 1)))
         # The batch goes in parts (MAX_MESSAGE_CONTACTS): kill once the node has some.
         deadline = time.monotonic() + 60.0
