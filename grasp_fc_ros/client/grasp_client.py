@@ -218,7 +218,7 @@ class GraspClient:
         (N, 6) and ``min_friction`` (N,): NaN where the node sent none (parameters
         ``certificates``, ``compute_min_friction`` off, or no certificate).
 
-        A call of more than MAX_MESSAGE_CONTACTS contacts goes as several requests of
+        A call of more than MAX_REQUEST_CONTACTS contacts goes as several requests of
         whole grasps, each sent once the one before was answered (the node serves other
         calls between them), and its verdicts are joined in order; ``timeout`` is for
         the whole call.
@@ -232,7 +232,7 @@ class GraspClient:
 
     def call_request(self, request: Any, timeout: float = DEFAULT_TIMEOUT_S) -> Verdicts:
         """Send a prepared CheckForceClosure request; its :class:`Verdicts` in order
-        (several requests beyond MAX_MESSAGE_CONTACTS contacts, as :meth:`call`)."""
+        (several requests beyond MAX_REQUEST_CONTACTS contacts, as :meth:`call`)."""
         return self._services.call_request(request, timeout)
 
     def compute_contact_forces(self, positions: ArrayLike, normals: ArrayLike,

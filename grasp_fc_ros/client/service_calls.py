@@ -5,7 +5,7 @@ call waits for its response in the caller's thread
 (:class:`~grasp_fc_ros.interface.wait_sets.ServiceCaller`), which answers a one-grasp
 call faster than an executor thread that also serves the topics and the action
 (docs/performance.md#service-latency). A call of more than
-:data:`~grasp_fc_ros.interface.names.MAX_MESSAGE_CONTACTS` contacts goes as several
+:data:`~grasp_fc_ros.interface.names.MAX_REQUEST_CONTACTS` contacts goes as several
 requests of whole grasps, one after the other, so that it stays under the node's
 ``max_message_contacts`` and other clients' calls are served between its requests.
 """
@@ -23,7 +23,7 @@ from grasp_fc_ros.interface.conversions import grasp_to_contact_array, verdict_m
 from grasp_fc_ros.interface.names import (
     CHECK_SERVICE,
     CONTACT_FORCES_SERVICE,
-    MAX_MESSAGE_CONTACTS,
+    MAX_REQUEST_CONTACTS,
     resolve,
 )
 from grasp_fc_ros.interface.wait_sets import ServiceCaller
@@ -68,16 +68,16 @@ class ServiceCalls:
     def call_request(self, request: Any, timeout: float) -> Verdicts:
         """Send a prepared CheckForceClosure request; its Verdicts in order.
 
-        A request of more than MAX_MESSAGE_CONTACTS contacts goes as several (see
+        A request of more than MAX_REQUEST_CONTACTS contacts goes as several (see
         :func:`request_parts`), within ``timeout`` for them all.
         """
         grasps = request.grasps
         counts = [len(grasp.contacts) for grasp in grasps]
-        if sum(counts) <= MAX_MESSAGE_CONTACTS:
+        if sum(counts) <= MAX_REQUEST_CONTACTS:
             replies = self._check.call(request, timeout).verdicts
         else:
             parts = [CheckForceClosure.Request(grasps=grasps[first:last])
-                     for first, last in request_parts(counts, MAX_MESSAGE_CONTACTS)]
+                     for first, last in request_parts(counts, MAX_REQUEST_CONTACTS)]
             replies = [verdict for response in self._check.call_each(parts, timeout)
                        for verdict in response.verdicts]
         return verdict_msgs_to_numpy(replies, counts)

@@ -111,7 +111,7 @@ def test_a_big_service_call_goes_as_several_requests_under_the_nodes_limit(own_n
     # The node refuses a request of more than 100 contacts; the client's bound, made
     # small, splits the call into requests of at most 40 (6 whole 6-contact grasps).
     _, _, raw = own_node("/service_parts_test", max_message_contacts=100)
-    monkeypatch.setattr(service_calls, "MAX_MESSAGE_CONTACTS", 40)
+    monkeypatch.setattr(service_calls, "MAX_REQUEST_CONTACTS", 40)
     positions, normals = sample_grasps(make_object("box"), 50, 6, np.random.default_rng(5))
     normals[17, 2] = 0.0  # invalid: its verdict must stay in its place
     mu = np.random.default_rng(6).uniform(0.2, 0.8, (50, 6))
@@ -147,7 +147,7 @@ SLOW_DECISION_S = 0.3
 
 def test_a_call_in_several_requests_has_one_timeout_for_them_all(own_node, monkeypatch):
     own_node("/service_timeout_test", pool=SlowPool(workers=0))
-    monkeypatch.setattr(service_calls, "MAX_MESSAGE_CONTACTS", 12)
+    monkeypatch.setattr(service_calls, "MAX_REQUEST_CONTACTS", 12)
     positions, normals = sample_grasps(make_object("box"), 16, 6, np.random.default_rng(7))
     client = GraspClient("/service_timeout_test/force_closure")
     try:
