@@ -15,7 +15,10 @@ while a batch of --grasps grasps of --contacts contacts each (100,000 x 12 by de
    "-p max_message_contacts:=0"`` has it decided);
 4. ``this``: from this process (the same GraspClient that makes the service calls, its
    batch sent from a second thread);
-5. ``this-goal``: the same as a label_grasps job from this process.
+5. ``this-goal``: the same as a label_grasps job from this process;
+6. ``call``: the same grasps as one ``GraspClient.call`` (the check_force_closure
+   service) from another process, which sends them as requests of at most
+   MAX_REQUEST_CONTACTS contacts.
 
 For each it prints the service round trips while the batch was on its way and being
 decided (p50, p99, max; targets p99 <= 50 ms, max <= 100 ms), the seconds from sending
@@ -23,7 +26,8 @@ the batch to its answer, and whether every grasp of it was answered (with how ma
 were refused, and why: the node refuses an oversized raw message).
 
 Usage: python benchmarks/bench_stall.py [--grasps N] [--contacts C] [--period S]
-       [--cases batch,goal,raw,this,this-goal] [--node-args "-p max_message_contacts:=0"] [--quick]
+       [--cases batch,goal,raw,this,this-goal,call]
+       [--node-args "-p max_message_contacts:=0"] [--quick]
        (--send NODE --how HOW is the child process's own form)
 """
 
@@ -115,8 +119,9 @@ Grasp = tuple[np.ndarray, np.ndarray]
 
 # What the child process sends, by case: the heading of its lines of results.
 SENT_AS = {"batch": "batch from another process", "goal": "goal from another process",
-           "raw": "raw batch from another process"}
-CASES = (*SENT_AS, "this", "this-goal")
+           "raw": "raw batch from another process",
+           "call": "service call from another process"}
+CASES = ("batch", "goal", "raw", "this", "this-goal", "call")
 
 
 def from_another_process(client: GraspClient, node_name: str, args: argparse.Namespace,
@@ -203,6 +208,8 @@ def send(node_name: str, how: str, n_grasps: int, n_contacts: int) -> int:
         if how == "goal":
             verdicts = client.label_grasps(positions, normals, progress=False,
                                            timeout=REPLY_TIMEOUT_S)
+        elif how == "call":
+            verdicts = client.call(positions, normals, timeout=REPLY_TIMEOUT_S)
         else:
             verdicts = client.check_batch(positions, normals, timeout=REPLY_TIMEOUT_S)
         print(f"{len(verdicts)} {time.perf_counter() - began:.3f} "

@@ -39,8 +39,8 @@ class Settings:
     max_batch : int
         Largest accepted number of grasps in one message.
     max_message_contacts : int
-        Largest accepted number of contacts in one batch message or label_grasps goal
-        (0: no limit); the node refuses a larger one whole.
+        Largest accepted number of contacts in one batch message, label_grasps goal or
+        check_force_closure request (0: no limit); the node refuses a larger one whole.
     certificates : bool
         Also return each verdict's certificate: contact forces of FORCE_CLOSURE grasps,
         separating wrenches of rejected ones (the core's ``certificates=True``).

@@ -218,15 +218,21 @@ class GraspClient:
         (N, 6) and ``min_friction`` (N,): NaN where the node sent none (parameters
         ``certificates``, ``compute_min_friction`` off, or no certificate).
 
+        A call of more than MAX_REQUEST_CONTACTS contacts goes as several requests of
+        whole grasps, each sent once the one before was answered (the node serves other
+        calls between them), and its verdicts are joined in order; ``timeout`` is for
+        the whole call.
+
         Raises
         ------
         TimeoutError
-            If no response came within ``timeout``.
+            If not every response came within ``timeout``; it names the service.
         """
         return self._services.call(positions, normals, friction_or_default(mu), ids, timeout)
 
     def call_request(self, request: Any, timeout: float = DEFAULT_TIMEOUT_S) -> Verdicts:
-        """Send a prepared CheckForceClosure request; its :class:`Verdicts` in order."""
+        """Send a prepared CheckForceClosure request; its :class:`Verdicts` in order
+        (several requests beyond MAX_REQUEST_CONTACTS contacts, as :meth:`call`)."""
         return self._services.call_request(request, timeout)
 
     def compute_contact_forces(self, positions: ArrayLike, normals: ArrayLike,

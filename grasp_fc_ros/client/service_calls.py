@@ -4,7 +4,10 @@ The service clients live on a small node of their own that no executor spins: ea
 call waits for its response in the caller's thread
 (:class:`~grasp_fc_ros.interface.wait_sets.ServiceCaller`), which answers a one-grasp
 call faster than an executor thread that also serves the topics and the action
-(docs/performance.md#service-latency).
+(docs/performance.md#service-latency). A call of more than
+:data:`~grasp_fc_ros.interface.names.MAX_REQUEST_CONTACTS` contacts goes as several
+requests of whole grasps, one after the other, so that it stays under the node's
+``max_message_contacts`` and other clients' calls are served between its requests.
 """
 
 from __future__ import annotations
@@ -17,7 +20,12 @@ from numpy.typing import ArrayLike
 from rclpy.node import Node
 
 from grasp_fc_ros.interface.conversions import grasp_to_contact_array, verdict_msgs_to_numpy
-from grasp_fc_ros.interface.names import CHECK_SERVICE, CONTACT_FORCES_SERVICE, resolve
+from grasp_fc_ros.interface.names import (
+    CHECK_SERVICE,
+    CONTACT_FORCES_SERVICE,
+    MAX_REQUEST_CONTACTS,
+    resolve,
+)
 from grasp_fc_ros.interface.wait_sets import ServiceCaller
 from grasp_fc_ros.packed import ContactForces, Verdicts
 
@@ -58,9 +66,21 @@ class ServiceCalls:
         return self.call_request(request, timeout)
 
     def call_request(self, request: Any, timeout: float) -> Verdicts:
-        """Send a prepared CheckForceClosure request; its Verdicts in order."""
-        replies = self._check.call(request, timeout).verdicts
-        return verdict_msgs_to_numpy(replies, [len(g.contacts) for g in request.grasps])
+        """Send a prepared CheckForceClosure request; its Verdicts in order.
+
+        A request of more than MAX_REQUEST_CONTACTS contacts goes as several (see
+        :func:`request_parts`), within ``timeout`` for them all.
+        """
+        grasps = request.grasps
+        counts = [len(grasp.contacts) for grasp in grasps]
+        if sum(counts) <= MAX_REQUEST_CONTACTS:
+            replies = self._check.call(request, timeout).verdicts
+        else:
+            parts = [CheckForceClosure.Request(grasps=grasps[first:last])
+                     for first, last in request_parts(counts, MAX_REQUEST_CONTACTS)]
+            replies = [verdict for response in self._check.call_each(parts, timeout)
+                       for verdict in response.verdicts]
+        return verdict_msgs_to_numpy(replies, counts)
 
     def compute_contact_forces(self, positions: ArrayLike, normals: ArrayLike,
                                wrench: ArrayLike, mu: ArrayLike,
@@ -91,3 +111,25 @@ class ServiceCalls:
 
     def close(self) -> None:
         self.node.destroy_node()
+
+
+def request_parts(counts: list[int], max_contacts: int) -> list[tuple[int, int]]:
+    """Where a request of grasps of ``counts`` contacts splits: ``(first, last)``
+    grasp ranges, in order, each of at most ``max_contacts`` contacts (a larger grasp
+    alone in its range).
+
+    Parameters
+    ----------
+    counts : list of int
+        Contacts of each grasp (N,).
+    max_contacts : int
+        Contacts per range at most.
+    """
+    ends = np.cumsum(counts)  # contacts up to and including grasp i
+    parts, first = [], 0
+    while first < len(counts):
+        base = int(ends[first - 1]) if first else 0
+        last = max(int(np.searchsorted(ends, base + max_contacts, side="right")), first + 1)
+        parts.append((first, last))
+        first = last
+    return parts

@@ -74,3 +74,12 @@ def resolve(node_name: str, name: str) -> str:
 # overflowed it, and a service request sent meanwhile from the same process was lost
 # and repaired seconds later (tuned: docs/performance.md#big-batches).
 MAX_MESSAGE_CONTACTS = 6_144
+
+# Most contacts GraspClient puts in one check_force_closure request: a larger call goes
+# as several requests of whole grasps, one after the other, so that other clients' calls
+# are served between them. Half of MAX_MESSAGE_CONTACTS: the node's service thread
+# takes a request as rclpy messages, which costs about 15 us a contact, and a call
+# arriving meanwhile waits for the request being served; parts of MAX_MESSAGE_CONTACTS
+# held such calls up twice as long, smaller ones slowed the big call down and held
+# them up no less on a busy machine (tuned: docs/performance.md#big-service-calls).
+MAX_REQUEST_CONTACTS = 3_072

@@ -151,8 +151,10 @@ class ServiceCaller:
         Created on a node that no executor spins (this object takes its responses).
 
     Calls from several threads take turns: each holds a lock from its request to its
-    response (the node serves one request at a time anyway). A response that comes
-    after its call timed out is dropped when the next call waits.
+    response (the node serves one request at a time anyway); the requests of
+    :meth:`call_each` take turns one by one, so another thread's call may go between
+    them. A response that comes after its call timed out is dropped when the next call
+    waits.
     """
 
     def __init__(self, client: Client) -> None:
@@ -171,8 +173,25 @@ class ServiceCaller:
         RuntimeError
             If rclpy shut down while waiting.
         """
+        return self._call(request, time.monotonic() + timeout, timeout)
+
+    def call_each(self, requests: list[Any], timeout: float) -> list[Any]:
+        """The responses to ``requests``, sent one after the other (each once the one
+        before was answered), within ``timeout`` seconds for them all.
+
+        Raises
+        ------
+        TimeoutError, RuntimeError
+            As :meth:`call` (the message names the whole ``timeout``); the responses
+            that came are dropped.
+        """
         deadline = time.monotonic() + timeout
-        if not self._lock.acquire(timeout=max(timeout, 0.0)):
+        return [self._call(request, deadline, timeout) for request in requests]
+
+    def _call(self, request: Any, deadline: float, timeout: float) -> Any:
+        """The response to ``request`` by ``deadline`` (time.monotonic(), s);
+        ``timeout`` is what the error names."""
+        if not self._lock.acquire(timeout=max(deadline - time.monotonic(), 0.0)):
             raise TimeoutError(self._timed_out(timeout))
         try:
             handle = self._client.handle

@@ -74,18 +74,18 @@ class Refusals:
         self._logger = logger
         self._may_log = may_log
 
-    def oversize(self, n_grasps: int, settings: Settings,
-                 n_contacts: int | None = None) -> Refusal | None:
+    def oversize(self, n_grasps: int, settings: Settings, n_contacts: int | None = None,
+                 kind: str = "message") -> Refusal | None:
         """INVALID_INPUT for a message of more than ``max_batch`` grasps, or (where
-        ``n_contacts`` is given: batch messages and goals) of more than
-        ``max_message_contacts`` contacts (counted as answered); None if it is not
-        oversized."""
+        ``n_contacts`` is given: batch messages, goals and service requests) of more
+        than ``max_message_contacts`` contacts (counted as answered); None if it is not
+        oversized. ``kind`` names such a message in the refusal ("message", "request")."""
         cap = settings.max_message_contacts
         if n_grasps > settings.max_batch:
             message = f"{n_grasps} grasps exceed max_batch={settings.max_batch}"
         elif n_contacts is not None and cap and n_contacts > cap:
-            message = (f"{n_contacts} contacts in one message exceed "
-                       f"max_message_contacts={cap}: split it into messages of whole "
+            message = (f"{n_contacts} contacts in one {kind} exceed "
+                       f"max_message_contacts={cap}: split it into {kind}s of whole "
                        "grasps (GraspClient does)")
         else:
             return None

@@ -10,7 +10,9 @@ its own (a ``__node`` remapping would give it the node's own name); the service 
 are resolved by the node itself, so that the node's remappings (``-r
 check_force_closure:=...``, ``force_closure:check_force_closure:=...``, ``__ns``) apply
 to them as to the topics. One request is served at a time (a multi-threaded executor
-here crashed the process (SIGSEGV) now and then on a Ctrl-C right after start).
+here crashed the process (SIGSEGV) now and then on a Ctrl-C right after start), so a
+big request holds up the calls behind it: ``max_message_contacts`` bounds a request
+as it bounds a batch message, and GraspClient sends a big call as several requests.
 """
 
 from __future__ import annotations
@@ -86,12 +88,16 @@ class ServiceLane:
 
     def check(self, grasps: list[ContactArray]) -> list[ForceClosureVerdict]:
         """Decide a check_force_closure request and count it: one verdict per grasp, in
-        order; any failure becomes SOLVER_FAILURE, a shutdown meanwhile its message."""
+        order. A request of more than ``max_batch`` grasps or ``max_message_contacts``
+        contacts is refused whole (INVALID_INPUT saying why) before any of it is
+        converted; any failure becomes SOLVER_FAILURE, a shutdown meanwhile its
+        message."""
         context = self._context
         start = context.clock()
         context.statistics.count_received(len(grasps))
         settings = context.settings()
-        refusal = context.refusals.oversize(len(grasps), settings)
+        refusal = context.refusals.oversize(len(grasps), settings, _contacts(grasps),
+                                            kind="request")
         if refusal is not None:
             return failure_replies(grasps, refusal)
         try:
@@ -150,3 +156,8 @@ class ServiceLane:
 
     def drain(self) -> Drained:
         return Drained()  # a request is answered in its callback, never queued here
+
+
+def _contacts(grasps: list[ContactArray]) -> int:
+    """Contacts in a check_force_closure request (its grasps are messages already)."""
+    return sum(len(grasp.contacts) for grasp in grasps)

@@ -12,6 +12,7 @@ friction).
 
 from __future__ import annotations
 
+import array
 import copy
 import math
 import threading
@@ -27,9 +28,9 @@ from rclpy.serialization import deserialize_message
 
 from grasp_fc_ros.core import Status
 from grasp_fc_ros.engine.pool import Cancelled
+from grasp_fc_ros.interface import message_slots as slots
 from grasp_fc_ros.interface import wire
 from grasp_fc_ros.interface.conversions import contact_arrays_to_packed, verdicts_to_msgs
-from grasp_fc_ros.interface.message_slots import nan_wrench
 from grasp_fc_ros.interface.names import CONTACTS_TOPIC, QUERY_QOS
 from grasp_fc_ros.interface.wait_sets import SubscriptionLoop
 from grasp_fc_ros.node.lane import Drained, LaneContext, Refusal, start_thread
@@ -48,11 +49,18 @@ Query = Any
 
 def failure_replies(queries: Sequence[ContactArray], refusal: Refusal
                     ) -> list[ForceClosureVerdict]:
-    """Verdict messages answering ContactArray ``queries`` with ``refusal``."""
-    return [ForceClosureVerdict(header=q.header, client_id=q.client_id, id=q.id,
-                                force_closure=False, status=int(refusal.status),
-                                margin=math.nan, message=refusal.message,
-                                separating_wrench=nan_wrench(), min_friction=math.nan)
+    """Verdict messages answering ContactArray ``queries`` with ``refusal``.
+
+    In bulk: one message object per query (its header is the query's own) and nothing
+    else; the message text, the empty certificates and the NaN wrench are shared by all,
+    so the replies are only to be sent, never changed.
+    """
+    status, message = int(refusal.status), refusal.message
+    forces: list[Any] = []
+    torques = array.array("d")
+    wrench = slots.nan_wrench()
+    return [slots.verdict(q.header, q.client_id, q.id, False, status, math.nan, message,
+                          forces, torques, wrench, math.nan)
             for q in queries]
 
 

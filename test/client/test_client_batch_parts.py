@@ -1,6 +1,7 @@
 """GraspClient sends a large batch in parts of at most MAX_MESSAGE_CONTACTS contacts and
 joins their answers; a service call made meanwhile is answered (no timing asserted:
-bench_stall.py measures the latency)."""
+bench_stall.py measures the latency). A large service call goes as several requests
+the same way."""
 
 from __future__ import annotations
 
@@ -10,9 +11,11 @@ import numpy as np
 import pytest
 from grasp_fc_msgs.msg import ContactArrayBatch
 
-from grasp_fc_ros.client import GraspClient
+from grasp_fc_ros.client import GraspClient, service_calls
 from grasp_fc_ros.client.batches import split_batch
-from grasp_fc_ros.core import check_force_closure
+from grasp_fc_ros.client.service_calls import request_parts
+from grasp_fc_ros.core import Status, check_force_closure
+from grasp_fc_ros.engine.pool import EvaluationPool
 from grasp_fc_ros.interface.conversions import batch_arrays
 from grasp_fc_ros.interface.names import MAX_MESSAGE_CONTACTS, QUERY_QOS
 from grasp_fc_ros.objects import make_object, sample_grasps
@@ -92,3 +95,67 @@ def test_large_batch_goes_in_parts_and_comes_back_whole_beside_a_service_call(ow
         time.sleep(0.05)
     assert sum(sizes) == counts.sum()
     assert len(sizes) > 2 and max(sizes) <= MAX_MESSAGE_CONTACTS
+
+
+def test_request_parts_hold_whole_grasps_in_order_within_the_bound():
+    counts = [3, 5, 2, 7, 1, 4]
+    assert request_parts(counts, 8) == [(0, 2), (2, 3), (3, 5), (5, 6)]
+    assert request_parts(counts, 22) == [(0, 6)]
+    assert request_parts(counts, 2) == [(0, 1), (1, 2), (2, 3), (3, 4), (4, 5), (5, 6)]
+    assert request_parts([1, 1, 3, 1, 1], 2) == [(0, 2), (2, 3), (3, 5)]
+    assert request_parts([], 8) == []
+
+
+def test_a_big_service_call_goes_as_several_requests_under_the_nodes_limit(own_node,
+                                                                           monkeypatch):
+    # The node refuses a request of more than 100 contacts; the client's bound, made
+    # small, splits the call into requests of at most 40 (6 whole 6-contact grasps).
+    _, _, raw = own_node("/service_parts_test", max_message_contacts=100)
+    monkeypatch.setattr(service_calls, "MAX_REQUEST_CONTACTS", 40)
+    positions, normals = sample_grasps(make_object("box"), 50, 6, np.random.default_rng(5))
+    normals[17, 2] = 0.0  # invalid: its verdict must stay in its place
+    mu = np.random.default_rng(6).uniform(0.2, 0.8, (50, 6))
+    ids = np.arange(50) * 7 + 3
+    client = GraspClient("/service_parts_test/force_closure")
+    try:
+        assert client.wait_for_node(REPLY_TIMEOUT_S)
+        called = client.call(positions, normals, mu, ids=ids, timeout=REPLY_TIMEOUT_S)
+    finally:
+        client.close()
+    np.testing.assert_array_equal(called.ids, ids)
+    assert called.status[17] == Status.INVALID_INPUT
+    valid = np.arange(50) != 17  # the core raises on the invalid grasp
+    expected = check_force_closure(positions[valid], normals[valid], mu[valid])
+    np.testing.assert_array_equal(called.status[valid], expected.status)
+    np.testing.assert_array_equal(called.force_closure[valid], expected.force_closure)
+    np.testing.assert_allclose(called.margin[valid], expected.margin, rtol=1e-4, atol=1e-6,
+                               equal_nan=True)
+
+
+class SlowPool(EvaluationPool):
+    """A pool without workers that takes :data:`SLOW_DECISION_S` more per decision."""
+
+    def decide(self, *args, **kwargs):
+        time.sleep(SLOW_DECISION_S)
+        return super().decide(*args, **kwargs)
+
+
+# Each request of the call below takes this long (s): less than the call's timeout, but
+# all of them together take more.
+SLOW_DECISION_S = 0.3
+
+
+def test_a_call_in_several_requests_has_one_timeout_for_them_all(own_node, monkeypatch):
+    own_node("/service_timeout_test", pool=SlowPool(workers=0))
+    monkeypatch.setattr(service_calls, "MAX_REQUEST_CONTACTS", 12)
+    positions, normals = sample_grasps(make_object("box"), 16, 6, np.random.default_rng(7))
+    client = GraspClient("/service_timeout_test/force_closure")
+    try:
+        assert client.wait_for_node(REPLY_TIMEOUT_S)
+        assert len(client.call(positions[:2], normals[:2], timeout=REPLY_TIMEOUT_S)) == 2
+        with pytest.raises(TimeoutError, match="service /service_timeout_test/"
+                                               "check_force_closure within 1.0 s: its "
+                                               "node may be down"):
+            client.call(positions, normals, timeout=1.0)  # 8 requests: >= 2.4 s
+    finally:
+        client.close()

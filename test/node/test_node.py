@@ -257,6 +257,37 @@ def test_oversized_service_request_is_refused_before_conversion(client, fc_node,
     assert verdicts[0].message == "4 grasps exceed max_batch=3"
 
 
+def test_service_request_of_more_contacts_than_max_message_contacts_is_refused_whole(
+        client, fc_node, grasps, monkeypatch):
+    """A raw client's request (GraspClient splits its calls below the limit): every
+    grasp INVALID_INPUT naming the limit, none converted; the node goes on answering."""
+    positions, normals = grasps  # 4 contacts each
+    real_conversion = services_module.contact_arrays_to_packed
+
+    def no_conversion(*args, **kwargs):
+        raise AssertionError("an oversized request was converted")
+
+    fc_node.set_parameters([Parameter("max_message_contacts", value=20)])
+    try:
+        monkeypatch.setattr(services_module, "contact_arrays_to_packed", no_conversion)
+        refused = client.call([grasp_to_contact_array(30 + i, positions[i], normals[i])
+                               for i in range(6)])  # 24 contacts
+        monkeypatch.setattr(services_module, "contact_arrays_to_packed", real_conversion)
+        within = client.call([grasp_to_contact_array(40 + i, positions[i], normals[i])
+                              for i in range(5)])  # 20 contacts
+    finally:
+        fc_node.set_parameters([Parameter("max_message_contacts", value=491_520)])
+    assert [v.id for v in refused] == list(range(30, 36))
+    assert all(v.status == Status.INVALID_INPUT and not v.force_closure for v in refused)
+    assert {v.message for v in refused} == {
+        "24 contacts in one request exceed max_message_contacts=20: split it into "
+        "requests of whole grasps (GraspClient does)"}
+    assert all(math.isnan(v.margin) and math.isnan(v.epsilon_lower) for v in refused)
+    assert [v.id for v in within] == list(range(40, 45))
+    expected = check_force_closure(positions[:5], normals[:5], DEFAULT_MU)
+    assert [v.status for v in within] == expected.status.tolist()
+
+
 def test_empty_batch_gets_empty_answer(client):
     got = send_batch(client, grasps_to_batch_msg([], np.empty((0, 6, 3)), np.empty((0, 6, 3))))
     assert len(got.ids) == 0 and len(got.status) == 0

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from grasp_fc_msgs.msg import ForceClosureVerdict
 
-from grasp_fc_ros.client import GraspClient
+from grasp_fc_ros.client import GraspClient, service_calls
 from grasp_fc_ros.core import Status, check_force_closure
 from grasp_fc_ros.interface import wire
 from grasp_fc_ros.interface.conversions import grasp_to_contact_array, grasps_to_batch_msg
@@ -216,9 +216,13 @@ def test_two_clients_with_the_same_ids_get_only_their_own_verdicts(own_node, gra
         second.close()
 
 
-def test_a_service_request_in_progress_at_shutdown_gets_its_answer(own_node, grasps):
+def test_a_service_request_in_progress_at_shutdown_gets_its_answer(own_node, grasps,
+                                                                   monkeypatch):
     node, spinner, _ = own_node("/service_shutdown_test", workers=1)
     positions, normals = (np.tile(a, (10, 1, 1)) for a in grasps)  # seconds on one worker
+    # One request (the client would send this call in parts, and a part after the
+    # node's end would find no node).
+    monkeypatch.setattr(service_calls, "MAX_REQUEST_CONTACTS", positions.size // 3)
     client = GraspClient("/service_shutdown_test/force_closure")
     try:
         assert client.wait_for_node(REPLY_TIMEOUT_S)
