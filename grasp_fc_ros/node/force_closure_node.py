@@ -90,6 +90,8 @@ class ForceClosureNode(Node):
     parameters : LiveParameters
     statistics : Statistics
     replies : Replies
+    batch_participant : BatchParticipant
+        The DDS participant (and helper node) of the batch topic's subscription.
     single_queries, batches, service_requests, label_action, markers
         The lanes.
     """
@@ -97,7 +99,7 @@ class ForceClosureNode(Node):
     def __init__(self, *, pool: EvaluationPool | None = None, **kwargs: Any):
         super().__init__(NODE_NAME, **kwargs)
         self._lanes: list[Lane] = []
-        self._batch_participant: BatchParticipant | None = None
+        self.batch_participant: BatchParticipant | None = None
         self._own_pool = pool is None
         self.statistics = Statistics()
         self.parameters = LiveParameters(self)
@@ -132,8 +134,8 @@ class ForceClosureNode(Node):
         self.single_queries = self._add(SingleQueryLane(
             self, context, self.replies, self.markers, serialized=self.replies.serialized))
         # The batch topic on a DDS participant of its own (see .participant).
-        self._batch_participant = BatchParticipant(self)
-        self.batches = self._add(BatchLane(self._batch_participant, context, self.replies,
+        self.batch_participant = BatchParticipant(self)
+        self.batches = self._add(BatchLane(self.batch_participant, context, self.replies,
                                            self.markers))
         self.service_requests = self._add(ServiceLane(self, context, self.markers))
         self.label_action = self._add(LabelAction(self, context))
@@ -191,6 +193,6 @@ class ForceClosureNode(Node):
             self.get_logger().warning(
                 f"{unanswered} {'query' if unanswered == 1 else 'queries'} left unanswered "
                 "at shutdown")
-        if self._batch_participant is not None:
-            self._batch_participant.close()
+        if self.batch_participant is not None:
+            self.batch_participant.close()
         super().destroy_node()
