@@ -138,7 +138,7 @@ class ForceClosureNode(Node):
         self.batches = self._add(BatchLane(self.batch_participant, context, self.replies,
                                            self.markers))
         self.service_requests = self._add(ServiceLane(self, context, self.markers))
-        self.label_action = self._add(LabelAction(self, context))
+        self.label_action = self._add(LabelAction(self, context, self.batch_participant))
         self.diagnostics = Diagnostics(self, self.statistics, lambda: self._lanes,
                                        context.internal_error, self._node_counts)
         self.get_logger().info(

@@ -41,6 +41,8 @@ class BatchParticipant:
 
     Attributes
     ----------
+    context : rclpy.context.Context
+        The second context (shut down by :meth:`close`).
     node : Node
         The helper node, which no executor spins (its subscriptions are taken by loops of
         their own, :class:`~grasp_fc_ros.interface.wait_sets.SubscriptionLoop`).
@@ -49,15 +51,15 @@ class BatchParticipant:
     def __init__(self, node: Node):
         self._owner = node
         self._closed = False
-        self._context = Context()
-        self._context.init([], initialize_logging=False,
+        self.context = Context()
+        self.context.init([], initialize_logging=False,
                            domain_id=node.context.get_domain_id())
         try:
             self.node = Node(f"{node.get_name()}_batches", namespace=node.get_namespace(),
-                             context=self._context, use_global_arguments=False,
+                             context=self.context, use_global_arguments=False,
                              start_parameter_services=False, enable_rosout=False)
         except BaseException:
-            self._context.try_shutdown()
+            self.context.try_shutdown()
             raise
 
     def subscription_topic(self, topic: str, qos: QoSProfile,
@@ -84,4 +86,4 @@ class BatchParticipant:
             return
         self._closed = True
         self.node.destroy_node()
-        self._context.try_shutdown()
+        self.context.try_shutdown()
