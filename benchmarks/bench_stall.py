@@ -17,7 +17,9 @@ while a batch of --grasps grasps of --contacts contacts each (100,000 x 12 by de
    batch sent from a second thread);
 5. ``this-goal``: the same as a label_grasps job from this process;
 6. ``this-raw``: the same as ONE ContactArrayBatch from a plain rclpy publisher on this
-   process's client node (so on the participant that makes the service calls).
+   process's client node (so on the participant that makes the service calls);
+7. ``raw-goal``: the same as ONE label_grasps goal from a plain rclpy ActionClient in
+   another process (refused whole beyond ``max_message_contacts``, as ``raw``).
 
 For each it prints the service round trips while the batch was on its way and being
 decided (p50, p99, max; targets p99 <= 50 ms, max <= 100 ms), the seconds from sending
@@ -25,7 +27,7 @@ the batch to its answer, and whether every grasp of it was answered (with how ma
 were refused, and why: the node refuses an oversized raw message).
 
 Usage: python benchmarks/bench_stall.py [--grasps N] [--contacts C] [--period S]
-       [--cases batch,goal,raw,this,this-goal,this-raw]
+       [--cases batch,goal,raw,raw-goal,this,this-goal,this-raw]
        [--node-args "-p max_message_contacts:=0"] [--quick]
        (--send NODE --how HOW is the child process's own form)
 """
@@ -45,7 +47,9 @@ from concurrent.futures import Future
 
 import numpy as np
 import rclpy
+from grasp_fc_msgs.action import LabelGrasps
 from grasp_fc_msgs.msg import ContactArrayBatch, ForceClosureVerdictArray
+from rclpy.action import ActionClient
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 
@@ -55,6 +59,7 @@ from grasp_fc_ros.core import Status, warm_up
 from grasp_fc_ros.interface.conversions import grasps_to_batch_msg
 from grasp_fc_ros.interface.names import (
     CONTACTS_BATCH_TOPIC,
+    LABEL_ACTION,
     QUERY_QOS,
     VERDICTS_BATCH_TOPIC,
     resolve,
@@ -119,7 +124,8 @@ Grasp = tuple[np.ndarray, np.ndarray]
 
 # What the child process sends, by case: the heading of its lines of results.
 SENT_AS = {"batch": "batch from another process", "goal": "goal from another process",
-           "raw": "raw batch from another process"}
+           "raw": "raw batch from another process",
+           "raw-goal": "raw goal from another process"}
 SENT_FROM_HERE_AS = {"this": "batch", "this-goal": "goal", "this-raw": "raw batch"}
 CASES = (*SENT_AS, *SENT_FROM_HERE_AS)
 
@@ -209,6 +215,8 @@ def send(node_name: str, how: str, n_grasps: int, n_contacts: int) -> int:
             return 1
         if how == "raw":
             return send_raw(client.node, node_name, positions, normals)
+        if how == "raw-goal":
+            return send_raw_goal(node_name, positions, normals)
         print("ready", flush=True)
         sys.stdin.readline()
         began = time.perf_counter()
@@ -268,6 +276,33 @@ def send_raw(node: Node, node_name: str, positions: np.ndarray, normals: np.ndar
     print(f"{len(answer.ids)} {time.perf_counter() - began:.3f} "
           f"{refusals(answer.status, answer.messages)}", flush=True)
     return 0
+
+
+def send_raw_goal(node_name: str, positions: np.ndarray, normals: np.ndarray) -> int:
+    """Send the grasps as ONE label_grasps goal from a plain rclpy ActionClient (not
+    GraspClient, which sends goals of at most MAX_MESSAGE_CONTACTS contacts) and wait
+    for its result."""
+    node = Node(f"raw_goal_sender_{os.getpid()}")
+    client = ActionClient(node, LabelGrasps, resolve(node_name, LABEL_ACTION))
+    try:
+        if not client.wait_for_server(timeout_sec=CONNECT_TIMEOUT_S):
+            return 1
+        goal = LabelGrasps.Goal(grasps=grasps_to_batch_msg(
+            np.arange(len(positions)), positions, normals, request_id=os.getpid()))
+        print("ready", flush=True)
+        sys.stdin.readline()
+        began = time.perf_counter()
+        sent = client.send_goal_async(goal)
+        rclpy.spin_until_future_complete(node, sent, timeout_sec=REPLY_TIMEOUT_S)
+        result = sent.result().get_result_async()
+        rclpy.spin_until_future_complete(node, result, timeout_sec=REPLY_TIMEOUT_S)
+        verdicts = result.result().result.verdicts
+        print(f"{len(verdicts.ids)} {time.perf_counter() - began:.3f} "
+              f"{refusals(verdicts.status, verdicts.messages)}", flush=True)
+        return 0
+    finally:
+        client.destroy()
+        node.destroy_node()
 
 
 def main(argv: list[str] | None = None) -> int:
