@@ -1,13 +1,15 @@
-"""A DDS participant of its own for the node's batch topic.
+"""A DDS participant of its own for the node's batch topic and action.
 
-A batch message of tens of MB, published as one message by a plain rclpy publisher,
-overflowed Fast DDS's shared-memory port of the participant it was sent to; service
-requests queued on the same port were lost with it and repaired by reliability seconds
-later (docs/performance.md#raw-one-message-batches). rmw_fastrtps makes one participant
-per rclpy context, with its own shared-memory port, so the node subscribes to
-``contacts_batch`` from a second context and a helper node on it,
-``<name>_batches`` in the node's (possibly remapped) namespace: a big batch floods that
-port only, and the services', single queries' and action's requests keep theirs.
+A batch message of tens of MB, published as one message by a plain rclpy publisher (or
+a goal that large from a plain action client), overflowed Fast DDS's shared-memory port
+of the participant it was sent to; service requests queued on the same port were lost
+with it and repaired by reliability seconds later
+(docs/performance.md#raw-one-message-batches). rmw_fastrtps makes one participant per
+rclpy context, with its own shared-memory port, so the node subscribes to
+``contacts_batch`` from a second context and a helper node on it, ``<name>_batches``
+in the node's (possibly remapped) namespace, and serves ``label_grasps`` from that
+context too (:mod:`.label_action`): a big batch or goal floods that port only, and the
+services' and single queries' requests keep theirs.
 
 To users the subscription is the node's: its topic name is resolved by the node (its
 remappings and namespace apply as to the other topics), and its QoS overrides are the
@@ -31,7 +33,8 @@ from rclpy.subscription import Subscription
 
 
 class BatchParticipant:
-    """A second rclpy context, i.e. a second DDS participant, and a helper node on it.
+    """A second rclpy context, i.e. a second DDS participant, and a helper node on it,
+    for the batch topic and the action.
 
     Parameters
     ----------
