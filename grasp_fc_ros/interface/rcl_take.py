@@ -1,9 +1,9 @@
 """Take a serialized message from an rclpy subscription without holding the GIL.
 
 rclpy's ``take_message(..., raw=True)`` holds the GIL while rcl copies the message out
-of the middleware and again while it copies it into a ``bytes`` object: for a 58 MB
-ContactArrayBatch about 100-130 ms here, in which no other thread of the process runs,
-the node's service thread included (docs/performance.md#raw-one-message-batches).
+of the middleware and again while it copies it into a ``bytes`` object: for a batch of
+tens of MB long enough to hold up every other thread of the process, the node's service
+thread included (measured: docs/performance.md#raw-one-message-batches).
 :func:`take_serialized` calls rcl's C function ``rcl_take_serialized_message`` through
 ctypes, which releases the GIL for the call, and copies the result into a ``bytes``
 object with ``ctypes.memmove``, which releases it too. The library is the ``librcl.so``
