@@ -19,6 +19,10 @@ while a batch of --grasps grasps of --contacts contacts each (100,000 x 12 by de
 6. ``call``: the same grasps as one ``GraspClient.call`` (the check_force_closure
    service) from another process, which sends them as requests of at most
    MAX_REQUEST_CONTACTS contacts.
+7. ``this-raw``: the same as ONE ContactArrayBatch from a plain rclpy publisher on this
+   process's client node (so on the participant that makes the service calls);
+8. ``raw-goal``: the same as ONE label_grasps goal from a plain rclpy ActionClient in
+   another process (refused whole beyond ``max_message_contacts``, as ``raw``).
 
 For each it prints the service round trips while the batch was on its way and being
 decided (p50, p99, max; targets p99 <= 50 ms, max <= 100 ms), the seconds from sending
@@ -26,7 +30,7 @@ the batch to its answer, and whether every grasp of it was answered (with how ma
 were refused, and why: the node refuses an oversized raw message).
 
 Usage: python benchmarks/bench_stall.py [--grasps N] [--contacts C] [--period S]
-       [--cases batch,goal,raw,this,this-goal,call]
+       [--cases batch,goal,raw,raw-goal,call,this,this-goal,this-raw]
        [--node-args "-p max_message_contacts:=0"] [--quick]
        (--send NODE --how HOW is the child process's own form)
 """
@@ -46,8 +50,11 @@ from concurrent.futures import Future
 
 import numpy as np
 import rclpy
+from grasp_fc_msgs.action import LabelGrasps
 from grasp_fc_msgs.msg import ContactArrayBatch, ForceClosureVerdictArray
+from rclpy.action import ActionClient
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 
 from bench_ros import CONNECT_TIMEOUT_S, start_node, stop_node, verdict
 from grasp_fc_ros.client import GraspClient
@@ -55,6 +62,7 @@ from grasp_fc_ros.core import Status, warm_up
 from grasp_fc_ros.interface.conversions import grasps_to_batch_msg
 from grasp_fc_ros.interface.names import (
     CONTACTS_BATCH_TOPIC,
+    LABEL_ACTION,
     QUERY_QOS,
     VERDICTS_BATCH_TOPIC,
     resolve,
@@ -120,8 +128,10 @@ Grasp = tuple[np.ndarray, np.ndarray]
 # What the child process sends, by case: the heading of its lines of results.
 SENT_AS = {"batch": "batch from another process", "goal": "goal from another process",
            "raw": "raw batch from another process",
+           "raw-goal": "raw goal from another process",
            "call": "service call from another process"}
-CASES = ("batch", "goal", "raw", "this", "this-goal", "call")
+SENT_FROM_HERE_AS = {"this": "batch", "this-goal": "goal", "this-raw": "raw batch"}
+CASES = (*SENT_AS, *SENT_FROM_HERE_AS)
 
 
 def from_another_process(client: GraspClient, node_name: str, args: argparse.Namespace,
@@ -159,17 +169,23 @@ def from_another_process(client: GraspClient, node_name: str, args: argparse.Nam
         sender.wait()
 
 
-def from_this_process(client: GraspClient, args: argparse.Namespace, grasp: Grasp,
-                      goal: bool) -> str:
-    """Time calls while this process's client sends the batch (or, with ``goal``, the
-    label_grasps job) from another thread."""
+def from_this_process(client: GraspClient, node_name: str, args: argparse.Namespace,
+                      grasp: Grasp, how: str) -> str:
+    """Time calls while this process sends the grasps from another thread: as a batch
+    or (``how`` "this-goal") a label_grasps job through the calling client, or
+    ("this-raw") as one message from a plain rclpy publisher on the client's node."""
     positions, normals = batch_grasps(args.grasps, args.contacts)
     answer: Future = Future()
+    channel = raw_channel(client.node, node_name) if how == "this-raw" else None
+    raw = grasps_to_batch_msg(np.arange(len(positions)), positions, normals,
+                              request_id=os.getpid()) if channel else None
 
     def send() -> None:
-        if goal:
+        if how == "this-goal":
             answer.set_result(client.label_grasps(positions, normals, progress=False,
                                                   timeout=REPLY_TIMEOUT_S))
+        elif channel is not None:
+            answer.set_result(publish_raw(channel, raw))
         else:
             client.submit_batch(positions, normals).add_done_callback(
                 lambda done: answer.set_result(done.result()))
@@ -180,9 +196,10 @@ def from_this_process(client: GraspClient, args: argparse.Namespace, grasp: Gras
     times = time_calls(client, grasp, args.period, answer.done)
     thread.join()
     verdicts = answer.result(REPLY_TIMEOUT_S)
-    return (f"{'goal' if goal else 'batch'} from this process: {summary(times, began)}\n"
-            f"    the batch answered in {time.perf_counter() - began:.1f} s, {len(verdicts)} "
-            f"of {args.grasps} grasps")
+    answered = len(verdicts.ids) if how == "this-raw" else len(verdicts)
+    return (f"{SENT_FROM_HERE_AS[how]} from this process: {summary(times, began)}\n"
+            f"    the batch answered in {time.perf_counter() - began:.1f} s, {answered} "
+            f"of {args.grasps} grasps{refusals(verdicts.status, verdicts.messages)}")
 
 
 def refusals(status: np.ndarray, messages: Sequence[str]) -> str:
@@ -202,6 +219,8 @@ def send(node_name: str, how: str, n_grasps: int, n_contacts: int) -> int:
             return 1
         if how == "raw":
             return send_raw(client.node, node_name, positions, normals)
+        if how == "raw-goal":
+            return send_raw_goal(node_name, positions, normals)
         print("ready", flush=True)
         sys.stdin.readline()
         began = time.perf_counter()
@@ -220,31 +239,76 @@ def send(node_name: str, how: str, n_grasps: int, n_contacts: int) -> int:
         rclpy.try_shutdown()
 
 
-def send_raw(node: Node, node_name: str, positions: np.ndarray, normals: np.ndarray) -> int:
-    """Publish the grasps as one ContactArrayBatch (client id 0) from a plain rclpy
-    publisher on ``node`` and wait for its answer on the shared verdicts_batch topic."""
+def raw_channel(node: Node, node_name: str) -> tuple[Publisher, queue.SimpleQueue] | None:
+    """A plain rclpy publisher of batches to the node, on ``node``, and a queue of the
+    answers on the shared verdicts_batch topic, once both have matched the node (None if
+    not within CONNECT_TIMEOUT_S). ``node`` must be spun (GraspClient's is)."""
     answers: queue.SimpleQueue = queue.SimpleQueue()
     publisher = node.create_publisher(
         ContactArrayBatch, resolve(node_name, CONTACTS_BATCH_TOPIC), QUERY_QOS)
     node.create_subscription(ForceClosureVerdictArray,
                              resolve(node_name, VERDICTS_BATCH_TOPIC), answers.put, QUERY_QOS)
-    msg = grasps_to_batch_msg(np.arange(len(positions)), positions, normals,
-                              request_id=os.getpid())
     deadline = time.monotonic() + CONNECT_TIMEOUT_S
     while (publisher.get_subscription_count() == 0
            or node.count_publishers(resolve(node_name, VERDICTS_BATCH_TOPIC)) == 0):
         if time.monotonic() > deadline:
-            return 1
+            return None
         time.sleep(0.05)
+    return publisher, answers
+
+
+def publish_raw(channel: tuple[Publisher, queue.SimpleQueue],
+                msg: ContactArrayBatch) -> ForceClosureVerdictArray:
+    """Publish ``msg`` as one message and wait for its answer (by request id)."""
+    publisher, answers = channel
+    publisher.publish(msg)
+    while (answer := answers.get(timeout=REPLY_TIMEOUT_S)).request_id != msg.request_id:
+        pass
+    return answer
+
+
+def send_raw(node: Node, node_name: str, positions: np.ndarray, normals: np.ndarray) -> int:
+    """Publish the grasps as one ContactArrayBatch (client id 0) from a plain rclpy
+    publisher on ``node`` and wait for its answer on the shared verdicts_batch topic."""
+    msg = grasps_to_batch_msg(np.arange(len(positions)), positions, normals,
+                              request_id=os.getpid())
+    channel = raw_channel(node, node_name)
+    if channel is None:
+        return 1
     print("ready", flush=True)
     sys.stdin.readline()
     began = time.perf_counter()
-    publisher.publish(msg)
-    while (answer := answers.get(timeout=REPLY_TIMEOUT_S)).request_id != os.getpid():
-        pass
+    answer = publish_raw(channel, msg)
     print(f"{len(answer.ids)} {time.perf_counter() - began:.3f} "
           f"{refusals(answer.status, answer.messages)}", flush=True)
     return 0
+
+
+def send_raw_goal(node_name: str, positions: np.ndarray, normals: np.ndarray) -> int:
+    """Send the grasps as ONE label_grasps goal from a plain rclpy ActionClient (not
+    GraspClient, which sends goals of at most MAX_MESSAGE_CONTACTS contacts) and wait
+    for its result."""
+    node = Node(f"raw_goal_sender_{os.getpid()}")
+    client = ActionClient(node, LabelGrasps, resolve(node_name, LABEL_ACTION))
+    try:
+        if not client.wait_for_server(timeout_sec=CONNECT_TIMEOUT_S):
+            return 1
+        goal = LabelGrasps.Goal(grasps=grasps_to_batch_msg(
+            np.arange(len(positions)), positions, normals, request_id=os.getpid()))
+        print("ready", flush=True)
+        sys.stdin.readline()
+        began = time.perf_counter()
+        sent = client.send_goal_async(goal)
+        rclpy.spin_until_future_complete(node, sent, timeout_sec=REPLY_TIMEOUT_S)
+        result = sent.result().get_result_async()
+        rclpy.spin_until_future_complete(node, result, timeout_sec=REPLY_TIMEOUT_S)
+        verdicts = result.result().result.verdicts
+        print(f"{len(verdicts.ids)} {time.perf_counter() - began:.3f} "
+              f"{refusals(verdicts.status, verdicts.messages)}", flush=True)
+        return 0
+    finally:
+        client.destroy()
+        node.destroy_node()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -284,8 +348,8 @@ def main(argv: list[str] | None = None) -> int:
         idle = time_calls(client, grasp, args.period, lambda: next(calls) == IDLE_CALLS)
         print(f"idle: {summary(idle)}")
         for case in cases:
-            print(from_this_process(client, args, grasp, case == "this-goal")
-                  if case.startswith("this") else
+            print(from_this_process(client, node_name, args, grasp, case)
+                  if case in SENT_FROM_HERE_AS else
                   from_another_process(client, node_name, args, grasp, case))
         return 0
     finally:

@@ -36,6 +36,8 @@ from rclpy.qos import QoSProfile
 from rclpy.service import Service
 from rclpy.subscription import Subscription
 
+from grasp_fc_ros.interface.rcl_take import take_serialized
+
 # How long one wait lasts (ns) before the loop looks at its stop flag again (stop() also
 # wakes it at once through a guard condition), or a caller at rclpy's state and at
 # Python's signal handlers (Ctrl-C).
@@ -253,6 +255,11 @@ class SubscriptionLoop(_WaitSetThread):
         Most messages handed over at once.
     name : str
         The thread's name.
+    gil_free : bool
+        Take serialized messages (``raw`` only) with
+        :func:`~grasp_fc_ros.interface.rcl_take.take_serialized`, which holds the GIL for
+        none of the copying: for topics of messages of many MB, whose take through rclpy
+        would hold up every other thread of the process.
 
     :meth:`stop` lets the messages being handed over finish and ends the thread; the
     subscription stays, for its node to destroy.
@@ -261,12 +268,15 @@ class SubscriptionLoop(_WaitSetThread):
     def __init__(self, node: Node, msg_type: Any, topic: str, qos: QoSProfile,
                  on_messages: Callable[[list], None], on_error: Callable[[Exception], None],
                  *, raw: bool = False, max_take: int = 2_000, name: str = "subscription",
-                 **subscription_options: Any):
+                 gil_free: bool = False, **subscription_options: Any):
+        if gil_free and not raw:
+            raise ValueError("gil_free takes serialized messages: it needs raw=True")
         self._msg_type = msg_type
         self._on_messages = on_messages
         self._on_error = on_error
         self._max_take = max_take
         self._raw = raw
+        self._gil_free = gil_free
         self.subscription: Subscription = node.create_subscription(
             msg_type, topic, on_messages, qos, raw=raw, callback_group=OwnThreadGroup(),
             **subscription_options)
@@ -306,8 +316,12 @@ class SubscriptionLoop(_WaitSetThread):
         taken: list = []
         with handle:
             while len(taken) < self._max_take:
-                info = handle.take_message(self._msg_type, self._raw)
-                if info is None:
+                if self._gil_free:
+                    message = take_serialized(handle)
+                else:
+                    info = handle.take_message(self._msg_type, self._raw)
+                    message = None if info is None else info[0]
+                if message is None:
                     break
-                taken.append(info[0])
+                taken.append(message)
         return taken

@@ -20,7 +20,6 @@ from collections import deque
 from dataclasses import dataclass
 
 from grasp_fc_msgs.msg import ContactArrayBatch, ForceClosureVerdictArray
-from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.serialization import deserialize_message
 
@@ -37,6 +36,7 @@ from grasp_fc_ros.interface.names import CONTACTS_BATCH_TOPIC, QUERY_QOS
 from grasp_fc_ros.interface.wait_sets import SubscriptionLoop
 from grasp_fc_ros.node.lane import Drained, LaneContext, Refusal, start_thread
 from grasp_fc_ros.node.marker_lane import MarkerLane
+from grasp_fc_ros.node.participant import BatchParticipant
 from grasp_fc_ros.node.replies import Replies, refused_verdicts
 from grasp_fc_ros.packed import Verdicts
 
@@ -71,8 +71,8 @@ class BatchLane:
 
     Parameters
     ----------
-    node : Node
-        Owns the subscription (spun by the node's executor).
+    participant : BatchParticipant
+        The node's participant for batches, whose helper node owns the subscription.
     context : LaneContext
     replies : Replies
         Encodes and publishes the answers.
@@ -80,7 +80,8 @@ class BatchLane:
         Offered every answered batch.
     """
 
-    def __init__(self, node: Node, context: LaneContext, replies: Replies, markers: MarkerLane):
+    def __init__(self, participant: BatchParticipant, context: LaneContext, replies: Replies,
+                 markers: MarkerLane):
         self._context = context
         self._replies = replies
         self._markers = markers
@@ -97,13 +98,17 @@ class BatchLane:
         serialized = replies.serialized
         # A loop of its own: on the node's executor every batch (a client's large batch
         # comes in parts of MAX_MESSAGE_CONTACTS contacts) cost a rebuild of its wait set
-        # (docs/performance.md#batches-in-parts-issue-22).
+        # (docs/performance.md#batches-in-parts-issue-22). On a DDS participant of its
+        # own, and taken without the GIL, so that a batch of tens of MB sent as one
+        # message holds up no service call (docs/performance.md#raw-one-message-batches).
+        topic, qos = participant.subscription_topic(
+            CONTACTS_BATCH_TOPIC, copy.copy(QUERY_QOS),
+            QoSOverridingOptions.with_default_policies())
         self._loop = SubscriptionLoop(
-            node, ContactArrayBatch, CONTACTS_BATCH_TOPIC, copy.copy(QUERY_QOS),
+            participant.node, ContactArrayBatch, topic, qos,
             self._on_serialized_batches if serialized else self._on_batches,
             lambda exc: context.internal_error("batches", exc),
-            raw=serialized, max_take=MAX_TAKE, name="contacts_batch",
-            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+            raw=serialized, gil_free=serialized, max_take=MAX_TAKE, name="contacts_batch",
             event_callbacks=context.subscription_events(CONTACTS_BATCH_TOPIC))
         self._threads = [start_thread("next_batch", self._start_next, self.stopping, context),
                          start_thread("answer_batch", self._answer_oldest, self.stopping,

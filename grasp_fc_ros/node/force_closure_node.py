@@ -20,7 +20,8 @@ interface                     what                                   lane (modul
 
 This module is the wiring: it declares the parameters (:mod:`.parameters`), makes the
 worker pool that decides (:class:`~grasp_fc_ros.engine.pool.EvaluationPool`), the
-verdict publishers (:mod:`.replies`) and the lanes, and on :meth:`destroy_node` walks
+verdict publishers (:mod:`.replies`), the DDS participant of the batch topic
+(:mod:`.participant`) and the lanes, and on :meth:`destroy_node` walks
 the lanes: stop each, close the pool, then let each answer what it still holds. Every
 lane owns its queue, threads and stop flag (:mod:`.lane`); refusals (oversize,
 overload, shutdown) are worded in one place, :class:`~.lane.Refusals`. Messages are
@@ -56,6 +57,7 @@ from grasp_fc_ros.node.label_action import LabelAction
 from grasp_fc_ros.node.lane import Lane, LaneContext, Refusals
 from grasp_fc_ros.node.marker_lane import MarkerLane
 from grasp_fc_ros.node.parameters import LiveParameters
+from grasp_fc_ros.node.participant import BatchParticipant
 from grasp_fc_ros.node.replies import Replies
 from grasp_fc_ros.node.services import ServiceLane
 from grasp_fc_ros.node.single_queries import SingleQueryLane
@@ -88,6 +90,8 @@ class ForceClosureNode(Node):
     parameters : LiveParameters
     statistics : Statistics
     replies : Replies
+    batch_participant : BatchParticipant
+        The DDS participant (and helper node) of the batch topic's subscription.
     single_queries, batches, service_requests, label_action, markers
         The lanes.
     """
@@ -95,6 +99,7 @@ class ForceClosureNode(Node):
     def __init__(self, *, pool: EvaluationPool | None = None, **kwargs: Any):
         super().__init__(NODE_NAME, **kwargs)
         self._lanes: list[Lane] = []
+        self.batch_participant: BatchParticipant | None = None
         self._own_pool = pool is None
         self.statistics = Statistics()
         self.parameters = LiveParameters(self)
@@ -128,9 +133,12 @@ class ForceClosureNode(Node):
         self.markers = self._add(MarkerLane(self, self.parameters, context.internal_error))
         self.single_queries = self._add(SingleQueryLane(
             self, context, self.replies, self.markers, serialized=self.replies.serialized))
-        self.batches = self._add(BatchLane(self, context, self.replies, self.markers))
+        # The batch topic on a DDS participant of its own (see .participant).
+        self.batch_participant = BatchParticipant(self)
+        self.batches = self._add(BatchLane(self.batch_participant, context, self.replies,
+                                           self.markers))
         self.service_requests = self._add(ServiceLane(self, context, self.markers))
-        self.label_action = self._add(LabelAction(self, context))
+        self.label_action = self._add(LabelAction(self, context, self.batch_participant))
         self.diagnostics = Diagnostics(self, self.statistics, lambda: self._lanes,
                                        context.internal_error, self._node_counts)
         self.get_logger().info(
@@ -185,4 +193,6 @@ class ForceClosureNode(Node):
             self.get_logger().warning(
                 f"{unanswered} {'query' if unanswered == 1 else 'queries'} left unanswered "
                 "at shutdown")
+        if self.batch_participant is not None:
+            self.batch_participant.close()
         super().destroy_node()

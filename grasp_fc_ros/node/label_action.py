@@ -37,6 +37,7 @@ from grasp_fc_ros.interface.conversions import (
 from grasp_fc_ros.interface.names import LABEL_ACTION
 from grasp_fc_ros.node.label_goal import LabelGoal
 from grasp_fc_ros.node.lane import Drained, LaneContext, Refusal, start_thread
+from grasp_fc_ros.node.participant import BatchParticipant
 from grasp_fc_ros.node.replies import refused_verdicts
 
 # label_grasps goals decided side by side (their chunks share the workers); more wait.
@@ -84,11 +85,13 @@ class LabelAction:
     Parameters
     ----------
     node : Node
-        The force_closure node: its name, namespace and context.
+        The force_closure node: its name and namespace.
     context : LaneContext
+    participant : BatchParticipant
+        The DDS participant the action is served on (the batch topic's).
     """
 
-    def __init__(self, node: Node, context: LaneContext):
+    def __init__(self, node: Node, context: LaneContext, participant: BatchParticipant):
         self._context = context
         self._lock = threading.Lock()
         self._queued = threading.Condition(self._lock)
@@ -100,14 +103,16 @@ class LabelAction:
         # Results of goals ended at shutdown, by id, until sent; when the last was sent.
         self._unsent: dict[int, LabelGrasps.Result] = {}
         self._last_sent: float | None = None
+        # On the batch topic's DDS participant: a raw goal of tens of MB floods its
+        # shared-memory port, not the services' (see ..participant).
         self._helper = Node(f"{node.get_name()}_action", namespace=node.get_namespace(),
-                            context=node.context, use_global_arguments=False,
+                            context=participant.context, use_global_arguments=False,
                             start_parameter_services=False)
         self._server = _ResultReportingActionServer(
             self._helper, LabelGrasps, LABEL_ACTION, self._execute,
             goal_callback=self._on_goal, cancel_callback=self._on_cancel,
             result_timeout=ACTION_RESULT_TIMEOUT_S, on_result_sent=self._on_result_sent)
-        self._executor = SingleThreadedExecutor(context=node.context)
+        self._executor = SingleThreadedExecutor(context=participant.context)
         self._executor.add_node(self._helper)
         self._spinner = threading.Thread(target=self._spin, daemon=True, name="action")
         self._spinner.start()

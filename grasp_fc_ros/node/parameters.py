@@ -37,8 +37,8 @@ MAX_BATCH_LIMIT = 10_000_000
 MAX_MESSAGE_CONTACTS_LIMIT = 100_000_000
 # Contacts in one batch message, goal or service request by default: 80 parts of GraspClient's
 # MAX_MESSAGE_CONTACTS, the largest one-message batch from another process measured to
-# keep service calls within their targets; much larger ones held them up for 0.2 s
-# (tuned: docs/performance.md#big-batches).
+# keep service calls within their targets before batches had a DDS participant of their
+# own; much larger ones held them up for 0.2 s (tuned: docs/performance.md#big-batches).
 DEFAULT_MAX_MESSAGE_CONTACTS = 491_520
 MAX_WORKERS = 64
 # Worker processes by default: the 2 cores of the machines this was measured on. A fixed
@@ -93,9 +93,10 @@ PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
     "max_message_contacts": (DEFAULT_MAX_MESSAGE_CONTACTS, _int_descriptor(
         "Largest number of contacts accepted in one batch message, label_grasps goal "
         "or check_force_closure request (0: no limit); a larger one is answered whole "
-        "with INVALID_INPUT saying to split it (GraspClient does). A message that large "
-        "has already held up the node's service calls while it arrived: the limit tells "
-        "its sender, it cannot prevent that", 0, MAX_MESSAGE_CONTACTS_LIMIT)),
+        "with INVALID_INPUT saying to split it (GraspClient does). A goal or request that "
+        "large may have held up the node's service calls while it arrived (a batch "
+        "message arrives on a DDS participant of its own): the limit tells its sender",
+        0, MAX_MESSAGE_CONTACTS_LIMIT)),
     "certificates": (False, _bool_descriptor(
         "Every verdict carries its certificate: contact forces of a "
         "force-closure grasp, the separating wrench of a rejected one "

@@ -284,11 +284,15 @@ def test_qos_overrides_take_effect(own_node):
         f"qos_overrides.{ns}/contacts_batch.subscription.depth": 3,
         f"qos_overrides.{ns}/verdicts.publisher.depth": 50,
     })
-    subs = {s.topic_name: s.qos_profile for s in node.subscriptions}
+    subs = {s.topic_name: s.qos_profile
+            for s in (*node.subscriptions, *node.batch_participant.node.subscriptions)}
     pubs = {p.topic_name: p.qos_profile for p in node.publishers}
     assert subs[f"{ns}/contacts"].history == HistoryPolicy.KEEP_LAST
     assert subs[f"{ns}/contacts"].depth == 7
+    # Declared on the node, applied on the helper node of the batch topic's participant.
+    assert subs[f"{ns}/contacts_batch"].history == HistoryPolicy.KEEP_LAST
     assert subs[f"{ns}/contacts_batch"].depth == 3
+    assert node.get_parameter(f"qos_overrides.{ns}/contacts_batch.subscription.depth").value == 3
     assert pubs[f"{ns}/verdicts"].depth == 50
     assert pubs[f"{ns}/verdicts"].reliability == ReliabilityPolicy.RELIABLE  # not overridden
     assert pubs[f"{ns}/verdicts_batch"].depth == 10_000  # the default VERDICT_QOS
@@ -315,7 +319,8 @@ def test_qos_overrides_from_a_params_file_as_documented(tmp_path):
     try:
         node = ForceClosureNode(namespace="/qos_file", context=context)
         try:
-            subs = {s.topic_name: s.qos_profile for s in node.subscriptions}
+            subs = {s.topic_name: s.qos_profile for s in (
+                *node.subscriptions, *node.batch_participant.node.subscriptions)}
             pubs = {p.topic_name: p.qos_profile for p in node.publishers}
         finally:
             node.destroy_node()

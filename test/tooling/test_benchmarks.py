@@ -128,10 +128,12 @@ EXPECTED: dict[str, Run] = {
         *(Line(rf"^{case} from {source}: p50 {N} ms, p99 {N} ms, max {N} ms over {N} calls")
           for case, source in (("batch", "another process"), ("goal", "another process"),
                                ("raw batch", "another process"),
+                               ("raw goal", "another process"),
+                               ("service call", "another process"),
                                ("batch", "this process"), ("goal", "this process"),
-                               ("service call", "another process"))),
+                               ("raw batch", "this process"))),
         # The quick form's raw batch (240,000 contacts) is within max_message_contacts.
-        Line(r"the batch answered in [\d.]+ s, (\d+) of \1 grasps$", count=6),
+        Line(r"the batch answered in [\d.]+ s, (\d+) of \1 grasps$", count=8),
     )),
     "bench_filter": Run(lines=(
         # n, mu, filter ms, exact ms, hit rate in [0, 1], saving, pays.
