@@ -62,8 +62,8 @@ from grasp_fc_ros.packed import Verdicts
 # next one anyway (s): a slow or vanished node delays a batch's parts by this much each,
 # never forever (tuned: docs/performance.md#big-batches).
 PART_ACK_WAIT_S = 1.0
-# Parts sent and not yet answered at most: the node keeps 4 batches in progress, and a
-# few more queued cover the time an answer takes back; a client that sent parts as fast
+# Parts sent and not yet answered at most: as many as the node keeps in progress, and as
+# many more queued to cover the time an answer takes back; a client that sent parts as fast
 # as they were acknowledged filled the node's queue (max_batch grasps) with a slow node
 # and got its later parts refused as overload (tuned: docs/performance.md#worker-messages).
 PARTS_IN_FLIGHT = 8

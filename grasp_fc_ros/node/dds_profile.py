@@ -1,10 +1,9 @@
 """Fast DDS reader timing for the node's process: acknowledge a sample at once.
 
-A Fast DDS reader answers a writer's heartbeat only after its ``heartbeatResponseDelay``
-(5 ms by default). ``GraspClient`` sends a large batch in parts, each once the node
-acknowledged the one before (docs/performance.md#big-batches), so that delay, not the
-node, set the pace of a batch: about one part of 1,024 six-finger grasps per 6-7 ms
-(docs/performance.md#worker-messages). :func:`prompt_acks` gives the node's readers a
+A Fast DDS reader answers a writer's heartbeat only after its ``heartbeatResponseDelay``.
+``GraspClient`` sends a large batch in parts, each once the node acknowledged the one
+before (docs/performance.md#big-batches), so that delay, not the node, set the pace of
+a batch (docs/performance.md#worker-messages). :func:`prompt_acks` gives the node's readers a
 delay of 0 through a Fast DDS XML profile of reader times only (no transport), unless
 the user chose a profiles file or another middleware.
 """
