@@ -8,8 +8,11 @@ of its own; its Future resolves once every part is answered, with their verdicts
 order. The parts go out from a thread of their own, each once the node has
 acknowledged the one before (for at most :data:`PART_ACK_WAIT_S`): no message is then
 large enough, and no burst of them long enough, to hold up a service call of the node
-or of this process behind it (docs/performance.md#big-batches). Every part is kept until
-answered and sent again as :mod:`grasp_fc_ros.client.pending` says.
+or of this process behind it (docs/performance.md#big-batches); and at most
+:data:`PARTS_IN_FLIGHT` sent and not answered yet (for at most :data:`PART_ANSWER_WAIT_S`
+each), so that a large batch does not fill the node's queue faster than it decides.
+Every part is kept until answered and sent again as :mod:`grasp_fc_ros.client.pending`
+says.
 """
 
 from __future__ import annotations
@@ -59,6 +62,15 @@ from grasp_fc_ros.packed import Verdicts
 # next one anyway (s): a slow or vanished node delays a batch's parts by this much each,
 # never forever (tuned: docs/performance.md#big-batches).
 PART_ACK_WAIT_S = 1.0
+# Parts sent and not yet answered at most: as many as the node keeps in progress, and as
+# many more queued to cover the time an answer takes back; a client that sent parts as fast
+# as they were acknowledged filled the node's queue (max_batch grasps) with a slow node
+# and got its later parts refused as overload (tuned: docs/performance.md#worker-messages).
+PARTS_IN_FLIGHT = 8
+# Longest the sending thread waits for an answer while PARTS_IN_FLIGHT are out before it
+# sends the next part anyway (s): a vanished node holds a batch up by this much a part,
+# never forever (its parts are sent again when a node appears).
+PART_ANSWER_WAIT_S = 1.0
 # Verdict arrays taken at one wake-up of the reply loop (one per part of a batch).
 MAX_TAKE = 16
 
@@ -103,6 +115,9 @@ class BatchQueries:
         self._lock = threading.Lock()
         # request id -> (the part's query, its batch, its index in the batch)
         self._in_flight: dict[int, tuple[Pending, _Batch, int]] = {}
+        # Request ids of the parts the sending thread sent, not answered yet.
+        self._parts_out: set[int] = set()
+        self._part_answered = threading.Condition(self._lock)
         self._next_request = 1
         self.publisher = node.create_publisher(
             ContactArrayBatch, resolve(node_name, CONTACTS_BATCH_TOPIC), QUERY_QOS)
@@ -174,8 +189,14 @@ class BatchQueries:
         acknowledged the previous one (or PART_ACK_WAIT_S passed)."""
         wait = Duration(seconds=PART_ACK_WAIT_S)
         while (pending := self._parts.get()) is not None:
+            request_id = pending.msg.request_id
             with self._lock:
-                wanted = pending.msg.request_id in self._in_flight  # not answered, not closed
+                self._part_answered.wait_for(
+                    lambda: self._closed or len(self._parts_out) < PARTS_IN_FLIGHT,
+                    PART_ANSWER_WAIT_S)
+                wanted = request_id in self._in_flight  # not answered, not closed
+                if wanted:
+                    self._parts_out.add(request_id)
             if not wanted:
                 continue
             if not publish(self.publisher, pending):
@@ -215,6 +236,9 @@ class BatchQueries:
     def _answered(self, request_id: int, read: Callable[[], Verdicts]) -> None:
         with self._lock:
             entry = self._in_flight.pop(request_id, None)
+            if request_id in self._parts_out:
+                self._parts_out.discard(request_id)
+                self._part_answered.notify()
         if entry is None:
             return
         _, batch, index = entry
@@ -241,9 +265,11 @@ class BatchQueries:
         self._parts.put(None)
         self._loop.stop()
         with self._lock:
+            self._part_answered.notify_all()
             pending = {id(batch.future): batch.future
                        for _, batch, _ in self._in_flight.values()}
             self._in_flight.clear()
+            self._parts_out.clear()
         return list(pending.values())
 
 

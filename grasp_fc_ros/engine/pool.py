@@ -156,8 +156,12 @@ class EvaluationPool:
         command = tuple(WORKER_COMMAND if worker_command is None else worker_command)
         if warm_epsilon:
             command += (WARM_EPSILON_FLAG,)
+        # A worker is sent the chunks queued behind its next one in the same message, up
+        # to a chunk's contacts in all: a client's large batch comes in parts smaller
+        # than a chunk, each a request (docs/performance.md#worker-messages).
         self._crew = WorkerCrew(workers, command, worker_timeout_s, start_timeout_s,
-                                _log.warning if log is None else log) if workers else None
+                                _log.warning if log is None else log,
+                                message_contacts=chunk_contacts) if workers else None
 
     def decide(self, packed: PackedGrasps, settings: Settings,
                cancelled: Callable[[], bool] = lambda: False,

@@ -24,8 +24,9 @@ class SharedChunk:
 
     The owner :meth:`put` s a chunk's arrays into it and sends the worker only their
     sizes; the worker :meth:`get` s a :class:`PackedGrasps` of views into the same
-    memory. One chunk at a time: the owner writes the next one only once the worker
-    answered the last.
+    memory. One message at a time: the owner writes the next one only once the worker
+    answered the last; a message of several chunks puts each after the one before
+    (``at``).
     """
 
     def __init__(self, fd: int):
@@ -48,17 +49,15 @@ class SharedChunk:
         self.memory.close()
         os.close(self.fd)
 
-    def put(self, chunk: PackedGrasps) -> tuple | None:
-        """Copy ``chunk``'s arrays in; what :meth:`get` needs to read them back, or None
-        if they do not fit (the chunk then goes through the pipe)."""
+    def put(self, chunk: PackedGrasps, at: int = 0) -> tuple | None:
+        """Copy ``chunk``'s arrays in from byte ``at`` on; what :meth:`get` needs to read
+        them back, or None if they do not fit (the chunk then goes through the pipe).
+        The chunk ends at byte ``at + shared_bytes(chunk)``."""
         layout = (len(chunk), len(chunk.mu), chunk.torsional is not None, chunk.name_by_id,
-                  chunk.first_index)
-        fields = _shared_fields(*layout[:3])
-        if sum(np.dtype(dtype).itemsize * count for _, dtype, count in fields) > len(
-                self.memory):
+                  chunk.first_index, at)
+        if at + shared_bytes(chunk) > len(self.memory):
             return None
-        at = 0
-        for name, dtype, count in fields:
+        for name, dtype, count in _shared_fields(*layout[:3]):
             target = np.frombuffer(self.memory, dtype, count, at)
             target[:] = np.reshape(getattr(chunk, name), -1)
             at += target.nbytes
@@ -66,8 +65,8 @@ class SharedChunk:
 
     def get(self, layout: tuple) -> PackedGrasps:
         """The chunk that :meth:`put` returned ``layout`` for, as views of the memory."""
-        n_grasps, n_contacts, soft, name_by_id, first_index = layout
-        arrays, at = {}, 0
+        n_grasps, n_contacts, soft, name_by_id, first_index, at = layout
+        arrays = {}
         for name, dtype, count in _shared_fields(n_grasps, n_contacts, soft):
             arrays[name] = np.frombuffer(self.memory, dtype, count, at)
             at += arrays[name].nbytes
@@ -76,6 +75,12 @@ class SharedChunk:
                             normals=arrays["normals"].reshape(-1, 3), mu=arrays["mu"],
                             name_by_id=name_by_id, first_index=first_index,
                             torsional=arrays.get("torsional"))
+
+
+def shared_bytes(chunk: PackedGrasps) -> int:
+    """Bytes ``chunk``'s arrays take in the shared memory."""
+    return sum(np.dtype(dtype).itemsize * count for _, dtype, count in
+               _shared_fields(len(chunk), len(chunk.mu), chunk.torsional is not None))
 
 
 def _shared_fields(n_grasps: int, n_contacts: int, soft: bool) -> list[tuple]:

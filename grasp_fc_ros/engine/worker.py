@@ -11,6 +11,7 @@ from __future__ import annotations
 import signal
 import sys
 from collections.abc import Callable
+from typing import Any
 
 from grasp_fc_ros.core import warm_up
 from grasp_fc_ros.engine.child_process import read_message, write_message
@@ -23,9 +24,10 @@ from grasp_fc_ros.packed import PackedGrasps, Settings, Verdicts
 Decide = Callable[[PackedGrasps, Settings], tuple[Verdicts, dict]]
 
 def serve(shared_fd: int, decide: Decide = evaluate, warm_epsilon: bool = False) -> None:
-    """Worker main loop: a chunk in on stdin (its arrays in the memory of file descriptor
-    ``shared_fd``, or pickled whole), ``(True, decide(chunk, settings))`` out on stdout,
-    or ``(False, reason)`` if ``decide`` raised.
+    """Worker main loop: a message of one or more chunks in on stdin (their arrays in
+    the memory of file descriptor ``shared_fd``, or pickled whole), and for each chunk,
+    in order, ``(True, decide(chunk, settings))`` out on stdout, or ``(False, reason)``
+    if ``decide`` raised: one list per message.
 
     ``decide`` is a seam for fault tests (test/engine/faulty_worker.py wraps
     :func:`~.evaluation.evaluate` in a worker that dies or hangs on chosen chunks);
@@ -43,16 +45,21 @@ def serve(shared_fd: int, decide: Decide = evaluate, warm_epsilon: bool = False)
     write_message(stdout, "ready")
     while True:
         try:
-            how, chunk, settings = read_message(stdin)
+            how, chunks, settings = read_message(stdin)
         except EOFError:
             return  # the owner closed the pipe or died
-        answer: tuple[bool, object]
-        try:
-            answer = True, decide(shared.get(chunk) if how == SHARED else chunk, settings)
-        except Exception as exc:  # noqa: BLE001 - reported to the owner, worker goes on
-            answer = False, f"{type(exc).__name__}: {exc}"
-        write_message(stdout, answer)
+        write_message(stdout, [_decide_one(decide, shared, how, chunk, settings)
+                               for chunk in chunks])
 
+
+def _decide_one(decide: Decide, shared: SharedChunk, how: str, chunk: Any,
+                settings: Settings) -> tuple[bool, object]:
+    """``(True, decide(...))`` for one chunk of a message (its layout in ``shared``, or
+    itself), or ``(False, reason)``."""
+    try:
+        return True, decide(shared.get(chunk) if how == SHARED else chunk, settings)
+    except Exception as exc:  # noqa: BLE001 - reported to the owner, worker goes on
+        return False, f"{type(exc).__name__}: {exc}"
 
 if __name__ == "__main__":
     serve(int(sys.argv[-1]), warm_epsilon=WARM_EPSILON_FLAG in sys.argv[1:-1])

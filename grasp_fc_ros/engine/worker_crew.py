@@ -33,7 +33,7 @@ from typing import IO
 from grasp_fc_ros.core import Status
 from grasp_fc_ros.engine.child_process import ONE_THREAD_ENV, read_message, write_message
 from grasp_fc_ros.engine.evaluation import evaluate
-from grasp_fc_ros.engine.shared_chunk import PICKLED, SHARED, SharedChunk
+from grasp_fc_ros.engine.shared_chunk import PICKLED, SHARED, SharedChunk, shared_bytes
 from grasp_fc_ros.packed import PackedGrasps, Settings, Verdicts
 
 _logger = logging.getLogger(__name__)
@@ -79,9 +79,15 @@ def answer_bound_s(chunk: PackedGrasps, settings: Settings, floor_s: float) -> f
     """Seconds a worker may take to answer ``chunk`` before it counts as hung:
     ``floor_s`` plus :data:`SLOW_CONTACT_S` per contact when the chunk has soft contacts
     or asks for mu* or epsilon, else :data:`HARD_CONTACT_S`."""
-    slow = (chunk.torsional is not None or settings.compute_min_friction
+    return floor_s + len(chunk.mu) * (SLOW_CONTACT_S if is_slow(chunk, settings)
+                                      else HARD_CONTACT_S)
+
+
+def is_slow(chunk: PackedGrasps, settings: Settings) -> bool:
+    """Whether ``chunk`` has soft contacts or asks for mu* or epsilon (far slower a
+    contact than hard contacts without them)."""
+    return (chunk.torsional is not None or settings.compute_min_friction
             or settings.compute_epsilon)
-    return floor_s + len(chunk.mu) * (SLOW_CONTACT_S if slow else HARD_CONTACT_S)
 
 
 def describe_chunk(chunk: PackedGrasps) -> str:
@@ -101,6 +107,9 @@ class Task:
     priority: int
     order: int
     deaths: list[str] = field(default_factory=list)  # why each worker on it died
+    # Sent alone from now on: a worker died on a message of this chunk and others, and
+    # which of them killed it is not known (see WorkerCrew.message_died).
+    alone: bool = False
 
 
 def settle(task: Task, answer: tuple[Verdicts, dict]) -> None:
@@ -133,11 +142,18 @@ class WorkerCrew:
     log : callable (str) -> None
         Told of every worker that dies, hangs or cannot start, and what became of its
         chunk.
+    message_contacts : int
+        Contacts a worker is sent in one message at most: a slot that takes a chunk
+        also takes the chunks queued behind it (same priority and settings, hard
+        contacts without mu* or epsilon) up to this many contacts, while as many more
+        wait as there are idle slots (0: one chunk a message).
     """
 
     def __init__(self, workers: int, command: Sequence[str], worker_timeout_s: float,
-                 start_timeout_s: float, log: Callable[[str], None]):
+                 start_timeout_s: float, log: Callable[[str], None],
+                 message_contacts: int = 0):
         self.command = tuple(command)
+        self.message_contacts = message_contacts
         self.worker_timeout_s = worker_timeout_s
         self.start_timeout_s = start_timeout_s
         self._log = log
@@ -146,6 +162,7 @@ class WorkerCrew:
         self._order = itertools.count()
         self._lock = threading.Lock()
         self._active = workers  # slots not retired
+        self._idle = 0  # slots waiting for a chunk
         self._restarts = 0
         self._slots: list[_Slot] = []
         self._watchdog = threading.Thread(target=self._watch, daemon=True,
@@ -182,15 +199,69 @@ class WorkerCrew:
 
     def next_task(self) -> Task | None:
         """The most urgent queued chunk, once there is one; None when closing."""
-        task = self._tasks.get()[2]
+        with self._lock:
+            self._idle += 1
+        try:
+            task = self._tasks.get()[2]
+        finally:
+            with self._lock:
+                self._idle -= 1
         if task is not None and self.closing.is_set():
             task.future.cancel()
             return None
         return task
 
+    def tasks_behind(self, first: Task) -> list[Task]:
+        """Queued chunks to send in one message with ``first``, in order: those right
+        behind it with its priority and settings, hard and fast (:func:`is_slow`),
+        sent alone by no rule, up to :attr:`message_contacts` contacts in all, leaving
+        a chunk for each idle slot. One message costs the slot and its worker about
+        what one chunk does (tuned: docs/performance.md#worker-messages)."""
+        if first.alone or is_slow(first.chunk, first.settings):
+            return []
+        taken: list[Task] = []
+        contacts = len(first.chunk.mu)
+        while True:
+            with self._lock:
+                spare = self._tasks.qsize() > self._idle
+            if not spare:
+                return taken
+            try:
+                entry = self._tasks.get_nowait()
+            except queue.Empty:
+                return taken
+            task = entry[2]
+            if (task is None or task.alone or task.priority != first.priority
+                    or task.settings != first.settings or is_slow(task.chunk, task.settings)
+                    or contacts + len(task.chunk.mu) > self.message_contacts):
+                self._tasks.put(entry)  # back in its place
+                return taken
+            contacts += len(task.chunk.mu)
+            taken.append(task)
+
     def requeue(self, task: Task) -> None:
         """Put ``task`` back in its place in the queue (ahead of later chunks)."""
         self._tasks.put((task.priority, task.order, task))
+
+    def message_died(self, tasks: list[Task], reason: str) -> None:
+        """A worker died (or was killed as hung) deciding a message of ``tasks``: queue
+        them again, each to be sent alone. A message of one chunk counts against it
+        (:meth:`worker_died`); of several, no death is counted against any (which one
+        killed the worker is not known): alone, a chunk that kills workers does so
+        twice more and fails, the others are decided."""
+        if len(tasks) == 1:
+            self.worker_died(tasks[0], reason)
+            return
+        if self.closing.is_set():
+            for task in tasks:
+                task.future.cancel()
+            return
+        self.say(f"{reason}; its {len(tasks)} chunks ("
+                 + ", ".join(describe_chunk(task.chunk) for task in tasks)
+                 + ") are decided again, each alone")
+        for task in tasks:
+            task.alone = True
+            self.requeue(task)
 
     def worker_died(self, task: Task, reason: str) -> None:
         """A worker died (or was killed as hung) deciding ``task``: queue it again, or
@@ -311,7 +382,8 @@ class _Slot:
         """Feed the worker chunks, replacing it whenever it dies; None once the crew
         closes, else why no replacement could be started."""
         while (task := self.crew.next_task()) is not None:
-            if task.future.done() or self._decide(task):
+            tasks = [t for t in [task, *self.crew.tasks_behind(task)] if not t.future.done()]
+            if not tasks or self._decide(tasks):
                 continue
             self.crew.count_restart()
             failure = self._start()
@@ -355,41 +427,55 @@ class _Slot:
         if late or hello != "ready":
             raise _WorkerLost(self._lost(process, f"said {hello!r}", "while starting"))
 
-    def _decide(self, task: Task) -> bool:
-        """Have the worker decide ``task`` and settle it; False if the worker died (the
-        task is then back in the queue, or answered as failed)."""
+    def _decide(self, tasks: list[Task]) -> bool:
+        """Have the worker decide ``tasks`` (one message) and settle them; False if the
+        worker died (the tasks are then back in the queue, or answered as failed)."""
         process = self._process
         assert process is not None
-        if process.poll() is not None:  # died while idle: not this chunk's doing
+        if process.poll() is not None:  # died while idle: not these chunks' doing
             self.crew.say(f"{self._lost(process, None, 'while idle')}; starting another")
-            self.crew.requeue(task)
+            for task in tasks:
+                self.crew.requeue(task)
             return False
         try:
-            layout = self.shared.put(task.chunk)
-        except Exception as exc:  # noqa: BLE001 - this chunk only; the worker is fine
-            settle_failed(task, f"internal error: {exc}")
+            message = self._message(tasks)
+        except Exception as exc:  # noqa: BLE001 - these chunks only; the worker is fine
+            for task in tasks:
+                settle_failed(task, f"internal error: {exc}")
             return True
-        message = ((SHARED, layout, task.settings) if layout is not None
-                   else (PICKLED, task.chunk, task.settings))
-        compiles = task.settings.compute_epsilon and not self._epsilon_warm
+        compiles = any(task.settings.compute_epsilon for task in tasks) and not self._epsilon_warm
         with self._lock:
-            self._arm(answer_bound_s(task.chunk, task.settings, self.crew.worker_timeout_s)
+            self._arm(self.crew.worker_timeout_s
+                      + sum(answer_bound_s(task.chunk, task.settings, 0.0) for task in tasks)
                       + (self.crew.start_timeout_s if compiles else 0.0))
         to_worker, from_worker = _pipes(process)
         try:
             write_message(to_worker, message)
-            ok, answer = read_message(from_worker)
+            answers = read_message(from_worker)
         except Exception as exc:  # noqa: BLE001 - the worker is gone, whatever the error
             self._disarm()
-            self.crew.worker_died(task, self._lost(process, exc, "deciding a chunk"))
+            self.crew.message_died(tasks, self._lost(process, exc, "deciding a chunk"))
             return False
         self._disarm()
-        self._epsilon_warm |= bool(task.settings.compute_epsilon)
-        if ok:
-            settle(task, answer)
-        else:  # evaluate itself raised: deciding again would fail the same way
-            settle_failed(task, f"internal error: {answer}")
+        self._epsilon_warm |= any(bool(task.settings.compute_epsilon) for task in tasks)
+        for task, (ok, answer) in zip(tasks, answers, strict=True):
+            if ok:
+                settle(task, answer)
+            else:  # evaluate itself raised: deciding again would fail the same way
+                settle_failed(task, f"internal error: {answer}")
         return True
+
+    def _message(self, tasks: list[Task]) -> tuple:
+        """The message that sends ``tasks``' chunks: their arrays one after the other in
+        the shared memory, or, if they do not all fit, the chunks pickled whole."""
+        layouts, at = [], 0
+        for task in tasks:
+            layout = self.shared.put(task.chunk, at)
+            if layout is None:
+                return PICKLED, [task.chunk for task in tasks], tasks[0].settings
+            layouts.append(layout)
+            at += shared_bytes(task.chunk)
+        return SHARED, layouts, tasks[0].settings
 
     def _decide_here(self) -> None:
         """Decide queued chunks in this process until the crew closes (no workers left)."""

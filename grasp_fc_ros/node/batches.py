@@ -4,11 +4,11 @@ each on ``verdicts_batch``.
 The subscription, taken by a loop of its own
 (:class:`~grasp_fc_ros.interface.wait_sets.SubscriptionLoop`), only queues (a batch of
 more than ``max_batch`` grasps or ``max_message_contacts`` contacts is refused at once,
-and so is one that would make more than ``max_batch`` grasps wait). The ``next_batch``
-thread converts the oldest queued batch and queues its chunks for the workers, once
-fewer than :data:`BATCHES_IN_PROGRESS` are in progress; the ``answer_batch`` thread
-waits for the oldest batch in progress and publishes its answer: answers go out in
-arrival order. Batches are taken serialized and read with numpy where
+and so is one that would make more than ``max_batch`` grasps wait) and starts the
+queued batches while fewer than :data:`BATCHES_IN_PROGRESS` are in progress: converts
+each and queues its chunks for the workers. The ``answer_batch`` thread waits for the
+oldest batch in progress, publishes its answer (answers go out in arrival order) and
+starts the batches that waited for its place. Batches are taken serialized and read with numpy where
 :mod:`grasp_fc_ros.interface.wire` reads this rmw's layout.
 """
 
@@ -53,7 +53,8 @@ MAX_TAKE = 16
 
 @dataclass
 class BatchInProgress:
-    """A batch taken from the queue: its chunks on the workers, or its failed verdicts.
+    """A batch taken from the queue: its chunks on the workers, or its failed verdicts
+    (neither while it is being converted).
 
     ``start`` is when it was taken (the lane's clock, s), ``conversion_s`` the time its
     conversion took.
@@ -61,9 +62,14 @@ class BatchInProgress:
 
     query: ContactArrayBatch
     start: float
-    conversion_s: float
+    conversion_s: float = 0.0
     decision: Decision | None = None
     failed: Verdicts | None = None
+
+    @property
+    def started(self) -> bool:
+        """Whether its chunks are queued, or its answer known."""
+        return self.decision is not None or self.failed is not None
 
 
 class BatchLane:
@@ -86,9 +92,7 @@ class BatchLane:
         self._replies = replies
         self._markers = markers
         self._lock = threading.Lock()
-        # One condition per waiting thread, so that a notify wakes the one with work.
-        self._startable = threading.Condition(self._lock)
-        self._started = threading.Condition(self._lock)
+        self._started = threading.Condition(self._lock)  # the answer thread waits on it
         self._queue: deque[ContactArrayBatch] = deque()
         # Batches whose chunks are on the workers, oldest first: answered in this order.
         self._in_progress: deque[BatchInProgress] = deque()
@@ -110,9 +114,8 @@ class BatchLane:
             lambda exc: context.internal_error("batches", exc),
             raw=serialized, gil_free=serialized, max_take=MAX_TAKE, name="contacts_batch",
             event_callbacks=context.subscription_events(CONTACTS_BATCH_TOPIC))
-        self._threads = [start_thread("next_batch", self._start_next, self.stopping, context),
-                         start_thread("answer_batch", self._answer_oldest, self.stopping,
-                                      context)]
+        self._thread = start_thread("answer_batch", self._answer_oldest, self.stopping,
+                                    context)
 
     def stopping(self) -> bool:
         return self._stopping
@@ -170,8 +173,8 @@ class BatchLane:
                     if accepted:
                         self._queue.append(query)
                         self._queued_grasps += n_grasps
-                        self._startable.notify()
                 if accepted:
+                    self._start_queued()
                     return
                 refusal = (context.refusals.shutdown(n_grasps) if self._stopping else
                            context.refusals.overloaded(f"{queued} batch grasps pending",
@@ -180,32 +183,39 @@ class BatchLane:
         except Exception as exc:  # noqa: BLE001
             context.internal_error("a batch (no reply sent)", exc)
 
-    # --- the next_batch thread ------------------------------------------------------------
+    # --- starting: the subscription loop's thread and the answer_batch thread -----------
 
-    def _start_next(self) -> None:
-        """Start the oldest queued batch once fewer than BATCHES_IN_PROGRESS are."""
-        with self._lock:
-            self._startable.wait_for(lambda: self._stopping or (
-                self._queue and len(self._in_progress) < BATCHES_IN_PROGRESS))
-            if self._stopping:
-                return
-            query = self._queue.popleft()
-            self._queued_grasps -= len(query.ids)
-            self._busy_grasps += len(query.ids)
-        batch = self._start(query)
-        with self._lock:
-            self._in_progress.append(batch)
-            self._started.notify()
+    def _start_queued(self) -> None:
+        """Start the queued batches, oldest first, while fewer than BATCHES_IN_PROGRESS
+        are in progress. Called by the thread that made a batch startable (it arrived,
+        or one in progress was answered): no thread of its own to wake per batch
+        (docs/performance.md#worker-messages)."""
+        while True:
+            with self._lock:
+                if (self._stopping or not self._queue
+                        or len(self._in_progress) >= BATCHES_IN_PROGRESS):
+                    return
+                query = self._queue.popleft()
+                self._queued_grasps -= len(query.ids)
+                self._busy_grasps += len(query.ids)
+                # In its place among the batches in progress before it is converted:
+                # answers keep the arrival order whichever thread converts it.
+                batch = BatchInProgress(query, self._context.clock())
+                self._in_progress.append(batch)
+            self._start(batch)
+            with self._lock:
+                self._started.notify()
 
-    def _start(self, query: ContactArrayBatch) -> BatchInProgress:
+    def _start(self, batch: BatchInProgress) -> None:
         """Convert a batch and queue its chunks; a failure becomes its answer."""
-        context = self._context
-        start = context.clock()
+        context, query = self._context, batch.query
         try:
             packed = batch_to_packed(query)
-            conversion_s = context.clock() - start
+            conversion_s = context.clock() - batch.start
             decision = context.pool.start(packed, context.settings(), PRIORITY_BATCH)
-            return BatchInProgress(query, start, conversion_s, decision)
+            with self._lock:
+                batch.conversion_s, batch.decision = conversion_s, decision
+            return
         except MalformedBatch as exc:
             if context.may_log("malformed"):
                 context.logger.warning(str(exc))
@@ -213,14 +223,17 @@ class BatchLane:
             failed = refused_verdicts(query, Refusal(Status.INVALID_INPUT, str(exc)))
         except Exception as exc:  # noqa: BLE001 - any failure must still be answered
             failed = self._internal_error(query, exc)
-        return BatchInProgress(query, start, 0.0, failed=failed)
+        with self._lock:
+            batch.failed = failed
 
     # --- the answer_batch thread ----------------------------------------------------------
 
     def _answer_oldest(self) -> None:
-        """Publish the answer to the oldest batch in progress once it is decided."""
+        """Publish the answer to the oldest batch in progress once it is decided, then
+        start the batches that waited for its place."""
         with self._lock:
-            self._started.wait_for(lambda: self._in_progress or self._stopping)
+            self._started.wait_for(lambda: self._stopping or (
+                self._in_progress and self._in_progress[0].started))
             if self._stopping:
                 return  # drain() answers the batches in progress
             batch = self._in_progress[0]
@@ -235,7 +248,7 @@ class BatchLane:
                 with self._lock:
                     self._in_progress.popleft()
                     self._busy_grasps -= len(batch.query.ids)
-                    self._startable.notify()
+                self._start_queued()
         self._replies.publish_batch(answer)
         self._markers.offer_batch(batch.query, verdicts)
 
@@ -276,15 +289,13 @@ class BatchLane:
     # --- shutdown -------------------------------------------------------------------------
 
     def stop(self) -> None:
-        """Refuse new batches, end the subscription loop and both threads (the batches in
-        progress stay, for :meth:`drain`)."""
+        """Refuse new batches, end the subscription loop and the answer thread (the
+        batches in progress stay, for :meth:`drain`)."""
         with self._lock:
             self._stopping = True
-            self._startable.notify_all()
             self._started.notify_all()
         self._loop.stop()
-        for thread in self._threads:
-            thread.join()
+        self._thread.join()
 
     def drain(self) -> Drained:
         """Answer the batches in progress and queued, in order: each refused at

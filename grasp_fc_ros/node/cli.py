@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import gc
 import os
 import signal
@@ -27,6 +28,7 @@ from grasp_fc_ros.interface.names import (
     VERDICTS_BATCH_TOPIC,
     VERDICTS_TOPIC,
 )
+from grasp_fc_ros.node.dds_profile import prompt_acks
 from grasp_fc_ros.node.force_closure_node import ForceClosureNode
 from grasp_fc_ros.node.parameters import PARAMETERS
 
@@ -155,11 +157,15 @@ def main(args: list[str] | None = None) -> int:
 
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, on_signal)
+    # Fast DDS reads its profiles while the context and the node are made.
+    dds_profile = contextlib.ExitStack()
+    dds_profile.enter_context(prompt_acks())
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:
         executor = SingleThreadedExecutor()
         node = ForceClosureNode()
+        dds_profile.close()
         _warn_params_file_keys(argv, node)
         executor.add_node(node)
         # Out of the cyclic garbage collector's full scans: everything imported and set up
@@ -175,6 +181,7 @@ def main(args: list[str] | None = None) -> int:
         print(f"{NODE_NAME}: bad parameter: {exc}", file=sys.stderr)
         return 1
     finally:
+        dds_profile.close()
         if node is not None:
             node.destroy_node()
         shutdown_rclpy()

@@ -12,7 +12,7 @@ import pytest
 from grasp_fc_msgs.msg import ContactArrayBatch
 
 from grasp_fc_ros.client import GraspClient, service_calls
-from grasp_fc_ros.client.batches import split_batch
+from grasp_fc_ros.client.batches import PART_ANSWER_WAIT_S, PARTS_IN_FLIGHT, split_batch
 from grasp_fc_ros.client.service_calls import request_parts
 from grasp_fc_ros.core import Status, check_force_closure
 from grasp_fc_ros.engine.pool import EvaluationPool
@@ -159,3 +159,35 @@ def test_a_call_in_several_requests_has_one_timeout_for_them_all(own_node, monke
             client.call(positions, normals, timeout=1.0)  # 8 requests: >= 2.4 s
     finally:
         client.close()
+
+
+def test_parts_wait_for_answers_once_parts_in_flight_are_out(ros):
+    """With nobody answering (a plain listener on the batch topic, no node), the client
+    sends PARTS_IN_FLIGHT parts, then the next one only after PART_ANSWER_WAIT_S."""
+    from rclpy.node import Node
+
+    from ros_fixtures import SpinThread
+
+    listener = Node("parts_listener", namespace="/window_test")
+    heard: list[float] = []
+    listener.create_subscription(ContactArrayBatch, "/window_test/contacts_batch",
+                                 lambda _: heard.append(time.monotonic()), QUERY_QOS)
+    spinner = SpinThread(listener)
+    client = GraspClient("/window_test/force_closure")
+    positions, normals = sample_grasps(make_object("box"), 1024 * (PARTS_IN_FLIGHT + 2), 6,
+                                       np.random.default_rng(5))  # 1,024 grasps a part
+    try:
+        deadline = time.monotonic() + REPLY_TIMEOUT_S
+        while client._batches.publisher.get_subscription_count() == 0:  # noqa: SLF001
+            assert time.monotonic() < deadline, "the listener never matched"
+            time.sleep(0.01)
+        sent = time.monotonic()
+        client.submit_batch(positions, normals)
+        while len(heard) < PARTS_IN_FLIGHT + 1:
+            assert time.monotonic() < deadline, f"heard {len(heard)} parts"
+            time.sleep(0.01)
+    finally:
+        client.close()
+        spinner.stop()  # destroys the listener
+    assert heard[PARTS_IN_FLIGHT - 1] - sent < PART_ANSWER_WAIT_S
+    assert heard[PARTS_IN_FLIGHT] - sent >= PART_ANSWER_WAIT_S

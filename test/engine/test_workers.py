@@ -9,6 +9,7 @@ core's (check_force_closure on the same grasps).
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import signal
 import sys
@@ -22,11 +23,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from grasp_fc_ros.core import Status, check_force_closure
-from grasp_fc_ros.engine import shared_chunk
+from grasp_fc_ros.engine import shared_chunk, worker_crew
 from grasp_fc_ros.engine.chunking import chunk_size
 from grasp_fc_ros.engine.evaluation import evaluate
 from grasp_fc_ros.engine.long_jobs import decide_in_chunks
-from grasp_fc_ros.engine.pool import Cancelled, EvaluationPool
+from grasp_fc_ros.engine.pool import (
+    PRIORITY_BATCH,
+    PRIORITY_INTERACTIVE,
+    Cancelled,
+    EvaluationPool,
+)
 from grasp_fc_ros.engine.shared_chunk import SharedChunk
 from grasp_fc_ros.engine.worker_crew import answer_bound_s
 from grasp_fc_ros.objects import make_object, sample_grasps
@@ -198,6 +204,63 @@ def test_a_request_is_spread_over_the_workers_only_when_no_chunks_wait(grasps, m
         decision.result()
 
 
+def sent_messages(monkeypatch) -> list[int]:
+    """Record how many chunks each message to a worker holds."""
+    sizes: list[int] = []
+    write = worker_crew.write_message
+
+    def record(stream, message):
+        if isinstance(message, tuple):
+            sizes.append(len(message[1]))
+        write(stream, message)
+
+    monkeypatch.setattr(worker_crew, "write_message", record)
+    return sizes
+
+
+def test_small_requests_queued_together_go_in_one_message_each_with_its_own_verdicts(
+        grasps, make_pool, monkeypatch):
+    """Requests smaller than a chunk (a client's batch parts) queued behind each other
+    reach a worker several to a message, up to a chunk's contacts; each keeps its own
+    verdicts and messages (an invalid grasp named by its place in its own request)."""
+    request, _ = grasps
+    sizes = sent_messages(monkeypatch)
+    # 600 contacts each, each a message of its own (first_index 0), as a batch's parts.
+    parts = [dataclasses.replace(request.slice(k, k + 100), first_index=0)
+             for k in range(0, N_GRASPS, 100)]
+    parts[5] = dataclasses.replace(parts[5], normals=parts[5].normals.copy())
+    parts[5].normals[3] = 0.0  # grasp 0 of part 5: a zero normal at its contact 3
+    pool, log = make_pool(workers=1, chunk_contacts=1800)  # up to 3 parts a message
+    decisions = [pool.start(part, Settings()) for part in parts]
+    for part, decision in zip(parts, decisions, strict=True):
+        got, _ = decision.result()
+        want, _ = evaluate(part, Settings())
+        np.testing.assert_array_equal(got.ids, want.ids)
+        np.testing.assert_array_equal(got.status, want.status)
+        np.testing.assert_allclose(got.margin, want.margin, rtol=MARGIN_REL_TOL,
+                                   atol=MARGIN_ABS_TOL, equal_nan=True)
+        assert got.messages == want.messages
+    assert decisions[5].result()[0].messages[0].startswith("grasp 0 (id 500), contact 3: ")
+    assert sum(sizes) == len(parts) and max(sizes) == 3 and len(sizes) < len(parts)
+    assert log == []
+
+
+def test_interactive_and_slow_chunks_are_not_sent_with_batch_chunks(grasps, make_pool,
+                                                                    monkeypatch):
+    request, _ = grasps
+    sizes = sent_messages(monkeypatch)
+    pool, _ = make_pool(workers=1, chunk_contacts=1800)
+    blocker = pool.start(request, Settings())  # 4 full chunks: the worker is busy
+    epsilon = Settings(compute_epsilon=True)
+    decisions = [pool.start(request.slice(300, 320), epsilon) for _ in range(2)]
+    decisions += [pool.start(request.slice(320, 340), Settings(), priority)
+                  for priority in (PRIORITY_BATCH, PRIORITY_INTERACTIVE)]
+    for decision in [blocker, *decisions]:
+        decision.result()
+    # The blocker's chunks, each epsilon chunk alone, the two others alone.
+    assert sizes == [1] * 8
+
+
 # --- a worker that dies ------------------------------------------------------------------
 
 @pytest.mark.parametrize("how", ["start", "decide"])
@@ -255,6 +318,27 @@ def test_a_chunk_that_kills_its_workers_fails_alone_with_the_reason(grasps, make
     # Both workers were replaced: the next request is decided as usual.
     again, _ = pool.decide(request.slice(0, 300), Settings())
     assert_as_core(again, expected, slice(0, 300))
+
+
+def test_a_worker_killed_on_a_message_of_several_chunks_costs_only_the_killers_grasps(
+        grasps, make_pool):
+    """A worker dies on a message of several requests' chunks: each is decided again
+    alone; the one that kills workers fails after two deaths of its own, the others get
+    the core's verdicts."""
+    request, expected = grasps
+    pool, log = make_pool(workers=1, chunk_contacts=1800,
+                          worker_command=faulty("--die-on", TARGET_ID))
+    parts = [request.slice(k, k + 100) for k in range(0, N_GRASPS, 100)]
+    decisions = [pool.start(part, Settings()) for part in parts]
+    verdicts = Verdicts.concatenate([decision.result()[0] for decision in decisions])
+    assert (verdicts.status[TARGET] == Status.SOLVER_FAILURE).all()
+    assert verdicts.messages[TARGET.start].startswith(
+        "worker process died twice deciding this chunk (grasps 500-599): ")
+    others = np.r_[0:TARGET.start, TARGET.stop:N_GRASPS]
+    assert_as_core(verdicts, expected, others)
+    together = [line for line in log if "are decided again, each alone" in line]
+    assert len(together) == 1 and "grasps 500-599" in together[0]
+    assert pool.worker_restarts == 3
 
 
 def test_a_job_chunk_that_kills_its_workers_fails_alone(grasps, make_pool):
@@ -448,10 +532,10 @@ def test_chunks_that_do_not_fit_go_through_the_pipe_with_the_same_verdicts(grasp
     sent = []
     put = SharedChunk.put
     monkeypatch.setattr(SharedChunk, "put",
-                        lambda self, chunk: sent.append(put(self, chunk)) or sent[-1])
+                        lambda self, chunk, at=0: sent.append(put(self, chunk, at)) or sent[-1])
     pool, _ = make_pool(chunk_contacts=60)  # 10 grasps a chunk
     got, _ = pool.decide(request, Settings())
-    assert len(sent) == 6 and all(layout is None for layout in sent)
+    assert sent and all(layout is None for layout in sent)  # one put a message
     want, _ = evaluate(request, Settings())
     np.testing.assert_array_equal(got.ids, want.ids)
     np.testing.assert_array_equal(got.status, want.status)
