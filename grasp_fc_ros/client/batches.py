@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 import queue
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from functools import partial
@@ -299,16 +299,35 @@ def split_batch(fields: BatchArrays, max_contacts: int) -> list[BatchArrays]:
     if total <= max_contacts or not matching:
         return [fields]
     ends = np.cumsum(counts)  # contacts up to and including grasp i
-    parts, first = [], 0
-    while first < len(counts):
-        base = int(ends[first - 1]) if first else 0
-        last = max(int(np.searchsorted(ends, base + max_contacts, side="right")), first + 1)
-        end = int(ends[last - 1])
+    parts = []
+    for first, last in grasp_ranges(counts, max_contacts):
+        base, end = (int(ends[first - 1]) if first else 0), int(ends[last - 1])
         per_contact = [values[base:end] if len(values) else values
                        for values in (fields.friction_coefficients, fields.torsional_friction)]
         parts.append(BatchArrays(fields.ids[first:last], fields.contact_counts[first:last],
                                  fields.positions[3 * base:3 * end],
                                  fields.normals[3 * base:3 * end], *per_contact))
+    return parts
+
+
+def grasp_ranges(counts: Sequence[int] | np.ndarray, max_contacts: int) -> list[tuple[int, int]]:
+    """Where grasps of ``counts`` contacts split into parts: ``(first, last)``
+    grasp ranges, in order, each of at most ``max_contacts`` contacts (a larger grasp
+    alone in its range).
+
+    Parameters
+    ----------
+    counts : sequence of int or ndarray
+        Contacts of each grasp (N,).
+    max_contacts : int
+        Contacts per range at most.
+    """
+    ends = np.cumsum(counts)  # contacts up to and including grasp i
+    parts, first = [], 0
+    while first < len(counts):
+        base = int(ends[first - 1]) if first else 0
+        last = max(int(np.searchsorted(ends, base + max_contacts, side="right")), first + 1)
+        parts.append((first, last))
         first = last
     return parts
 

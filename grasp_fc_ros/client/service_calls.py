@@ -19,6 +19,7 @@ from grasp_fc_msgs.srv import CheckForceClosure, ComputeContactForces
 from numpy.typing import ArrayLike
 from rclpy.node import Node
 
+from grasp_fc_ros.client.batches import grasp_ranges
 from grasp_fc_ros.interface.conversions import grasp_to_contact_array, verdict_msgs_to_numpy
 from grasp_fc_ros.interface.names import (
     CHECK_SERVICE,
@@ -69,7 +70,7 @@ class ServiceCalls:
         """Send a prepared CheckForceClosure request; its Verdicts in order.
 
         A request of more than MAX_REQUEST_CONTACTS contacts goes as several (see
-        :func:`request_parts`), within ``timeout`` for them all.
+        :func:`~.batches.grasp_ranges`), within ``timeout`` for them all.
         """
         grasps = request.grasps
         counts = [len(grasp.contacts) for grasp in grasps]
@@ -77,7 +78,7 @@ class ServiceCalls:
             replies = self._check.call(request, timeout).verdicts
         else:
             parts = [CheckForceClosure.Request(grasps=grasps[first:last])
-                     for first, last in request_parts(counts, MAX_REQUEST_CONTACTS)]
+                     for first, last in grasp_ranges(counts, MAX_REQUEST_CONTACTS)]
             replies = [verdict for response in self._check.call_each(parts, timeout)
                        for verdict in response.verdicts]
         return verdict_msgs_to_numpy(replies, counts)
@@ -112,24 +113,3 @@ class ServiceCalls:
     def close(self) -> None:
         self.node.destroy_node()
 
-
-def request_parts(counts: list[int], max_contacts: int) -> list[tuple[int, int]]:
-    """Where a request of grasps of ``counts`` contacts splits: ``(first, last)``
-    grasp ranges, in order, each of at most ``max_contacts`` contacts (a larger grasp
-    alone in its range).
-
-    Parameters
-    ----------
-    counts : list of int
-        Contacts of each grasp (N,).
-    max_contacts : int
-        Contacts per range at most.
-    """
-    ends = np.cumsum(counts)  # contacts up to and including grasp i
-    parts, first = [], 0
-    while first < len(counts):
-        base = int(ends[first - 1]) if first else 0
-        last = max(int(np.searchsorted(ends, base + max_contacts, side="right")), first + 1)
-        parts.append((first, last))
-        first = last
-    return parts

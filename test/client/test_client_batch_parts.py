@@ -12,8 +12,12 @@ import pytest
 from grasp_fc_msgs.msg import ContactArrayBatch
 
 from grasp_fc_ros.client import GraspClient, service_calls
-from grasp_fc_ros.client.batches import PART_ANSWER_WAIT_S, PARTS_IN_FLIGHT, split_batch
-from grasp_fc_ros.client.service_calls import request_parts
+from grasp_fc_ros.client.batches import (
+    PART_ANSWER_WAIT_S,
+    PARTS_IN_FLIGHT,
+    grasp_ranges,
+    split_batch,
+)
 from grasp_fc_ros.core import Status, check_force_closure
 from grasp_fc_ros.engine.pool import EvaluationPool
 from grasp_fc_ros.interface.conversions import batch_arrays
@@ -97,13 +101,13 @@ def test_large_batch_goes_in_parts_and_comes_back_whole_beside_a_service_call(ow
     assert len(sizes) > 2 and max(sizes) <= MAX_MESSAGE_CONTACTS
 
 
-def test_request_parts_hold_whole_grasps_in_order_within_the_bound():
+def test_grasp_ranges_hold_whole_grasps_in_order_within_the_bound():
     counts = [3, 5, 2, 7, 1, 4]
-    assert request_parts(counts, 8) == [(0, 2), (2, 3), (3, 5), (5, 6)]
-    assert request_parts(counts, 22) == [(0, 6)]
-    assert request_parts(counts, 2) == [(0, 1), (1, 2), (2, 3), (3, 4), (4, 5), (5, 6)]
-    assert request_parts([1, 1, 3, 1, 1], 2) == [(0, 2), (2, 3), (3, 5)]
-    assert request_parts([], 8) == []
+    assert grasp_ranges(counts, 8) == [(0, 2), (2, 3), (3, 5), (5, 6)]
+    assert grasp_ranges(counts, 22) == [(0, 6)]
+    assert grasp_ranges(counts, 2) == [(0, 1), (1, 2), (2, 3), (3, 4), (4, 5), (5, 6)]
+    assert grasp_ranges([1, 1, 3, 1, 1], 2) == [(0, 2), (2, 3), (3, 5)]
+    assert grasp_ranges([], 8) == []
 
 
 def test_a_big_service_call_goes_as_several_requests_under_the_nodes_limit(own_node,
