@@ -72,9 +72,11 @@ INTERFACES = (
              "``client_id`` and ``header``, on the asker's reply topic (see ``verdicts``).",
              qos=("grasp_fc_ros.interface.names.QUERY_QOS",)),
     Endpoint("contacts_batch", "subscription", "grasp_fc_msgs/msg/ContactArrayBatch",
-             "{name}",
+             "{name}_batches",
              "Many grasps in one packed message; answered by one verdict array, in "
-             "order, on the asker's reply topic (see ``verdicts_batch``).",
+             "order, on the asker's reply topic (see ``verdicts_batch``). Served on a DDS "
+             "participant of its own, so that a huge message holds up no service "
+             "call; its QoS overrides are the main node's parameters.",
              qos=("grasp_fc_ros.interface.names.QUERY_QOS",)),
     Endpoint("verdicts", "publisher", "grasp_fc_msgs/msg/ForceClosureVerdict", "{name}",
              "One verdict per query on ``contacts`` with ``client_id`` 0; a query with "
