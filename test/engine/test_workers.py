@@ -91,6 +91,16 @@ def assert_as_core(verdicts: Verdicts, expected, where=slice(None)) -> None:
     assert all(message == "" for message in np.asarray(verdicts.messages)[where])
 
 
+def assert_as_inline(verdicts: Verdicts, inline: Verdicts) -> None:
+    """The verdicts are those of :func:`evaluate` in this process (ids, status, margins
+    and messages), in order."""
+    np.testing.assert_array_equal(verdicts.ids, inline.ids)
+    np.testing.assert_array_equal(verdicts.status, inline.status)
+    np.testing.assert_allclose(verdicts.margin, inline.margin, rtol=MARGIN_REL_TOL,
+                               atol=MARGIN_ABS_TOL, equal_nan=True)
+    assert verdicts.messages == inline.messages
+
+
 def wait_until(condition, what: str, timeout: float = WAIT_S) -> None:
     deadline = time.monotonic() + timeout
     while not condition():
@@ -150,11 +160,7 @@ def test_worker_pool_gives_the_inline_verdicts_in_order(grasps, make_pool):
     pool, log = make_pool(chunk_contacts=200)  # 36 chunks of 33 grasps or fewer
     pooled, seconds = pool.decide(request, Settings())
     inline, _ = evaluate(request, Settings())
-    np.testing.assert_array_equal(pooled.ids, inline.ids)
-    np.testing.assert_array_equal(pooled.status, inline.status)
-    np.testing.assert_allclose(pooled.margin, inline.margin, rtol=MARGIN_REL_TOL,
-                               atol=MARGIN_ABS_TOL, equal_nan=True)
-    assert pooled.messages == inline.messages
+    assert_as_inline(pooled, inline)
     assert_as_core(pooled, expected)
     assert seconds["exact_s"] > 0
     assert log == [] and pool.worker_restarts == 0
@@ -234,12 +240,7 @@ def test_small_requests_queued_together_go_in_one_message_each_with_its_own_verd
     decisions = [pool.start(part, Settings()) for part in parts]
     for part, decision in zip(parts, decisions, strict=True):
         got, _ = decision.result()
-        want, _ = evaluate(part, Settings())
-        np.testing.assert_array_equal(got.ids, want.ids)
-        np.testing.assert_array_equal(got.status, want.status)
-        np.testing.assert_allclose(got.margin, want.margin, rtol=MARGIN_REL_TOL,
-                                   atol=MARGIN_ABS_TOL, equal_nan=True)
-        assert got.messages == want.messages
+        assert_as_inline(got, evaluate(part, Settings())[0])
     assert decisions[5].result()[0].messages[0].startswith("grasp 0 (id 500), contact 3: ")
     assert sum(sizes) == len(parts) and max(sizes) == 3 and len(sizes) < len(parts)
     assert log == []
