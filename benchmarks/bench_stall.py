@@ -208,6 +208,14 @@ def refusals(status: np.ndarray, messages: Sequence[str]) -> str:
     return f" ({len(refused)} refused: {messages[refused[0]]})" if len(refused) else ""
 
 
+def report_answer(n_answered: int, began: float, status: np.ndarray,
+                  messages: Sequence[str]) -> None:
+    """The child process's answer line: '<grasps answered> <seconds since began>
+    <refusals>' (``began`` from time.perf_counter())."""
+    print(f"{n_answered} {time.perf_counter() - began:.3f} {refusals(status, messages)}",
+          flush=True)
+
+
 def send(node_name: str, how: str, n_grasps: int, n_contacts: int) -> int:
     """The child process: connect, say ready, send the grasps as ``how`` says on 'go',
     print '<grasps answered> <seconds> <refusals>' once answered."""
@@ -231,8 +239,7 @@ def send(node_name: str, how: str, n_grasps: int, n_contacts: int) -> int:
             verdicts = client.call(positions, normals, timeout=REPLY_TIMEOUT_S)
         else:
             verdicts = client.check_batch(positions, normals, timeout=REPLY_TIMEOUT_S)
-        print(f"{len(verdicts)} {time.perf_counter() - began:.3f} "
-              f"{refusals(verdicts.status, verdicts.messages)}", flush=True)
+        report_answer(len(verdicts), began, verdicts.status, verdicts.messages)
         return 0
     finally:
         client.close()
@@ -279,8 +286,7 @@ def send_raw(node: Node, node_name: str, positions: np.ndarray, normals: np.ndar
     sys.stdin.readline()
     began = time.perf_counter()
     answer = publish_raw(channel, msg)
-    print(f"{len(answer.ids)} {time.perf_counter() - began:.3f} "
-          f"{refusals(answer.status, answer.messages)}", flush=True)
+    report_answer(len(answer.ids), began, answer.status, answer.messages)
     return 0
 
 
@@ -303,8 +309,7 @@ def send_raw_goal(node_name: str, positions: np.ndarray, normals: np.ndarray) ->
         result = sent.result().get_result_async()
         rclpy.spin_until_future_complete(node, result, timeout_sec=REPLY_TIMEOUT_S)
         verdicts = result.result().result.verdicts
-        print(f"{len(verdicts.ids)} {time.perf_counter() - began:.3f} "
-              f"{refusals(verdicts.status, verdicts.messages)}", flush=True)
+        report_answer(len(verdicts.ids), began, verdicts.status, verdicts.messages)
         return 0
     finally:
         client.destroy()
