@@ -3,7 +3,8 @@ verdicts out, the settings that decide them, and the contact forces that hold a 
 
 :class:`PackedGrasps` holds many grasps stacked contact after contact plus one contact
 count per grasp, the layout of ``ContactArrayBatch``; :class:`Verdicts` the answers, one
-row per grasp; :class:`ContactForces` the answer of ``compute_contact_forces``. Only
+row per grasp; :class:`ContactForces` the answer of ``compute_contact_forces``;
+:func:`chunk_end` where a run of whole grasps within a budget of contacts ends. Only
 numpy and the core's :class:`~grasp_fc_ros.core.Status`: a client imports this module
 and no part of the node or its engine.
 """
@@ -285,3 +286,12 @@ class ContactForces:
     def infeasible(cls, max_normal_force: float) -> ContactForces:
         """No forces hold the load (s* = inf), or none within the limits."""
         return cls(False, max_normal_force, np.empty((0, 3)), np.empty(0))
+
+
+def chunk_end(ends: np.ndarray, first: int, max_contacts: int) -> int:
+    """End (exclusive) of the run of whole grasps starting at grasp ``first``: at most
+    ``max_contacts`` contacts, and at least one grasp. ``ends`` is ``np.cumsum(counts)``.
+    How the client cuts messages and a long job its chunks."""
+    base = int(ends[first - 1]) if first else 0
+    last = int(np.searchsorted(ends, base + max_contacts, side="right"))
+    return max(last, first + 1)

@@ -56,7 +56,7 @@ from grasp_fc_ros.interface.names import (
     resolve,
 )
 from grasp_fc_ros.interface.wait_sets import SubscriptionLoop
-from grasp_fc_ros.packed import Verdicts
+from grasp_fc_ros.packed import Verdicts, chunk_end
 
 # Longest the sending thread waits for the node to acknowledge a part before it sends the
 # next one anyway (s): a slow or vanished node delays a batch's parts by this much each,
@@ -325,8 +325,7 @@ def grasp_ranges(counts: Sequence[int] | np.ndarray, max_contacts: int) -> list[
     ends = np.cumsum(counts)  # contacts up to and including grasp i
     parts, first = [], 0
     while first < len(counts):
-        base = int(ends[first - 1]) if first else 0
-        last = max(int(np.searchsorted(ends, base + max_contacts, side="right")), first + 1)
+        last = chunk_end(ends, first, max_contacts)
         parts.append((first, last))
         first = last
     return parts

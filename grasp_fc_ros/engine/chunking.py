@@ -52,14 +52,6 @@ def chunk_size(total_contacts: int, workers: int, chunk_contacts: int = CHUNK_CO
 TARGET_CHUNK_S = 0.05
 
 
-def chunk_end(ends: np.ndarray, first: int, max_contacts: int) -> int:
-    """End (exclusive) of the chunk starting at grasp ``first``: at most ``max_contacts``
-    contacts, and at least one grasp. ``ends`` is ``np.cumsum(counts)``."""
-    base = int(ends[first - 1]) if first else 0
-    last = int(np.searchsorted(ends, base + max_contacts, side="right"))
-    return max(last, first + 1)
-
-
 def adapted_chunk_contacts(chunk_contacts: int, compute_s: float, upper: int) -> int:
     """Contacts per chunk so that a chunk takes about :data:`TARGET_CHUNK_S`.
 

@@ -22,9 +22,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from grasp_fc_ros.core import Status
-from grasp_fc_ros.engine.chunking import adapted_chunk_contacts, chunk_end
+from grasp_fc_ros.engine.chunking import adapted_chunk_contacts
 from grasp_fc_ros.engine.pool import PRIORITY_BATCH, EvaluationPool
-from grasp_fc_ros.packed import PackedGrasps, Settings, Verdicts
+from grasp_fc_ros.packed import PackedGrasps, Settings, Verdicts, chunk_end
 
 # How often a job waiting for a chunk looks at its stop condition (s): this wait is most
 # of a cancel's latency, hence shorter than the pool's POLL_S, and a few hundred wake-ups

@@ -22,13 +22,12 @@ from grasp_fc_ros.engine.chunking import (
     MIN_CHUNK_CONTACTS,
     TARGET_CHUNK_S,
     adapted_chunk_contacts,
-    chunk_end,
 )
 from grasp_fc_ros.engine.evaluation import evaluate
 from grasp_fc_ros.engine.long_jobs import STOP_POLL_S, decide_in_chunks
 from grasp_fc_ros.engine.pool import EvaluationPool
 from grasp_fc_ros.objects import make_object, sample_grasps
-from grasp_fc_ros.packed import PackedGrasps, Settings
+from grasp_fc_ros.packed import PackedGrasps, Settings, chunk_end
 
 
 def packed_grasps(n_grasps: int, seed: int = 0, mixed: bool = False) -> PackedGrasps:
