@@ -288,11 +288,16 @@ def verdict(ok: bool) -> str:
     return "meets target" if ok else "BELOW target"
 
 
+def node_namespace(tag: str) -> str:
+    """The namespace of :func:`start_node`'s node of this ``tag``: this process's own."""
+    return f"/grasp_fc_{tag}_{os.getpid()}"
+
+
 def start_node(tag: str,
                parameters: Sequence[str] = ()) -> tuple[subprocess.Popen[bytes], GraspClient]:
-    """(node process, connected client) for a node in a namespace of its own, started
+    """(node process, connected client) for a node in :func:`node_namespace`, started
     with extra ``--ros-args`` ``parameters`` (e.g. ``["-p", "certificates:=true"]``)."""
-    namespace = f"/grasp_fc_{tag}_{os.getpid()}"
+    namespace = node_namespace(tag)
     node = subprocess.Popen(node_command(namespace) + list(parameters))
     client = GraspClient(f"{namespace}/force_closure")
     if not client.wait_for_node(CONNECT_TIMEOUT_S):

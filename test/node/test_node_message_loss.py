@@ -1,85 +1,116 @@
-"""Messages lost before the node takes them are counted in /diagnostics: a raw publisher
-with a KEEP_LAST history (not the documented RELIABLE KEEP_ALL) bursts single queries
-while the node's process is stopped (SIGSTOP), so its history overwrites queries the node
-has not received; Fast DDS reports them through rclpy's message_lost QoS event."""
+"""Messages the middleware reports lost before the node took them are counted in
+/diagnostics (``messages_lost``).
+
+The count is the node's: it adds up the ``total_count_change`` of rclpy's message_lost
+QoS events on its query subscriptions. Whether the rmw reports a loss is not: Fast DDS
+reports queries that a publisher's KEEP_LAST history overwrote late, as fewer than were
+lost (a run of 1,488 once as 1), or not at all (issue 31). So the node's part is tested
+here with known events, fed to the callbacks the node registered, and the route such
+events take to them with an event Fast DDS always raises (an incompatible publisher);
+benchmarks/bench_message_loss.py measures the end-to-end burst (a stopped node, a
+KEEP_LAST publisher) and what the rmw reported of it.
+"""
 
 from __future__ import annotations
 
-import os
-import signal
-import subprocess
-import sys
+import threading
 import time
 
 import pytest
-
-from ros_fixtures import Client, NodeProcess, node_command
-
-pytestmark = pytest.mark.timeout(180)
-
-BURST = 2_000
-# How long the loss may take to show in /diagnostics after the burst (s).
-LOSS_REPORT_WAIT_S = 15.0
-NAMESPACE = f"/loss_test_{os.getpid()}"
-PUBLISHER = """
-import sys, time
-import rclpy
+from rclpy.event_handler import QoSMessageLostInfo, QoSSubscriptionEventType
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from grasp_fc_msgs.msg import Contact, ContactArray
-rclpy.init()
-node = rclpy.create_node("burst_publisher")
-pub = node.create_publisher(ContactArray, sys.argv[1],
-                            QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
-deadline = time.monotonic() + 30
-while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
-    time.sleep(0.05)
-print("matched", flush=True)
-sys.stdin.readline()
-msg = ContactArray(client_id=7, contacts=[Contact()])  # one contact: INVALID_INPUT
-for i in range(int(sys.argv[2])):
-    msg.id = i
-    pub.publish(msg)
-print("sent", flush=True)
-sys.stdin.readline()
-time.sleep(2.0)  # let the reliable protocol deliver what the history still holds
-"""
+
+from grasp_fc_ros.interface.names import CONTACTS_BATCH_TOPIC, CONTACTS_TOPIC
+
+pytestmark = pytest.mark.timeout(120)
+
+NAMESPACE = "/loss_test"
+NODE_NAME = f"{NAMESPACE}/force_closure"
+# Discovery of a new publisher, on a loaded machine.
+EVENT_TIMEOUT_S = 30.0
 
 
-def test_queries_overwritten_by_a_keep_last_publisher_are_counted_lost(ros):
-    node = NodeProcess(node_command() + ["--ros-args", "-r", f"__ns:={NAMESPACE}",
-                                         "-p", "workers:=0"])
-    client = Client("loss_test_client", namespace=NAMESPACE)
-    publisher = subprocess.Popen([sys.executable, "-c", PUBLISHER, f"{NAMESPACE}/contacts",
-                                  str(BURST)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                 text=True)
-    name = f"{NAMESPACE}/force_closure"
+class MessageLost(QoSMessageLostInfo):
+    """A message_lost event with the given counts (rclpy's own are read-only)."""
+
+    def __init__(self, total_count: int, total_count_change: int):
+        super().__init__()
+        self._counts = (total_count, total_count_change)
+
+    total_count = property(lambda self: self._counts[0])
+    total_count_change = property(lambda self: self._counts[1])
+
+
+def subscription_handlers(node, topic: str, event_type) -> list:
+    """The event handlers of ``event_type`` on the node's subscriptions to ``topic``
+    (the batch topic's subscription is on the node's helper participant)."""
+    nodes = [node, node.batch_participant.node]
+    full_name = f"{NAMESPACE}/{topic}"
+    return [handler for owner in nodes for subscription in owner.subscriptions
+            if subscription.topic_name == full_name
+            for handler in subscription.event_handlers if handler.event_type == event_type]
+
+
+def lost_callback(node, topic: str):
+    """The node's one message_lost callback on its subscription to ``topic``."""
+    handlers = subscription_handlers(node, topic,
+                                     QoSSubscriptionEventType.RCL_SUBSCRIPTION_MESSAGE_LOST)
+    assert len(handlers) == 1, f"{len(handlers)} message_lost handlers on {topic}"
+    return handlers[0].callback
+
+
+@pytest.fixture
+def system(own_node):
+    node, _, client = own_node(NAMESPACE, workers=0)
+    return node, client
+
+
+def diagnostics_now(client) -> dict[str, int]:
+    """The node's counters in a /diagnostics status built after this call."""
+    values = client.diagnostics_after(time.time(), NODE_NAME)
+    return {key: int(values[key]) for key in ("messages_lost", "received", "answered")}
+
+
+def test_messages_lost_is_the_sum_of_the_events_counts(system):
+    """Several events on both query topics, one a run counted as one, one of none:
+    ``messages_lost`` grows by exactly their ``total_count_change`` summed, and no
+    query is counted received or answered for them."""
+    node, client = system
+    events = [(CONTACTS_TOPIC, MessageLost(3, 3)), (CONTACTS_BATCH_TOPIC, MessageLost(2, 2)),
+              (CONTACTS_TOPIC, MessageLost(4, 1)), (CONTACTS_TOPIC, MessageLost(4, 0)),
+              (CONTACTS_BATCH_TOPIC, MessageLost(1490, 1488))]
+    before = diagnostics_now(client)
+    for topic, event in events:
+        lost_callback(node, topic)(event)
+    after = diagnostics_now(client)
+    assert after["messages_lost"] - before["messages_lost"] == 3 + 2 + 1 + 0 + 1488
+    assert after["received"] == before["received"]
+    assert after["answered"] == before["answered"]
+
+
+def test_the_subscription_loops_hand_events_to_their_callbacks(system, monkeypatch):
+    """The query subscriptions are served by loops of their own, not the executor
+    (grasp_fc_ros.interface.wait_sets.SubscriptionLoop), which must wait on their QoS
+    events too, message_lost among them. Fast DDS always raises an incompatible-QoS
+    event for a BEST_EFFORT publisher on a RELIABLE subscription: it reaches the
+    callback on both topics, through the same wait set and dispatch."""
+    from grasp_fc_msgs.msg import ContactArray, ContactArrayBatch
+
+    node, client = system
+    kind = QoSSubscriptionEventType.RCL_SUBSCRIPTION_REQUESTED_INCOMPATIBLE_QOS
+    seen = {CONTACTS_TOPIC: threading.Event(), CONTACTS_BATCH_TOPIC: threading.Event()}
+    for topic, event in seen.items():
+        handlers = subscription_handlers(node, topic, kind)
+        assert len(handlers) == 1, f"{len(handlers)} incompatible-QoS handlers on {topic}"
+        monkeypatch.setattr(handlers[0], "callback",
+                            lambda info, event=event: event.set())
+    best_effort = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+    publishers = [client.node.create_publisher(ContactArray, CONTACTS_TOPIC, best_effort),
+                  client.node.create_publisher(ContactArrayBatch, CONTACTS_BATCH_TOPIC,
+                                               best_effort)]
     try:
-        client.wait_connected()
-        before = client.diagnostics_after(time.time(), name)
-        assert publisher.stdout.readline().strip() == "matched"
-        node.proc.send_signal(signal.SIGSTOP)  # the node takes nothing meanwhile
-        try:
-            publisher.stdin.write("go\n")
-            publisher.stdin.flush()
-            assert publisher.stdout.readline().strip() == "sent"
-        finally:
-            node.proc.send_signal(signal.SIGCONT)
-        publisher.stdin.write("end\n")
-        publisher.stdin.flush()
-        assert publisher.wait(60) == 0
-        # Fast DDS reports a loss when it sees the gap, and the node's event callback
-        # runs when its executor gets to it: on a loaded machine after the first reading.
-        deadline = time.monotonic() + LOSS_REPORT_WAIT_S
-        while True:
-            after = client.diagnostics_after(time.time() + 1.0, name)
-            lost = int(after["messages_lost"]) - int(before["messages_lost"])
-            if lost > 0 or time.monotonic() > deadline:
-                break
+        for topic, event in seen.items():
+            assert event.wait(EVENT_TIMEOUT_S), f"no QoS event on {topic} reached its callback"
     finally:
-        publisher.kill()
-        client.close()
-        node.stop()
-    received = int(after["received"]) - int(before["received"])
-    assert received < BURST
-    assert lost > 0 and received + lost <= BURST  # the rmw may count a run as one
-    assert int(after["answered"]) - int(before["answered"]) == received
+        for publisher in publishers:
+            client.node.destroy_publisher(publisher)
