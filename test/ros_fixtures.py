@@ -18,6 +18,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from ros_domains import claim_domain_id
@@ -40,8 +41,11 @@ from rclpy.node import Node  # noqa: E402
 from grasp_fc_ros.interface.names import QUERY_QOS as RELIABLE  # noqa: E402 - the documented QoS
 from grasp_fc_ros.interface.names import reply_topic  # noqa: E402
 
-DISCOVERY_TIMEOUT_S = 20.0
-REPLY_TIMEOUT_S = 20.0
+# Bounds on waits for what must come (s): generous, since on a shared 2-core machine a
+# node process's start (numba's cache loaded, workers started) or an answer can take many
+# seconds; a wait that succeeds returns at once, so they cost only a failing test.
+DISCOVERY_TIMEOUT_S = 60.0
+REPLY_TIMEOUT_S = 60.0
 NODE_EXIT_TIMEOUT_S = 10.0
 
 
@@ -191,6 +195,23 @@ class Client:
             values = find()
         assert ok, f"no diagnostics of {node_name} stamped after {t} within {timeout} s"
         return values
+
+    def diagnostics_when(self, reached: Callable[[dict[str, str]], bool],
+                         node_name: str = "/force_closure",
+                         timeout=REPLY_TIMEOUT_S) -> dict[str, str]:
+        """Key values of the first diagnostics of ``node_name`` stamped after this call
+        for which ``reached(values)`` holds; the last one read if none does within
+        ``timeout`` (the caller's assertion then shows it).
+
+        The node counts a single query answered just after publishing its verdict, and a
+        marker or a goal's end as it happens: a test that has seen them waits until the
+        counts reach what it expects, then asserts them exactly.
+        """
+        deadline = time.monotonic() + timeout
+        while True:
+            values = self.diagnostics_after(time.time(), node_name, timeout)
+            if reached(values) or time.monotonic() > deadline:
+                return values
 
     def clear(self):
         with self._lock:

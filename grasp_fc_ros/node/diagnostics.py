@@ -69,8 +69,11 @@ class Diagnostics:
 
     def publish(self) -> None:
         try:
+            # Stamped before the counts are read: everything counted before the stamp is
+            # in them, so a reader can compare two readings stamped after its events.
+            stamp = self._node.get_clock().now().to_msg()
             msg = DiagnosticArray(status=[self.status()])
-            msg.header.stamp = self._node.get_clock().now().to_msg()
+            msg.header.stamp = stamp
             self._publisher.publish(msg)
         except Exception as exc:  # noqa: BLE001 - diagnostics must never stop the node
             self._on_error("diagnostics", exc)

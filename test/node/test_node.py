@@ -17,6 +17,7 @@ import time
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
+from rclpy.time import Time
 
 from grasp_fc_ros.core import Status, check_force_closure
 from grasp_fc_ros.core.grasp_input import show_value
@@ -429,7 +430,8 @@ def test_diagnostics_report_exact_counter_changes(client, grasps):
     client.call([grasp_to_contact_array(i, positions[i], normals[i]) for i in range(3)])
     client.contacts_pub.publish(grasp_to_contact_array(3, positions[3], normals[3]))
     client.wait_for("verdicts", 1)
-    after = client.diagnostics_after(time.time())
+    # The single query is counted just after its verdict is published.
+    after = client.diagnostics_when(lambda v: int(v["answered"]) >= int(before["answered"]) + 20)
 
     keys = {"received", "answered", "queries", "force_closure", "rejected_by_filter",
             "decided_by_exact_test", "invalid_input", "solver_failures", "callback_errors",
@@ -471,6 +473,28 @@ def test_diagnostics_report_exact_counter_changes(client, grasps):
     assert float(after["exact_time_total_s"]) > float(before["exact_time_total_s"])
     assert float(after["processing_time_mean_ms"]) > 0
     assert float(after["processing_time_p99_ms"]) > 0
+
+
+def test_diagnostics_are_stamped_before_their_counts_are_read(fc_node, monkeypatch):
+    """So that a reading stamped after an event holds it (ros_fixtures.Client's
+    diagnostics_after relies on it)."""
+    diagnostics = fc_node.diagnostics
+    read_at, sent = {}, {}  # by thread: the node's timer publishes too
+    status, publish = diagnostics.status, diagnostics._publisher.publish
+
+    def reading_status():
+        read_at[threading.get_ident()] = fc_node.get_clock().now()
+        return status()
+
+    def recording_publish(msg):
+        sent[threading.get_ident()] = msg
+        publish(msg)
+
+    monkeypatch.setattr(diagnostics, "status", reading_status)
+    monkeypatch.setattr(diagnostics._publisher, "publish", recording_publish)
+    diagnostics.publish()
+    here = threading.get_ident()
+    assert Time.from_msg(sent[here].header.stamp) <= read_at[here]
 
 
 def test_single_query_message_names_its_id_and_contact(client, grasps):
@@ -542,7 +566,8 @@ def test_single_queries_beyond_max_batch_are_refused_at_once(own_node, grasps):
     assert [v.id for v in answered] == list(range(6))
     expected = check_force_closure(positions[:6], normals[:6], DEFAULT_MU)
     assert [v.status for v in answered] == expected.status.tolist()
-    after = client.diagnostics_after(time.time(), "/overload_test/force_closure")
+    after = client.diagnostics_when(lambda v: int(v["queries"]) >= int(before["queries"]) + 12,
+                                    "/overload_test/force_closure")
     change = diagnostics_change(before, after)
     assert change["overloaded"] == 6 and change["solver_failures"] == 6
     assert change["queries"] == 12  # query 0 is counted once answered

@@ -235,7 +235,10 @@ def test_a_failing_offer_costs_no_verdict(marker_node, monkeypatch):
     client.contacts_pub.publish(query(71, AROUND, "object"))
     verdict, = client.wait_for("verdicts", 1)
     assert verdict.id == 71 and verdict.status == Status.FORCE_CLOSURE
-    values = client.diagnostics_after(time.time(), node_name="/markers_fail/force_closure")
+    # Counted just after the verdict went out: wait for the counts, then check them.
+    values = client.diagnostics_when(
+        lambda v: v["callback_errors"] != "0" and v["answered"] != "0",
+        node_name="/markers_fail/force_closure")
     assert values["callback_errors"] == "1" and values["answered"] == "1"
     assert listener.quiet() == []
 
@@ -253,7 +256,8 @@ def test_marker_counts_are_in_the_diagnostics(marker_node):
     node, client, listener = marker_node("/markers_diag", publish_markers=True)
     client.contacts_pub.publish(query(61, AROUND, "object"))
     listener.wait_for(1)
-    values = client.diagnostics_after(time.time(), node_name="/markers_diag/force_closure")
+    values = client.diagnostics_when(lambda v: v["markers_published"] != "0",
+                                     node_name="/markers_diag/force_closure")
     assert values["markers_published"] == "1"
     assert values["markers_dropped"] == "0"
 
