@@ -82,7 +82,9 @@ def test_burst_of_single_queries_is_answered_exactly_once(own_node, grasps):
                                    normals[real % len(positions)], 0.5).status
     np.testing.assert_array_equal(status[real], expected)
     assert (np.delete(status, real) == Status.INVALID_INPUT).all()
-    after = raw.diagnostics_after(time.time(), "/burst_test/force_closure")
+    # The last queries are counted just after their verdicts went out.
+    after = raw.diagnostics_when(lambda v: int(v["answered"]) >= BURST,
+                                 "/burst_test/force_closure")
     assert int(after["received"]) == int(after["answered"]) == BURST
     assert after["overloaded"] == "0"
 
@@ -96,19 +98,19 @@ def test_service_answers_while_a_large_batch_is_decided(own_node, grasps):
         assert client.wait_for_node(REPLY_TIMEOUT_S)
         batch = client.submit_batch(positions, normals)
         deadline = time.monotonic() + LOAD_TIMEOUT_S
-        # Its parts come as the node answers the ones before (GraspClient keeps at most
-        # PARTS_IN_FLIGHT unanswered): start once the node has some.
-        while int(client.next_diagnostics()["received"]) == 0:
+        # Start once the node is deciding the batch (its ~36 chunks take seconds).
+        while node.statistics.received == 0:
             assert time.monotonic() < deadline, "the node never received the batch"
-        latencies = []
-        while not batch.done() and len(latencies) < 20:
-            start = time.perf_counter()
+            time.sleep(0.01)
+        expected = check_force_closure(positions[0], normals[0], 0.5).status
+        during = []  # per call: whether the batch was still undecided when it was answered
+        while not batch.done() and len(during) < 5:
             verdict = client.call(positions[:1], normals[:1], timeout=REPLY_TIMEOUT_S)
-            latencies.append(time.perf_counter() - start)
-            assert verdict.status[0] == check_force_closure(positions[0], normals[0], 0.5).status
-        assert latencies and not batch.done(), "the batch ended before the service was tried"
-        # Generous: the batch takes seconds; a service call waits at most for a chunk.
-        assert np.median(latencies) < 1.0, latencies
+            during.append(not batch.done())
+            assert verdict.status[0] == expected
+        # A call waits at most for the chunk being decided, not for the batch (how long
+        # it waits is benchmarks/bench_ros.py's "service round trip during a batch").
+        assert during and during[0], "the first call was answered only after the batch"
         verdicts = batch.result(LOAD_TIMEOUT_S)
         np.testing.assert_array_equal(verdicts.ids, np.arange(len(positions)))
         np.testing.assert_array_equal(verdicts.status[:200],
