@@ -18,7 +18,9 @@ from ros_domains import claim_domain_id
 
 ROOT = Path(__file__).resolve().parents[2]
 PARAMS_FILE = ROOT / "config" / "force_closure.yaml"
-START_TIMEOUT_S = 30.0
+# A node process's start on a loaded 2-core machine (numba's cache loaded, workers
+# started) and its exit (s): generous, since a wait that succeeds returns at once.
+START_TIMEOUT_S = 60.0
 EXIT_TIMEOUT_S = 10.0
 
 
@@ -82,7 +84,7 @@ def _read_until(process: subprocess.Popen, needle: str, timeout: float) -> str:
     return "".join(seen)
 
 
-@pytest.mark.timeout(90)
+@pytest.mark.timeout(120)
 def test_node_starts_with_the_file_and_stops_on_ctrl_c():
     process = _node(PARAMS_FILE)
     try:
@@ -99,7 +101,7 @@ def test_node_starts_with_the_file_and_stops_on_ctrl_c():
             process.wait()
 
 
-@pytest.mark.timeout(90)
+@pytest.mark.timeout(120)
 @pytest.mark.parametrize("line, reason", [
     ("friction_coefficient: -1.0", "friction_coefficient must be finite, > 0 and <= 1000"),
     # The trap docs/params.md warns about: a double given without a decimal point.
