@@ -12,6 +12,7 @@ import pytest
 from grasp_fc_msgs.msg import ContactArrayBatch
 
 from grasp_fc_ros.client import GraspClient, service_calls
+from grasp_fc_ros.client import batches as batches_module
 from grasp_fc_ros.client.batches import (
     PART_ANSWER_WAIT_S,
     PARTS_IN_FLIGHT,
@@ -94,7 +95,7 @@ def test_large_batch_goes_in_parts_and_comes_back_whole_beside_a_service_call(ow
     np.testing.assert_array_equal(verdicts.status, [e.status[0] for e in expected])
     np.testing.assert_array_equal(verdicts.force_closure,
                                   [e.force_closure[0] for e in expected])
-    deadline = time.monotonic() + 5.0  # the listener hears the parts on its spin thread
+    deadline = time.monotonic() + REPLY_TIMEOUT_S  # the listener hears them on its thread
     while sum(sizes) < counts.sum() and time.monotonic() < deadline:
         time.sleep(0.05)
     assert sum(sizes) == counts.sum()
@@ -165,33 +166,73 @@ def test_a_call_in_several_requests_has_one_timeout_for_them_all(own_node, monke
         client.close()
 
 
-def test_parts_wait_for_answers_once_parts_in_flight_are_out(ros):
-    """With nobody answering (a plain listener on the batch topic, no node), the client
-    sends PARTS_IN_FLIGHT parts, then the next one only after PART_ANSWER_WAIT_S."""
-    from rclpy.node import Node
+class PartsListener:
+    """A plain listener on a namespace's batch topic (no node answers there) and a
+    GraspClient of that namespace, matched: when each part of a batch was heard."""
 
-    from ros_fixtures import SpinThread
+    def __init__(self, namespace: str):
+        from rclpy.node import Node
 
-    listener = Node("parts_listener", namespace="/window_test")
-    heard: list[float] = []
-    listener.create_subscription(ContactArrayBatch, "/window_test/contacts_batch",
-                                 lambda _: heard.append(time.monotonic()), QUERY_QOS)
-    spinner = SpinThread(listener)
-    client = GraspClient("/window_test/force_closure")
-    positions, normals = sample_grasps(make_object("box"), 1024 * (PARTS_IN_FLIGHT + 2), 6,
-                                       np.random.default_rng(5))  # 1,024 grasps a part
-    try:
+        from ros_fixtures import SpinThread
+
+        self.heard: list[float] = []
+        node = Node("parts_listener", namespace=namespace)
+        node.create_subscription(ContactArrayBatch, f"{namespace}/contacts_batch",
+                                 lambda _: self.heard.append(time.monotonic()), QUERY_QOS)
+        self.spinner = SpinThread(node)
+        self.client = GraspClient(f"{namespace}/force_closure")
+        self.wait_until(lambda: self.client._batches.publisher.get_subscription_count(),  # noqa: SLF001
+                        "the listener never matched")
+
+    @staticmethod
+    def wait_until(condition, what: str) -> None:
         deadline = time.monotonic() + REPLY_TIMEOUT_S
-        while client._batches.publisher.get_subscription_count() == 0:  # noqa: SLF001
-            assert time.monotonic() < deadline, "the listener never matched"
+        while not condition():
+            assert time.monotonic() < deadline, what
             time.sleep(0.01)
+
+    def send(self, n_parts: int) -> float:
+        """Submit a batch of ``n_parts`` parts of 1,024 grasps; when it was submitted."""
+        positions, normals = sample_grasps(make_object("box"), 1024 * n_parts, 6,
+                                           np.random.default_rng(5))
         sent = time.monotonic()
-        client.submit_batch(positions, normals)
-        while len(heard) < PARTS_IN_FLIGHT + 1:
-            assert time.monotonic() < deadline, f"heard {len(heard)} parts"
-            time.sleep(0.01)
+        self.client.submit_batch(positions, normals)
+        return sent
+
+    def wait_heard(self, n_parts: int) -> None:
+        self.wait_until(lambda: len(self.heard) >= n_parts, f"heard {len(self.heard)} parts")
+
+    def close(self) -> None:
+        self.client.close()
+        self.spinner.stop()  # destroys the listener
+
+
+# How long no further part may come while PARTS_IN_FLIGHT are unanswered (s): several
+# times the longest a part waits for its acknowledgement (PART_ACK_WAIT_S, 1 s).
+QUIET_S = 3.0
+
+
+def test_no_more_than_parts_in_flight_go_out_unanswered(ros, monkeypatch):
+    """With nobody answering, the client sends PARTS_IN_FLIGHT parts, then waits."""
+    monkeypatch.setattr(batches_module, "PART_ANSWER_WAIT_S", 3600.0)  # no wait ends here
+    listener = PartsListener("/window_test")
+    try:
+        listener.send(PARTS_IN_FLIGHT + 2)
+        listener.wait_heard(PARTS_IN_FLIGHT)
+        time.sleep(QUIET_S)
+        assert len(listener.heard) == PARTS_IN_FLIGHT
     finally:
-        client.close()
-        spinner.stop()  # destroys the listener
-    assert heard[PARTS_IN_FLIGHT - 1] - sent < PART_ANSWER_WAIT_S
-    assert heard[PARTS_IN_FLIGHT] - sent >= PART_ANSWER_WAIT_S
+        listener.close()
+
+
+def test_the_wait_for_an_answer_ends_after_part_answer_wait_s(ros):
+    """With nobody answering, the part after PARTS_IN_FLIGHT goes out once
+    PART_ANSWER_WAIT_S has passed, not before (a vanished node delays a batch, never
+    forever)."""
+    listener = PartsListener("/window_wait_test")
+    try:
+        sent = listener.send(PARTS_IN_FLIGHT + 2)
+        listener.wait_heard(PARTS_IN_FLIGHT + 1)
+    finally:
+        listener.close()
+    assert listener.heard[PARTS_IN_FLIGHT] - sent >= PART_ANSWER_WAIT_S
