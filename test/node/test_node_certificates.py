@@ -26,6 +26,7 @@ from grasp_fc_ros.engine.pool import EvaluationPool
 from grasp_fc_ros.interface.conversions import batch_to_packed, grasps_to_batch_msg
 from grasp_fc_ros.objects import make_object, sample_grasps
 from grasp_fc_ros.packed import Settings
+from ros_fixtures import REPLY_TIMEOUT_S
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -52,7 +53,7 @@ def certifying(own_node):
     node, _, _ = own_node("/certifying", certificates=True, compute_min_friction=True,
                           workers=0)
     with GraspClient("/certifying/force_closure") as client:
-        assert client.wait_for_node(timeout=20.0)
+        assert client.wait_for_node(timeout=REPLY_TIMEOUT_S)
         yield node, client
 
 
@@ -101,7 +102,7 @@ def test_single_topic_verdicts_carry_verified_certificates(certifying, grasps):
     positions, normals = (a[:12] for a in grasps)
     _, client = certifying
     futures = [client.submit(p, q) for p, q in zip(positions, normals, strict=True)]
-    replies = [f.result(timeout=20.0) for f in futures]
+    replies = [f.result(timeout=REPLY_TIMEOUT_S) for f in futures]
     status = np.array([r.status for r in replies])
     forces = np.full(positions.shape, np.nan)
     for k, reply in enumerate(replies):
@@ -134,14 +135,14 @@ def test_parameters_off_send_no_certificates_and_can_be_switched_on(own_node, gr
     positions, normals = (a[:10] for a in grasps)
     node, _, _ = own_node("/plain", workers=0)
     with GraspClient("/plain/force_closure") as client:
-        assert client.wait_for_node(timeout=20.0)
+        assert client.wait_for_node(timeout=REPLY_TIMEOUT_S)
         batch = client.check_batch(positions, normals)
         assert batch.contact_forces is None and batch.separating_wrench is None
         assert batch.min_friction is None
         served = client.call(positions, normals)
         assert np.isnan(served.contact_forces).all()
         assert np.isnan(served.separating_wrench).all() and np.isnan(served.min_friction).all()
-        single = client.submit(positions[0], normals[0]).result(timeout=20.0)
+        single = client.submit(positions[0], normals[0]).result(timeout=REPLY_TIMEOUT_S)
         assert single.contact_forces == [] and math.isnan(single.separating_wrench.torque.z)
         assert math.isnan(single.min_friction)
         assert node.set_parameters_atomically([

@@ -18,6 +18,7 @@ from grasp_fc_ros.engine.pool import EvaluationPool
 from grasp_fc_ros.interface.conversions import batch_to_packed, grasps_to_batch_msg
 from grasp_fc_ros.objects import make_object, sample_grasps
 from grasp_fc_ros.packed import Settings
+from ros_fixtures import REPLY_TIMEOUT_S
 
 # A cold start compiles the epsilon kernels (docs/epsilon.md#cost) in the node's
 # process and in the worker: far more than a verdict.
@@ -69,7 +70,7 @@ def test_every_lane_carries_epsilon_bounds_with_compute_epsilon(own_node, grasps
     positions, normals = grasps
     own_node("/epsilon", compute_epsilon=True, workers=0)
     with GraspClient("/epsilon/force_closure") as client:
-        assert client.wait_for_node(timeout=20.0)
+        assert client.wait_for_node(timeout=REPLY_TIMEOUT_S)
         batch = client.check_batch(positions, normals, timeout=300.0)
         served = client.call(positions, normals, timeout=300.0)
         singles = [client.submit(p, q).result(timeout=300.0)
@@ -90,10 +91,10 @@ def test_without_compute_epsilon_the_bounds_are_nan_or_absent(own_node, grasps):
     positions, normals = (a[:6] for a in grasps)
     own_node("/no_epsilon", workers=0)
     with GraspClient("/no_epsilon/force_closure") as client:
-        assert client.wait_for_node(timeout=20.0)
+        assert client.wait_for_node(timeout=REPLY_TIMEOUT_S)
         batch = client.check_batch(positions, normals)
         served = client.call(positions, normals)
-        single = client.submit(positions[0], normals[0]).result(timeout=20.0)
+        single = client.submit(positions[0], normals[0]).result(timeout=REPLY_TIMEOUT_S)
     assert batch.epsilon_lower is None and batch.epsilon_upper is None
     assert np.isnan(served.epsilon_lower).all() and np.isnan(served.epsilon_upper).all()
     assert math.isnan(single.epsilon_lower) and math.isnan(single.epsilon_upper)

@@ -20,7 +20,7 @@ from grasp_fc_ros.interface.conversions import (
 )
 from grasp_fc_ros.node import ForceClosureNode
 from grasp_fc_ros.packed import Settings
-from ros_fixtures import Client, SpinThread
+from ros_fixtures import REPLY_TIMEOUT_S, Client, SpinThread
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -133,7 +133,7 @@ def test_client_batch_of_soft_pairs_with_certificates(own_node):
     gamma = np.array([[0.004, 0.004], [0.0, 0.0], [0.004, 0.004]])
     own_node("/soft_client", certificates=True, workers=0)
     with GraspClient("/soft_client/force_closure") as client:
-        assert client.wait_for_node(timeout=20.0)
+        assert client.wait_for_node(timeout=REPLY_TIMEOUT_S)
         got = client.check_batch(positions, normals, 0.5, torsional_friction=gamma)
     assert got.force_closure.tolist() == [True, False, True]  # two hard fingers never
     forces_ok, _ = verify_certificates(positions, normals, 0.5,
