@@ -291,10 +291,16 @@ def test_worker_killed_mid_run_loses_nothing(processes, tmp_path):
     assert len(plan.chunks) == len(list(out.glob("part-*"))) == n_chunks
 
 
+# Grasps of the resumed run, in chunks of 300: with 6,000 (20 chunks, a fraction of a
+# second once the first parts are out) the run could end between the test seeing four
+# parts and its kill, on a loaded machine; 200 chunks take seconds.
+N_RESUME_GRASPS = 60_000
+
+
 def test_killed_client_resumes_on_the_same_cluster(processes, tmp_path, capsys):
     address, start_worker, _ = processes
     start_worker(), start_worker()
-    path = _big_input(tmp_path, 6000)
+    path = _big_input(tmp_path, N_RESUME_GRASPS)
     out = tmp_path / "labels.parquet"
     command = [path, "--out", str(out), "--chunk-size", "300", "--scheduler", address,
                "--no-progress"]
@@ -305,12 +311,12 @@ def test_killed_client_resumes_on_the_same_cluster(processes, tmp_path, capsys):
     runner.kill()
     runner.wait()
     done = len(list(parts.glob("part-*")))
-    assert 4 <= done < 20
+    assert 4 <= done < N_RESUME_GRASPS // 300
     assert cli.main(command) == 0
     assert f"({done} already written)" in capsys.readouterr().err
     assert not parts.exists()
     table = pq.read_table(out)
-    assert np.array_equal(table["id"].to_numpy(), np.arange(6000))
+    assert np.array_equal(table["id"].to_numpy(), np.arange(N_RESUME_GRASPS))
     d = np.load(path)
     fresh = check_force_closure(d["positions"][:300], d["normals"][:300], 0.5)
     assert np.array_equal(table["status"].to_numpy()[:300], fresh.status)
