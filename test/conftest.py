@@ -43,7 +43,7 @@ def own_node(ros):
         spinner = SpinThread(node)
         client = Client(f"{namespace.strip('/')}_client", namespace=namespace)
         made.append((spinner, client, pool))
-        client.wait_connected()
+        client.wait_connected(node=node)
         return node, spinner, client
 
     yield make_node

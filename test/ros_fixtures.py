@@ -124,18 +124,24 @@ class Client:
             self.diagnostics.append(msg)
             self._lock.notify_all()
 
-    def wait_connected(self, timeout=DISCOVERY_TIMEOUT_S):
-        """Wait until the node's service, subscriptions and publishers are matched."""
+    def wait_connected(self, timeout=DISCOVERY_TIMEOUT_S, node: Node | None = None):
+        """Wait until the node's service, subscriptions and publishers are matched.
+
+        ``node``: the node, when it runs in this process: then its answer publishers'
+        own matches are waited for. A node in another process is not seen from here, so
+        a grace period stands in for them (the two ends of a match see it at different
+        times, and a reliable, volatile publisher drops what it sends before).
+        """
         deadline = time.monotonic() + timeout
         assert self.service.wait_for_service(timeout_sec=timeout), "service not found"
         while time.monotonic() < deadline:
             if (self.contacts_pub.get_subscription_count() > 0
                     and self.batch_pub.get_subscription_count() > 0
                     and self.node.count_publishers("verdicts") > 0
-                    and self.node.count_publishers("verdicts_batch") > 0):
-                # Publisher matching is not symmetric in time; a short grace period lets the
-                # node's publishers match our subscriptions too.
-                time.sleep(0.5)
+                    and self.node.count_publishers("verdicts_batch") > 0
+                    and (node is None or answers_matched(node))):
+                if node is None:
+                    time.sleep(0.5)
                 return
             time.sleep(0.05)
         raise AssertionError("node topics not matched within timeout")
@@ -230,6 +236,14 @@ class Client:
 
     def close(self):
         self.spinner.stop()
+
+
+def answers_matched(node: Node) -> bool:
+    """Whether ``node``'s publishers of the shared answer topics (``verdicts``,
+    ``verdicts_batch``) have each matched a subscription."""
+    topics = {node.resolve_topic_name(name) for name in ("verdicts", "verdicts_batch")}
+    answers = [p for p in node.publishers if p.topic_name in topics]
+    return len(answers) == len(topics) and all(p.get_subscription_count() for p in answers)
 
 
 def node_command() -> list[str]:

@@ -51,7 +51,7 @@ def system(ros):
     node = ForceClosureNode(parameter_overrides=[Parameter("workers", value=0)])
     spinner = SpinThread(node)
     client = Client()
-    client.wait_connected()
+    client.wait_connected(node=node)
     yield node, client
     client.close()
     spinner.stop()

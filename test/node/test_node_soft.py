@@ -94,7 +94,7 @@ def system(ros):
     node = ForceClosureNode(parameter_overrides=[Parameter("workers", value=0)])
     spinner = SpinThread(node)
     client = Client("grasp_fc_soft_test_client")
-    client.wait_connected()
+    client.wait_connected(node=node)
     yield node, client
     client.close()
     spinner.stop()

@@ -38,7 +38,9 @@ SHELL_DOCUMENTS = (README, ROOT / "docs" / "install.md", ROOT / "docs" / "marker
 MAX_README_LINES = 300
 FIRST_SCREENS_LINES = 160
 EXAMPLE_TIMEOUT_S = 180
-REPLY_TIMEOUT_S = 30.0
+# Waits for the README node's service, topics and answers (s): generous, since its start
+# on a loaded 2-core machine can take tens of seconds; a wait that succeeds returns at once.
+REPLY_TIMEOUT_S = 60.0
 EXPECTED_OUTPUT = re.compile(r"#\s*->\s*(.+?)\s*$")
 
 sys.path.insert(0, str(ROOT / "docs" / "_ext"))
@@ -397,7 +399,7 @@ def test_ros2_cli_payloads_are_answered_as_the_readme_says(readme_node: Any) -> 
         for kind, endpoint, values, where in payloads:
             request = fill(message_class(endpoint.type)(), values)
             if kind == "topic":
-                verdict = _publish_and_wait(probe, endpoint, request, where)
+                verdict = _publish_and_wait(probe, readme_node, endpoint, request, where)
                 assert verdict.id == request.id and verdict.force_closure, f"{where}: {verdict}"
             else:
                 [verdict] = _call(probe, endpoint, request, where).verdicts
@@ -406,9 +408,11 @@ def test_ros2_cli_payloads_are_answered_as_the_readme_says(readme_node: Any) -> 
         spinner.stop()
 
 
-def _publish_and_wait(probe: Any, endpoint: grasp_fc_docs.Endpoint, request: Any,
+def _publish_and_wait(probe: Any, node: Any, endpoint: grasp_fc_docs.Endpoint, request: Any,
                       where: str) -> Any:
-    """Publish ``request`` on the endpoint's topic; the verdict with its id."""
+    """Publish ``request`` on the endpoint's topic; the verdict with its id (from
+    ``node``, once its verdict publisher has matched the probe's subscription: a
+    reliable, volatile publisher drops what it sends before)."""
     from grasp_fc_msgs.msg import ForceClosureVerdict
 
     from grasp_fc_ros.interface.names import QUERY_QOS
@@ -423,8 +427,9 @@ def _publish_and_wait(probe: Any, endpoint: grasp_fc_docs.Endpoint, request: Any
 
     probe.create_subscription(ForceClosureVerdict, "/verdicts", on_verdict, QUERY_QOS)
     publisher = probe.create_publisher(type(request), "/" + endpoint.name, QUERY_QOS)
+    answers = [p for p in node.publishers if p.topic_name == "/verdicts"]
     _wait(lambda: publisher.get_subscription_count() > 0
-          and probe.count_publishers("/verdicts") > 0, where)
+          and answers and all(p.get_subscription_count() > 0 for p in answers), where)
     publisher.publish(request)
     assert answered.wait(REPLY_TIMEOUT_S), f"{where}: no verdict"
     return verdicts[0]
