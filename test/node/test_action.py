@@ -66,7 +66,7 @@ def served(ros):
         Parameter("max_message_contacts", value=0)])
     spinner = SpinThread(node)
     client = GraspClient(f"{namespace}/force_closure")
-    assert client.wait_for_node(timeout=30.0)
+    assert client.wait_for_node(timeout=WAIT_S)
     yield node, client
     client.close()
     spinner.stop()
@@ -148,7 +148,7 @@ def action_client(served):
 
     _, client = served
     action = ActionClient(client.node, LabelGrasps, "/action_test/label_grasps")
-    assert action.wait_for_server(timeout_sec=30.0)
+    assert action.wait_for_server(timeout_sec=WAIT_S)
     return action, client.node
 
 
@@ -443,7 +443,7 @@ def test_destroying_the_node_aborts_its_goals_with_their_prefixes(grasps, ros):
     client = GraspClient(f"{namespace}/force_closure")
     try:
         action = ActionClient(client.node, LabelGrasps, f"{namespace}/label_grasps")
-        assert action.wait_for_server(timeout_sec=30.0)
+        assert action.wait_for_server(timeout_sec=WAIT_S)
         action = (action, client.node)
         positions, normals, expected = tiled(grasps, 60_000)
         # More goals than goal threads: the last one is still queued at shutdown.
@@ -452,7 +452,7 @@ def test_destroying_the_node_aborts_its_goals_with_their_prefixes(grasps, ros):
         stop_at = time.monotonic()
         spinner.stop()
         stop_s = time.monotonic() - stop_at
-        results = [goal.result(timeout=10.0) for goal in goals]
+        results = [goal.result(timeout=WAIT_S) for goal in goals]
     finally:
         client.close()
         spinner.stop()
@@ -490,7 +490,7 @@ def test_sigterm_aborts_a_running_goal_with_its_prefix_and_the_node_exits(grasps
     client = GraspClient(f"{namespace}/force_closure")
     try:
         action = ActionClient(client.node, LabelGrasps, f"{namespace}/label_grasps")
-        assert action.wait_for_server(timeout_sec=30.0)
+        assert action.wait_for_server(timeout_sec=WAIT_S)
         action = (action, client.node)
         n_grasps = min(long_goal, 100_000)  # the node's default max_batch
         positions, normals, expected = tiled(grasps, n_grasps)
@@ -499,7 +499,7 @@ def test_sigterm_aborts_a_running_goal_with_its_prefix_and_the_node_exits(grasps
         stop_at = time.monotonic()
         code, _, err = process.stop(signal.SIGTERM)
         exit_s = time.monotonic() - stop_at
-        status, verdicts = goal.result(timeout=10.0)
+        status, verdicts = goal.result(timeout=WAIT_S)
     finally:
         client.close()
         if process.proc.poll() is None:

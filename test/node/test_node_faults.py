@@ -116,7 +116,7 @@ def served(ros):
         Parameter("workers", value=2)])
     spinner = SpinThread(node)
     client = GraspClient(f"{namespace}/force_closure")
-    assert client.wait_for_node(timeout=30.0)
+    assert client.wait_for_node(timeout=WAIT_S)
     workers = worker_pids() - before
     assert len(workers) == 2
     yield client, workers

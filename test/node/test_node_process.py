@@ -34,6 +34,8 @@ MARGIN_ABS_TOL = 1e-6
 # A node process's start on a loaded 2-core machine: numba's cache loaded, workers
 # started (s); generous, since a wait that succeeds returns at once.
 START_TIMEOUT_S = 60.0
+# A demo run (its own node's start included) on a loaded machine (s).
+DEMO_TIMEOUT_S = 180.0
 
 
 @pytest.fixture(scope="module")
@@ -91,7 +93,7 @@ def test_console_script_node_answers_topics_and_service(client, grasps, extra_en
 def test_module_entry_point_stops_cleanly_on_ctrl_c(client):
     process = NodeProcess([sys.executable, "-m", "grasp_fc_ros.node"])
     try:
-        assert client.service.wait_for_service(timeout_sec=20.0)
+        assert client.service.wait_for_service(timeout_sec=START_TIMEOUT_S)
     finally:
         assert_clean_exit(process, signal.SIGINT)
 
@@ -106,11 +108,12 @@ def test_invalid_start_parameter_exits_with_error():
     assert "friction_coefficient" in err and "Traceback" not in err
 
 
+@pytest.mark.timeout(300)
 def test_demo_console_script_streams_grasps_and_prints_table():
     demo = Path(sys.executable).with_name("grasp-fc-demo")
     assert demo.exists(), "console script grasp-fc-demo not installed (pip install -e .)"
     done = subprocess.run([str(demo), "--grasps", "300", "--object", "torus"],
-                          capture_output=True, text=True, timeout=60)
+                          capture_output=True, text=True, timeout=DEMO_TIMEOUT_S)
     assert done.returncode == 0, done.stderr
     rows = (re.match(r"^  (\S.*?)\s{2,}(\S.*)$", line) for line in done.stdout.splitlines())
     table = dict(row.groups() for row in rows if row)
@@ -284,6 +287,7 @@ def test_client_resubmits_after_the_node_is_killed_and_restarted(ros, grasps):
     assert [a.status for a in answers] == expected[:50].tolist()
 
 
+@pytest.mark.timeout(300)
 def test_demo_drives_a_running_node_by_name():
     namespace = f"/demo_target_{os.getpid()}"
     process = NodeProcess(node_command() + ["--ros-args", "-r", f"__ns:={namespace}"])
@@ -294,7 +298,7 @@ def test_demo_drives_a_running_node_by_name():
         demo = Path(sys.executable).with_name("grasp-fc-demo")
         done = subprocess.run([str(demo), "--grasps", "120", "--node-name",
                                f"{namespace}/force_closure"],
-                              capture_output=True, text=True, timeout=90)
+                              capture_output=True, text=True, timeout=DEMO_TIMEOUT_S)
     finally:
         assert_clean_exit(process, signal.SIGTERM)
     assert done.returncode == 0, done.stderr
