@@ -20,7 +20,7 @@ from rclpy.parameter import Parameter
 from rclpy.time import Time
 
 from grasp_fc_ros.core import Status, check_force_closure
-from grasp_fc_ros.core.grasp_input import show_value
+from grasp_fc_ros.core.model.grasp_input import show_value
 from grasp_fc_ros.engine import evaluation as evaluation_module
 from grasp_fc_ros.engine.pool import EvaluationPool
 from grasp_fc_ros.interface.conversions import (
