@@ -42,7 +42,7 @@ True
 """
 
 from .certificates import verify_certificates
-from .epsilon import EpsilonResult, epsilon_quality
+from .epsilon import EpsilonNotConverged, EpsilonResult, epsilon_quality
 from .grasp_forces import GraspForces, optimal_contact_forces
 from .grasp_input import GraspValidation, validate_grasps
 from .minimum_friction import MinimumFriction, minimum_friction, minimum_friction_bounds
@@ -52,6 +52,7 @@ from .torque_space_filter import ORIGIN_CHOICES, torque_filter
 
 __all__ = [
     "ORIGIN_CHOICES",
+    "EpsilonNotConverged",
     "EpsilonResult",
     "ForceClosureResult",
     "GraspForces",
