@@ -131,12 +131,16 @@ def verdict_lines(verdicts: Verdicts) -> list[str]:
 
 
 def _number(value: float) -> str:
-    """A float as YAML reads it back (.nan, .inf for those)."""
+    """A float, 6 significant digits, as YAML 1.1 reads it back: .nan, .inf, and a
+    decimal point in every exponent form (PyYAML reads 4e-06 as a string)."""
     if math.isnan(value):
         return ".nan"
     if math.isinf(value):
         return ".inf" if value > 0 else "-.inf"
-    return f"{value:.6g}"
+    mantissa, e, exponent = f"{value:.6g}".partition("e")
+    if e and "." not in mantissa:
+        mantissa += ".0"
+    return mantissa + e + exponent
 
 
 def main(argv: Sequence[str] | None = None) -> int:

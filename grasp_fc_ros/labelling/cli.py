@@ -25,6 +25,7 @@ from grasp_fc_ros.objects import DEFAULT_N_POINTS, OBJECT_NAMES
 from .runner import DEFAULT_CHUNK_SIZE
 
 if TYPE_CHECKING:
+    from .output import OutputConflict
     from .runner import Plan, Summary
 
 #: --filter's choices, as check_force_closure's use_filter.

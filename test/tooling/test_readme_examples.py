@@ -39,7 +39,8 @@ GUIDES_WITH_RUNNABLE_PYTHON = (ROOT / "docs" / "core.md", ROOT / "docs" / "soft_
                                ROOT / "docs" / "objects.md")
 # Documents whose shell blocks are checked for the names they use.
 SHELL_DOCUMENTS = (README, ROOT / "docs" / "install.md", ROOT / "docs" / "markers.md",
-                   ROOT / "docs" / "params.md", ROOT / "docs" / "labelling.md")
+                   ROOT / "docs" / "params.md", ROOT / "docs" / "labelling.md",
+                   ROOT / "docs" / "client.md")
 # The issue's limits: at most 300 lines; the four uses on the first screens.
 MAX_README_LINES = 300
 FIRST_SCREENS_LINES = 160
