@@ -40,7 +40,7 @@ DEFAULT_TIMEOUT_S = 10.0
 OPTIONAL_VALUES = ("min_friction", "epsilon_lower", "epsilon_upper")
 
 
-class InputError(ValueError):
+class QueryInputError(ValueError):
     """Grasps this command cannot send (exit status 2)."""
 
 
@@ -74,7 +74,7 @@ def parse_contacts(texts: Sequence[str]) -> tuple[np.ndarray, np.ndarray, np.nda
 
     Raises
     ------
-    InputError
+    QueryInputError
         A contact without six numbers, naming the grasp and the contact.
     """
     rows, counts = [], []
@@ -86,7 +86,7 @@ def parse_contacts(texts: Sequence[str]) -> tuple[np.ndarray, np.ndarray, np.nda
             except ValueError:
                 values = []
             if len(values) != 6:
-                raise InputError(f"--contacts of grasp {g}, contact {c}: {contact.strip()!r} "
+                raise QueryInputError(f"--contacts of grasp {g}, contact {c}: {contact.strip()!r} "
                                  "is not six numbers 'px py pz nx ny nz'")
             rows.append(values)
         counts.append(len(contacts))
@@ -101,10 +101,10 @@ def read_npz(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         with np.load(path) as npz:
             data = dict(npz)
     except (OSError, ValueError) as error:
-        raise InputError(f"{path}: {error}") from None
+        raise QueryInputError(f"{path}: {error}") from None
     missing = [key for key in ("positions", "normals") if key not in data]
     if missing:
-        raise InputError(f"{path}: missing array(s) {', '.join(missing)} (has "
+        raise QueryInputError(f"{path}: missing array(s) {', '.join(missing)} (has "
                          f"{', '.join(data) or 'none'})")
     positions, normals, mu = data["positions"], data["normals"], data.get("mu")
     if mu is not None and mu.ndim == 1 and positions.ndim == 3 and len(mu) == len(positions):
@@ -160,7 +160,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         # The client checks them too, but only once a node is found.
         positions, normals, _ = shapes.grasp_batch(positions, normals, counts)
         shapes.per_contact(mu, "mu", positions, flat=True)
-    except ValueError as error:  # InputError, or the shapes: nothing sent
+    except ValueError as error:  # QueryInputError, or the shapes: nothing sent
         print(f"{PROG}: error: {error}", file=sys.stderr)
         return 2
     rclpy.init(args=arguments)
