@@ -26,6 +26,7 @@ from grasp_fc_msgs.msg import ForceClosureVerdictArray
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message, serialize_message
 
 from grasp_fc_ros.core import Status
 from grasp_fc_ros.engine.long_jobs import Progress, decide_in_chunks
@@ -37,7 +38,7 @@ from grasp_fc_ros.interface.conversions import (
     verdicts_to_array_msg,
 )
 from grasp_fc_ros.interface.names import LABEL_ACTION
-from grasp_fc_ros.node.kept_results import KeptResults, result_bytes
+from grasp_fc_ros.node.kept_results import KeptResults
 from grasp_fc_ros.node.label_goal import LabelGoal
 from grasp_fc_ros.node.lane import Drained, LaneContext, Refusal, start_thread
 from grasp_fc_ros.node.participant import BatchParticipant
@@ -72,8 +73,8 @@ class _ResultReportingActionServer(ActionServer):
     that sends one, and its response holds the very Result object the execute callback
     returned. Likewise ``_execute_expire_goals`` is where it forgets ended goals (after
     ``result_timeout``) and ``_execute_get_result_request`` where it answers a result
-    request (STATUS_UNKNOWN for a forgotten goal): the response of an expiring goal goes
-    to :attr:`kept_results`, which answers later requests for it.
+    request (STATUS_UNKNOWN for a forgotten goal): the response of an expiring goal goes,
+    serialized, to :attr:`kept_results`, which answers later requests for it.
     """
 
     def __init__(self, *args: Any, on_result_sent: Any, **kwargs: Any):
@@ -90,8 +91,7 @@ class _ResultReportingActionServer(ActionServer):
             key = bytes(goal.goal_id.uuid)
             future = self._result_futures.get(key)
             if future is not None and future.done():
-                response = future.result()
-                self.kept_results.keep(key, response, result_bytes(response.result))
+                self.kept_results.keep(key, serialize_message(future.result()))
         await super()._execute_expire_goals(expired_goals)
 
     async def _execute_get_result_request(self, request_header_and_message: Any) -> None:
@@ -101,8 +101,9 @@ class _ResultReportingActionServer(ActionServer):
         if kept is None:
             await super()._execute_get_result_request(request_header_and_message)
             return
+        response = deserialize_message(kept, self._action_type.Impl.GetResultService.Response)
         try:
-            self._handle.send_result_response(request_header, kept)
+            self._handle.send_result_response(request_header, response)
         except Exception:  # noqa: BLE001 - rclpy's RCLError: the client went away
             pass
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from action_msgs.msg import GoalStatus
 
-from grasp_fc_ros.node.kept_results import KeptResults, result_bytes
+from grasp_fc_ros.node.kept_results import KeptResults
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -89,31 +89,43 @@ def test_kept_results_are_bounded_by_age_count_and_bytes():
     kept = KeptResults(keep_s=10.0, max_count=3, max_bytes=100, clock=clock)
     for k in range(4):  # the fourth drops the first (count)
         clock.now = float(k)
-        kept.keep(bytes([k]), f"result {k}", 10)
-    assert kept.get(bytes([0])) is None and kept.get(bytes([1])) == "result 1"
+        kept.keep(bytes([k]), bytes(10))
+    assert kept.get(bytes([0])) is None and kept.get(bytes([1])) == bytes(10)
     assert len(kept) == 3 and kept.bytes == 30
     clock.now = 5.0
-    kept.keep(b"big", "big result", 75)  # over the bytes: the oldest go until it fits
-    assert kept.get(bytes([1])) is None and kept.get(bytes([2])) == "result 2"
+    kept.keep(b"big", b"b" * 75)  # over the bytes: the oldest go until it fits
+    assert kept.get(bytes([1])) is None and kept.get(bytes([2])) == bytes(10)
     assert kept.bytes == 95
     clock.now = 13.5  # results 2 and 3 (kept at 2 and 3 s) are older than keep_s
-    assert kept.get(bytes([3])) is None and kept.get(b"big") == "big result"
+    assert kept.get(bytes([3])) is None and kept.get(b"big") == b"b" * 75
     assert len(kept) == 1 and kept.bytes == 75
-    kept.keep(b"huge", "too big", 101)  # larger than the bound alone: not kept
+    kept.keep(b"huge", bytes(101))  # larger than the bound alone: not kept
     assert len(kept) == 0 and kept.bytes == 0
 
 
-def test_result_bytes_count_arrays_and_each_distinct_text_once():
+def test_kept_results_give_the_garbage_collector_nothing_to_walk(ros, own_node,
+                                                                 monkeypatch):
+    """Kept as bytes, thousands of results add no objects the collector tracks (as
+    messages, their bool and string lists made each full collection walk millions of
+    references)."""
+    import gc
+
     from grasp_fc_msgs.action import LabelGrasps
+    from rclpy.serialization import serialize_message
 
     from grasp_fc_ros.interface.conversions import verdicts_to_array_msg
     from grasp_fc_ros.packed import Verdicts
 
-    n = 1000
-    refusal = "1200000 contacts in one message exceed max_message_contacts=491520"
+    n = 512
     verdicts = Verdicts(ids=np.arange(n, dtype=np.uint64), force_closure=np.zeros(n, bool),
-                        status=np.full(n, 4, np.uint8), margin=np.full(n, np.nan),
-                        messages=[refusal] * n)
-    size = result_bytes(LabelGrasps.Result(verdicts=verdicts_to_array_msg(verdicts)))
-    # ids 8, status 1, margin 8, force_closure and message slots 8 + 8 per grasp; one text
-    assert size == n * (8 + 1 + 8 + 8 + 8) + len(refusal)
+                        status=np.full(n, 1, np.uint8), margin=np.zeros(n),
+                        messages=[""] * n)
+    response = LabelGrasps.Impl.GetResultService.Response(
+        status=GoalStatus.STATUS_SUCCEEDED,
+        result=LabelGrasps.Result(verdicts=verdicts_to_array_msg(verdicts)))
+    kept = KeptResults()
+    before = len(gc.get_objects())
+    for k in range(2000):
+        kept.keep(k.to_bytes(16, "little"), serialize_message(response))
+    assert len(gc.get_objects()) - before < 100  # the dict's entries are not tracked
+    assert len(kept) == 2000 and kept.bytes == 2000 * len(serialize_message(response))
