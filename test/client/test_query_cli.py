@@ -16,6 +16,9 @@ pytestmark = pytest.mark.timeout(180)
 QUERY = Path(sys.executable).with_name("grasp-fc-query")
 SQUARE = "1 0 0 -1 0 0; -1 0 0 1 0 0; 0 1 0 0 -1 0; 0 -1 0 0 1 0"
 NAMESPACE = "/query_cli"
+# The query process's wait for the node (its --timeout, s): its default (10 s) is for a
+# user at a terminal; a loaded machine can take longer to start it and discover.
+NODE_TIMEOUT = "60"
 
 
 def query(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
@@ -38,7 +41,7 @@ def node_name(ros):
 
 
 def test_contacts_of_mixed_sizes_get_one_yaml_verdict_each_in_order(node_name):
-    done = query("--node", node_name, "--first-id", "7", "--mu", "0.5",
+    done = query("--node", node_name, "--timeout", NODE_TIMEOUT, "--first-id", "7", "--mu", "0.5",
                  "--contacts", SQUARE, "--contacts", "0 0 1 0 0 -1; 0,0,-1,0,0,1",
                  "--contacts", "1 0 0 -1 0 0; -1 0 0 1 0 0; 0 1 0 0 0 0")
     assert done.returncode == 0, done.stderr
@@ -59,7 +62,8 @@ def test_npz_grasps_are_answered_as_the_core_decides_them(node_name, tmp_path):
     positions, normals = sample_grasps(make_object("mug", 500), 30, 4,
                                        np.random.default_rng(2))
     np.savez(tmp_path / "g.npz", positions=positions, normals=normals, mu=np.full(30, 0.6))
-    done = query("--node", node_name, "--npz", str(tmp_path / "g.npz"))
+    done = query("--node", node_name, "--timeout", NODE_TIMEOUT, "--npz",
+                 str(tmp_path / "g.npz"))
     assert done.returncode == 0, done.stderr
     verdicts = yaml.safe_load(done.stdout)
     expected = check_force_closure(positions, normals, 0.6)
