@@ -9,6 +9,7 @@ processes' share (chunks put back together) is tested without DDS.
 from __future__ import annotations
 
 import math
+import threading
 
 import numpy as np
 import pytest
@@ -228,7 +229,6 @@ def test_compute_contact_forces_infeasible_load(certifying):
      "query id 0: wrench torque.y is not finite (inf)"),
     (lambda p, n, w, m: m.__setitem__(3, -1.0),
      "query id 0, contact 3: max_normal_force must be >= 0 (inf: no limit), got -1.0"),
-    (lambda p, n, w, m: m.pop(), "query id 0: 3 max_normal_forces for 4 contacts"),
 ])
 def test_compute_contact_forces_invalid_request_names_the_contact(certifying, change,
                                                                    message):
@@ -240,6 +240,37 @@ def test_compute_contact_forces_invalid_request_names_the_contact(certifying, ch
     assert not got.feasible and math.isnan(got.max_normal_force)
     assert got.message.startswith(message), got.message
     assert got.contact_forces.shape == (0, 3)
+
+
+def test_compute_contact_forces_refuses_limits_not_one_per_contact(certifying):
+    """A raw request: GraspClient refuses such limits before sending
+    (test/client/test_client_shapes.py)."""
+    from grasp_fc_msgs.srv import ComputeContactForces
+    from rclpy.node import Node
+
+    from grasp_fc_ros.interface.conversions import grasp_to_contact_array
+    from ros_fixtures import SpinThread
+
+    positions, normals, wrench = box_grasp_and_load()
+    request = ComputeContactForces.Request(grasp=grasp_to_contact_array(0, positions, normals),
+                                           max_normal_forces=[100.0] * 3)
+    force, torque = request.wrench.force, request.wrench.torque
+    force.x, force.y, force.z, torque.x, torque.y, torque.z = wrench.tolist()
+    node = Node("raw_forces_client")
+    service = node.create_client(ComputeContactForces, "/certifying/compute_contact_forces")
+    spinner = SpinThread(node)
+    try:
+        assert service.wait_for_service(timeout_sec=REPLY_TIMEOUT_S)
+        answered = threading.Event()
+        future = service.call_async(request)
+        future.add_done_callback(lambda _: answered.set())
+        assert answered.wait(REPLY_TIMEOUT_S), "compute_contact_forces did not answer"
+        got = future.result()
+    finally:
+        spinner.stop()
+    assert not got.feasible and math.isnan(got.max_normal_force)
+    assert got.message.startswith("query id 0: 3 max_normal_forces for 4 contacts"), got.message
+    assert len(got.contact_forces) == 0
 
 
 def test_compute_contact_forces_soft_fingers_twist(certifying):
