@@ -195,15 +195,15 @@ ONE_WORKER = ["--ros-args", "-p", "workers:=1"]
 
 @pytest.mark.timeout(300)
 def test_sigterm_during_a_large_batch_exits_without_deciding_it(client, grasps):
-    # One message of 20,000 grasps: with epsilon tens of seconds of work on one worker
-    # (0.5 s per 100 grasps in this process at a load average of 10); the verdicts alone
-    # take a fraction of a second, which the signal could miss. A message five times as
-    # large (34 MB) once took over a minute to cross DDS on a loaded machine.
+    # One message of 10,000 grasps (3.4 MB): with epsilon seconds of work on one worker
+    # (2-3 ms a grasp at a load average of 5, 5 ms at 10); the verdicts alone take a
+    # fraction of a second, which the signal could miss. A message ten times as large
+    # (34 MB) once took over a minute to cross DDS on a loaded machine.
     process = NodeProcess(node_command() + ONE_WORKER + ["-p", "compute_epsilon:=true"])
     try:
         client.wait_connected()
         positions, normals = grasps
-        big = 200
+        big = 100
         msg = grasps_to_batch_msg(np.arange(big * len(positions)), np.tile(positions, (big, 1, 1)),
                                   np.tile(normals, (big, 1, 1)))
         request_id = client.publish_batch(msg)
