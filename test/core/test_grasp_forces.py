@@ -166,6 +166,9 @@ def test_lp_pyramids_bracket_s_star():
 # Found by hypothesis: s* 8,700x the wrench (a nearly marginal grasp), another frame's
 # 2.4e-5 above the first frame's; the bound below grows with s* / |wrench|.
 @example(seed=5779, n_contacts=5, scale=1.0, load=1.0)
+# Found by hypothesis: s* 2.8 million times the wrench in one frame, infinite in another
+# (a cone slack of FORCE_TOL holds the wrench or not), in one full run of the suite.
+@example(seed=69156063, n_contacts=3, scale=1.0, load=1.0)
 def test_invariant_under_rigid_motion_and_scaling(seed, n_contacts, scale, load):
     """Moving the grasp and the wrench along leaves s*; scaling lengths by k with the
     torque scaled by k leaves s*; scaling the wrench by c scales s* by c."""
@@ -185,19 +188,22 @@ def test_invariant_under_rigid_motion_and_scaling(seed, n_contacts, scale, load)
     scaled, _, _ = optimal_contact_forces(scale * positions, normals, mu, scaled_wrench)
     heavier, _, _ = optimal_contact_forces(positions, normals, mu, load * wrench)
 
-    finite = np.isfinite(base)
     # Each answer is within OPTIMALITY_TOL of its own frame's dual bound, by forces inside
     # the cones to FORCE_TOL * s*. That slack acts like a friction coefficient larger by
     # ~FORCE_TOL, which lowers s* by a relative ~FORCE_TOL * s* / |wrench|: negligible for
     # most grasps, not for a nearly marginal one that needs forces thousands of times the
     # wrench. Two frames agree to the sum, and to no less than two stages agree to
-    # (assert_same_s_star).
-    conditioning = base[finite] / np.linalg.norm(wrench[finite], axis=1)
-    rtol = 3 * OPTIMALITY_TOL + FORCE_TOL * conditioning
+    # (assert_same_s_star). Where that bound reaches 1 (s* a million times the wrench),
+    # s* is not determined even to its order: another frame may find no forces at all.
+    norm = np.linalg.norm(wrench, axis=1)
     for other in (moved, scaled, heavier / load):
-        assert (np.isfinite(other) == finite).all()
-        assert (np.abs(other[finite] - base[finite]) <= rtol * base[finite]).all(), (
-            other[finite], base[finite], rtol)
+        s_star = np.fmin(base, other)  # the finite one where only one is
+        rtol = 3 * OPTIMALITY_TOL + FORCE_TOL * s_star / norm
+        determined = ~np.isfinite(s_star) | (rtol < 1)
+        assert (np.isfinite(other) == np.isfinite(base))[determined].all()
+        finite = determined & np.isfinite(s_star)
+        assert (np.abs(other[finite] - base[finite]) <= rtol[finite] * base[finite]).all(), (
+            other[finite], base[finite], rtol[finite])
 
 
 @settings(max_examples=20, deadline=None)
