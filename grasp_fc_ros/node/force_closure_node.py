@@ -140,7 +140,8 @@ class ForceClosureNode(Node):
         self.service_requests = self._add(ServiceLane(self, context, self.markers))
         self.label_action = self._add(LabelAction(self, context, self.batch_participant))
         self.diagnostics = Diagnostics(self, self.statistics, lambda: self._lanes,
-                                       context.internal_error, self._node_counts)
+                                       context.internal_error, self._node_counts,
+                                       self._node_warnings)
         self.get_logger().info(
             f"ready: topics contacts, contacts_batch; services check_force_closure, "
             f"compute_contact_forces, clear_markers; action label_grasps; "
@@ -148,8 +149,18 @@ class ForceClosureNode(Node):
 
     def _node_counts(self) -> dict[str, int]:
         """What /diagnostics reports beside the lanes' counts: the worker processes
-        replaced since start (dead or hung)."""
-        return {"worker_restarts": self.pool.worker_restarts}
+        configured, running, and lost or failed to start since start."""
+        return self.pool.worker_counts()
+
+    def _node_warnings(self) -> list[str]:
+        """What makes /diagnostics WARN beside failures: fewer workers than configured
+        (the pool is starting others; meanwhile the running ones, or this process, take
+        their chunks)."""
+        counts = self.pool.worker_counts()
+        alive, configured = counts["workers_alive"], counts["workers_configured"]
+        if alive >= configured:
+            return []
+        return [f"{alive} of {configured} worker processes running (starting the others)"]
 
     def _add(self, lane: LaneT) -> LaneT:
         self._lanes.append(lane)
