@@ -175,45 +175,6 @@ def test_a_worker_killed_mid_goal_costs_no_grasp(grasps, served):
     replaced(served, killed)
 
 
-class DiagnosticsWatch:
-    """Every /diagnostics status of one node, with its level, as it arrives."""
-
-    def __init__(self, node_name: str):
-        from diagnostic_msgs.msg import DiagnosticArray
-        from rclpy.node import Node
-
-        from ros_fixtures import SpinThread
-
-        self._prefix = node_name + ":"
-        self._lock = threading.Condition()
-        self.statuses: list = []
-        node = Node("faults_diagnostics_watch")
-        node.create_subscription(DiagnosticArray, "/diagnostics", self._on_array, 10)
-        self._spinner = SpinThread(node)
-
-    def _on_array(self, msg) -> None:
-        with self._lock:
-            self.statuses += [s for s in msg.status if s.name.startswith(self._prefix)]
-            self._lock.notify_all()
-
-    def wait_for(self, condition, what: str, timeout: float = WAIT_S):
-        """The first status from now on for which ``condition(level, values)`` holds."""
-        with self._lock:
-            start = len(self.statuses)
-            found: list = []
-
-            def seen() -> bool:
-                found[:] = [s for s in self.statuses[start:]
-                            if condition(s.level, {kv.key: kv.value for kv in s.values})]
-                return bool(found)
-
-            assert self._lock.wait_for(seen, timeout), f"no diagnostics with {what}"
-            return found[0]
-
-    def close(self) -> None:
-        self._spinner.stop()
-
-
 def test_workers_killed_while_starting_come_back_and_diagnostics_warn_meanwhile(
         grasps, served):
     """An operator kills a worker, then each replacement while it starts (6 kills): the
@@ -222,13 +183,15 @@ def test_workers_killed_while_starting_come_back_and_diagnostics_warn_meanwhile(
     is OK with both workers again once the kills end (the pool never gives up)."""
     from diagnostic_msgs.msg import DiagnosticStatus
 
+    from ros_fixtures import DiagnosticsWatch, key_values
+
     client, workers = served
     positions, normals, expected = grasps
     watch = DiagnosticsWatch("/faults_test/force_closure")
     try:
         before = watch.wait_for(lambda level, v: v["workers_alive"] == "2", "2 workers")
         assert before.level == DiagnosticStatus.OK
-        restarts = int({kv.key: kv.value for kv in before.values}["worker_restarts"])
+        restarts = int(key_values(before)["worker_restarts"])
         answer = client.submit_batch(positions, normals)
         seen = set(workers)
         os.kill(next(iter(workers)), signal.SIGKILL)
@@ -241,13 +204,14 @@ def test_workers_killed_while_starting_come_back_and_diagnostics_warn_meanwhile(
                 os.kill(pid, signal.SIGKILL)  # a replacement, while it starts
                 kills += 1
             time.sleep(0.005)
-        short = watch.wait_for(lambda level, v: v["workers_alive"] == "1", "1 worker")
+        short = watch.wait_for(lambda level, v: v["workers_alive"] == "1", "1 worker",
+                               WAIT_S)
         assert short.level == DiagnosticStatus.WARN
         assert "1 of 2 worker processes running" in short.message
         assert_as_core(answer.result(timeout=WAIT_S), expected)
         back = watch.wait_for(lambda level, v: level == DiagnosticStatus.OK
-                              and v["workers_alive"] == "2", "both workers back")
-        values = {kv.key: kv.value for kv in back.values}
+                              and v["workers_alive"] == "2", "both workers back", WAIT_S)
+        values = key_values(back)
         assert values["workers_configured"] == "2"
         assert int(values["worker_restarts"]) == restarts + kills
     finally:
