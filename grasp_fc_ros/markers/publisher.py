@@ -20,6 +20,7 @@ falls behind, the oldest queued marker work is dropped (and counted), never a ve
 from __future__ import annotations
 
 import os
+import select
 import signal
 import subprocess
 import sys
@@ -214,6 +215,10 @@ class MarkerSink(Protocol):
     def start(self) -> None:
         """Get ready to draw (idempotent)."""
 
+    def wait_ready(self, timeout_s: float) -> bool:
+        """Start if need be and wait, at most ``timeout_s``, until drawing can begin at
+        once; whether it can."""
+
     def draw(self, work: _Job | MarkerPayload) -> int:
         """Build and publish the markers of ``work`` (a job is converted first, see
         :func:`draw`); return how many grasps were drawn."""
@@ -302,6 +307,12 @@ class MarkerPublisher:
         """Start the sink now (the node does when publish_markers turns on), so that
         viewers have discovered the marker topic before the first markers go out."""
         self.sink.start()
+
+    def wait_ready(self, timeout_s: float) -> bool:
+        """Start the sink and wait, at most ``timeout_s``, until it can draw at once (the
+        node does before it says it is ready, so that its first answers' markers do not
+        wait for the marker process to start); whether it can."""
+        return self.sink.wait_ready(timeout_s)
 
     def clear(self) -> None:
         """Discard queued marker work and publish a DELETEALL (in that order)."""
@@ -417,9 +428,10 @@ class MarkerProcess:
     pipes of its own, so that nothing its middleware prints can corrupt them) and
     answers each with the number of grasps drawn. It ignores SIGINT (its owner decides)
     and ends when its channel closes, so a killed node leaves no marker process. ``draw``
-    and ``clear`` are called from one thread (the marker thread) at a time; one whose
-    exchange fails (the process died, or a message was broken) raises, and the process is
-    replaced at once, so that the next payload finds a fresh one.
+    and ``clear`` are called from one thread (the marker thread) at a time, and
+    :meth:`wait_ready` may be called from another; an exchange that fails (the process
+    died, or a message was broken) raises, and the process is replaced at once, so that
+    the next payload finds a fresh one.
 
     Parameters
     ----------
@@ -434,7 +446,8 @@ class MarkerProcess:
         self._child: ChildProcess | None = None
         self._ready = False  # the running process said it is ready
         self._closed = False
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # the process
+        self._exchange = threading.Lock()  # the channel: one exchange at a time
 
     @property
     def process(self) -> subprocess.Popen | None:
@@ -444,6 +457,19 @@ class MarkerProcess:
 
     def start(self) -> None:
         self._running()
+
+    def wait_ready(self, timeout_s: float) -> bool:
+        with self._exchange:
+            child = self._running()
+            if self._ready:
+                return True
+            if not select.select([child.from_child], [], [], timeout_s)[0]:
+                return False
+            try:
+                self._await_ready(child)
+            except Exception as exc:
+                raise self._failed(child, exc) from exc
+            return True
 
     def draw(self, work: _Job | MarkerPayload) -> int:
         drawn = self._call(work)
@@ -476,25 +502,29 @@ class MarkerProcess:
             If the process could not draw it (its exception, worded), or the exchange
             failed: the process died or broke its channel (it is then replaced).
         """
-        child = self._running()
-        try:
-            if not self._ready:
-                hello = read_message(child.from_child)
-                if hello != (True, "ready"):
-                    raise RuntimeError(f"said {hello!r} instead of ready")
-                self._ready = True
-            write_message(child.to_child, request)
-            ok, answer = read_message(child.from_child)
-        except Exception as exc:
-            self._replace(child)
-            raise RuntimeError(f"marker process {child.pid} failed ({exc!r}); "
-                               "started another") from exc
+        with self._exchange:
+            child = self._running()
+            try:
+                self._await_ready(child)
+                write_message(child.to_child, request)
+                ok, answer = read_message(child.from_child)
+            except Exception as exc:
+                raise self._failed(child, exc) from exc
         if not ok:
             raise RuntimeError(f"marker process: {answer}")
         return answer
 
-    def _replace(self, child: ChildProcess) -> None:
-        """Kill and reap ``child`` and start its successor (unless closed meanwhile)."""
+    def _await_ready(self, child: ChildProcess) -> None:
+        """Read the process's "ready", unless it was read already."""
+        if not self._ready:
+            hello = read_message(child.from_child)
+            if hello != (True, "ready"):
+                raise RuntimeError(f"said {hello!r} instead of ready")
+            self._ready = True
+
+    def _failed(self, child: ChildProcess, exc: Exception) -> RuntimeError:
+        """Replace ``child``, whose exchange failed with ``exc``: kill and reap it and
+        start its successor (unless closed meanwhile); the error to raise."""
         with self._lock:
             if self._child is child:
                 self._child = None
@@ -503,6 +533,7 @@ class MarkerProcess:
             self._running()
         except RuntimeError:
             pass  # closed meanwhile
+        return RuntimeError(f"marker process {child.pid} failed ({exc!r}); started another")
 
     def close(self) -> None:
         with self._lock:

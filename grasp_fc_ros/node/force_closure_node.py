@@ -64,6 +64,10 @@ from grasp_fc_ros.node.single_queries import SingleQueryLane
 from grasp_fc_ros.node.statistics import WARN_THROTTLE_S, Statistics, Throttle
 
 LaneT = TypeVar("LaneT", bound=Lane)
+# How long the node waits at start for its marker process (publish_markers on) before it
+# says it is ready: about a second usually (rclpy, the kernels from numba's cache); the
+# bound only keeps a broken one from holding the node back.
+MARKER_START_TIMEOUT_S = 30.0
 
 # The wire status codes are the core's Status values (UNKNOWN = 0 included): checked at
 # import, also under python -O.
@@ -142,6 +146,7 @@ class ForceClosureNode(Node):
         self.diagnostics = Diagnostics(self, self.statistics, lambda: self._lanes,
                                        context.internal_error, self._node_counts,
                                        self._node_warnings)
+        self.markers.wait_ready(MARKER_START_TIMEOUT_S)
         self.get_logger().info(
             f"ready: topics contacts, contacts_batch; services check_force_closure, "
             f"compute_contact_forces, clear_markers; action label_grasps; "

@@ -359,6 +359,9 @@ class RecordingSink:
     def start(self):
         pass
 
+    def wait_ready(self, timeout_s):
+        return True
+
     def draw(self, payload):
         markers = draw(payload)
         self.published.append(markers)
