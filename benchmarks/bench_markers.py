@@ -56,16 +56,6 @@ REPLY_TIMEOUT_S = 30.0
 # Issue 28's target: a service request's markers within 1 s of its answer.
 TARGET_LATENCY_S = 1.0
 LATENCY_CALLS = 50
-# A user's own Fast DDS profiles file (section 3): the node then leaves the profiles to it.
-USERS_PROFILES = """<?xml version="1.0" encoding="UTF-8" ?>
-<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
-  <data_writer profile_name="users_writer" is_default_profile="true">
-    <times>
-      <initialHeartbeatDelay><sec>0</sec><nanosec>5000000</nanosec></initialHeartbeatDelay>
-    </times>
-  </data_writer>
-</profiles>
-"""
 
 
 def per_call_s(f: Callable[[int], object]) -> float:
@@ -321,13 +311,17 @@ def bench_latency(calls: int) -> None:
 
     import rclpy
 
+    from grasp_fc_ros.node.dds_profile import READER_PROFILE
+
     print(f"markers from grasp-fc-node started with publish_markers:=true, {calls} one-grasp "
           "service calls, seconds from each answer to its markers at a viewer")
     rclpy.init()
     try:
         with tempfile.TemporaryDirectory() as folder:
+            # A valid profiles file of the user's (the node's own profile as its text:
+            # what matters is that the user set it; the node then leaves it alone).
             profiles = Path(folder) / "my_profiles.xml"
-            profiles.write_text(USERS_PROFILES)
+            profiles.write_text(READER_PROFILE)
             environments = {
                 "default environment": {},
                 "a user's profiles file": {"FASTRTPS_DEFAULT_PROFILES_FILE": str(profiles)}}

@@ -31,6 +31,7 @@ from grasp_fc_ros.client import GraspClient
 from grasp_fc_ros.core import Status, check_force_closure, epsilon_quality, verify_certificates
 from grasp_fc_ros.markers.build import marker_namespace
 from grasp_fc_ros.markers.publisher import MARKER_QOS
+from grasp_fc_ros.node.dds_profile import READER_PROFILE
 from grasp_fc_ros.objects import make_object, sample_grasps
 from grasp_fc_ros.packed import Verdicts
 from ros_fixtures import REPLY_TIMEOUT_S, DiagnosticsWatch
@@ -298,24 +299,14 @@ def test_ctrl_c_ends_the_node_cleanly_and_its_output_holds_no_error(served):
 
 # --- other environments a user may have -------------------------------------------------
 
-# A user's own Fast DDS profiles file: the node then keeps its hands off the profiles,
-# and its marker process reads the same file.
-USERS_PROFILES = """<?xml version="1.0" encoding="UTF-8" ?>
-<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
-  <data_writer profile_name="users_writer" is_default_profile="true">
-    <times>
-      <initialHeartbeatDelay><sec>0</sec><nanosec>5000000</nanosec></initialHeartbeatDelay>
-    </times>
-  </data_writer>
-</profiles>
-"""
-
-
 def environment_variants() -> dict[str, Callable[[Path], dict[str, str]]]:
     """Name: the extra environment (given a folder for files) of each variant."""
     def users_profiles_file(folder: Path) -> dict[str, str]:
+        # A valid profiles file of the user's (the node's own profile as its text: what
+        # matters is that the user set it, so the node leaves the profiles to it and its
+        # marker process reads the same file).
         path = folder / "my_profiles.xml"
-        path.write_text(USERS_PROFILES)
+        path.write_text(READER_PROFILE)
         return {"FASTRTPS_DEFAULT_PROFILES_FILE": str(path)}
 
     variants = {"users_profiles_file": users_profiles_file}
