@@ -123,7 +123,7 @@ EXPECTED: dict[str, Run] = {
         Line(r"no grasp lost to a worker's death: meets target"),
         # Workers killed while starting: all back, every kill counted (no time asserted).
         *(Line(rf"^{where}.*: (\d+) of \1 workers back {N} s after (\d+) kills .*; "
-               r"worker_restarts \+\2 ") for where in ("node", "engine")),
+               r"worker_restarts \+\3 ") for where in ("node", "engine")),
     )),
     # Service calls beside a 12-contact batch from another process and this one, and
     # beside a big service call; the batch (or call) answered in full every time.
