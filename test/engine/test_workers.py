@@ -485,7 +485,8 @@ def test_a_worker_that_cannot_be_replaced_for_a_while_is_back_once_starts_work(
     assert pool.worker_counts()["workers_alive"] == 1
     verdicts, _ = pool.decide(request, Settings())
     assert_as_core(verdicts, expected)
-    assert pool.worker_pids() == [second]
+    # The other slot keeps starting processes that exit at once: one may be seen.
+    assert second in pool.worker_pids() and pool.worker_counts()["workers_alive"] == 1
     os.kill(second, signal.SIGKILL)  # none left: this process decides
     wait_until(lambda: pool.worker_counts()["workers_alive"] == 0, "no worker running")
     verdicts, _ = pool.decide(request, Settings())
