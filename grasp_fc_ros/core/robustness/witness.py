@@ -10,6 +10,15 @@ chosen u separates the perturbed grasp.
   and v_i; onto -v_i if it is nearer) puts its full cone of half-angle alpha_i in
   {f : v_i . f <= 0}: angle(n', -v_i) + alpha_i <= angle(n, -v_i) - delta_i + alpha_i
   <= 90 degrees. So the shrunk grasp's separating wrench gives a tilt witness.
+* Turned axes (a search): a tilt past a cone's half-angle leaves the cone tiny (the
+  shrunk grasp of :mod:`.holds` keeps a half-angle of WITNESS_MIN_HALF_ANGLE) and the
+  rest of the tilt spare: the tiny cone may turn about any axis within it
+  (:func:`turned_axes_wrench`), and the tilt by the whole error towards -v_i still
+  works for a wrench that separates the turned grasp.
+* Frictionless (exact where it applies): where every friction coefficient may drop to
+  nothing and the normal wrenches (n_i, p_i x n_i) are independent (at most six
+  contacts), some wrench gets negative work from every normal force, and friction small
+  enough keeps it separating (:func:`frictionless_wrench`).
 * Moves (a search): moving contact i by d_i turns v_i into v_i + b x d_i, any vector
   of length <= r |b| across b. :mod:`.break_distance` finds the torque direction b that
   needs the least moves; for it the deepest moves of length <= r are found contact by
@@ -20,6 +29,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..certificates import normalise_positions
+from ..epsilon import epsilon_quality
 from ..grasp_input import GraspBatch
 from ..pipeline import run_pipeline
 from .break_distance import least_breaking_direction
@@ -27,6 +38,17 @@ from .break_distance import least_breaking_direction
 #: A direction whose r*(b) is up to this much (relative) over the radius is still tried:
 #: Clarabel's optimum is accurate to ~1e-8, and the exact test judges the witness.
 BREAK_SLACK = 1e-6
+
+#: Rounds of :func:`turned_axes_wrench`, and the accuracy of its epsilon searches (only
+#: a direction is needed). One round found every witness on the benchmark's grasps
+#: (docs/robustness.md#holds-under); the others catch what a first turn overshoots.
+AXIS_ROUNDS = 3
+AXIS_RTOL = 1e-2
+
+#: The least-norm wrench of :func:`frictionless_wrench` counts only where every normal
+#: wrench's work on it is within this of -1 (rows of a unit-size grasp: a solution,
+#: not a least-squares compromise).
+FRICTIONLESS_RESIDUAL = 1e-9
 
 #: Directions on the circle of moves of length r tried per contact, before the best is
 #: refined by golden-section steps (MOVE_REFINEMENTS).
@@ -161,3 +183,63 @@ def exact_verdicts(grasps: GraspBatch) -> tuple[np.ndarray, np.ndarray]:
     marginal)."""
     verdict = run_pipeline(grasps, use_filter="auto", margin="bound", certificates=True)
     return np.asarray(verdict.force_closure), np.asarray(verdict.separating_wrench)
+
+
+def turned_axes_wrench(grasps: GraspBatch, spare: np.ndarray) -> np.ndarray:
+    """Separating wrenches (N, 6) (NaN where none was found) of grasps whose cones may
+    also turn: contact i's cone (friction ``grasps.mu``) about any axis within
+    ``spare`` (N, n) radians of its normal: grasps whose tilt errors exceed their cones
+    (the shrunk cones are then tiny, and the rest of the tilt is spare). Each round
+    turns every axis towards -v_i of the direction with the least support (the epsilon
+    search's) and asks the exact test."""
+    n_grasps = grasps.mu.shape[0]
+    wrench = np.full((n_grasps, 6), np.nan)
+    active = np.arange(n_grasps)
+    axes = grasps.normals
+    for _ in range(AXIS_ROUNDS):
+        if not active.size:
+            break
+        positions = grasps.positions[active]
+        centre = positions.mean(axis=1)
+        least = epsilon_quality(positions, axes[active], grasps.mu[active], center=centre,
+                                rtol=AXIS_RTOL)
+        # (u_f, u_t) about c with torques over L: the work vector is
+        # u_f + u_t / L x (p - c), so b = u_t / L, a = u_f - b x c.
+        torque = least.direction[:, 3:] / least.torque_scale[:, None]
+        direction = np.concatenate([least.direction[:, :3] - np.cross(torque, centre),
+                                    torque], axis=1)
+        turned = axes.copy()
+        turned[active] = tilt_towards(grasps.normals[active],
+                                      work_vectors(positions, direction), spare[active])
+        _, separating = exact_verdicts(GraspBatch(positions, turned[active],
+                                                  grasps.mu[active], False, None))
+        separated = ~np.isnan(separating).any(axis=1)
+        wrench[active[separated]] = separating[separated]
+        axes = turned
+        active = active[~separated]
+    return wrench
+
+
+def frictionless_wrench(grasps: GraspBatch, floor: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """For grasps whose friction may drop to nothing: a wrench (N, 6) on which every
+    normal force does negative work, the least-norm solution of
+    (n_i, p_i x n_i) . u = -1 (NaN where the normal wrenches are dependent and it has
+    none), and friction (N, n) small enough that no force of the cones does positive
+    work on it: half of -a_n,i / |a_t,i|, at most ``floor`` (N, n)."""
+    unit, centre, size = normalise_positions(grasps.positions)
+    rows = np.concatenate([grasps.normals, np.cross(unit, grasps.normals)], axis=-1)
+    target = -np.ones(rows.shape[:2])
+    solution = np.linalg.pinv(rows) @ target[..., None]               # (N, 6, 1)
+    solved = np.abs(rows @ solution + 1.0).max(axis=(1, 2)) <= FRICTIONLESS_RESIDUAL
+    # a + b x q_i with q_i = (p_i - c) / size is a + (b / size) x (p_i - c).
+    torque = solution[:, 3:, 0] / size[:, None]
+    wrench = np.concatenate([solution[:, :3, 0] - np.cross(torque, centre), torque], axis=1)
+    wrench /= np.linalg.norm(wrench, axis=1, keepdims=True)
+    work = work_vectors(grasps.positions, wrench)
+    normal = np.sum(work * grasps.normals, axis=-1)
+    tangential = np.linalg.norm(work - normal[..., None] * grasps.normals, axis=-1)
+    with np.errstate(divide="ignore"):
+        mu = np.minimum(floor, 0.5 * -normal / tangential)
+    wrench[~solved] = np.nan
+    return wrench, mu
