@@ -35,6 +35,8 @@ from ..grasp_input import GraspBatch
 from ..pipeline import run_pipeline
 from .break_distance import deepest_moves, least_breaking_direction
 
+_EPS = float(np.finfo(np.float64).eps)
+
 #: A direction whose r*(b) is up to this much (relative) over the radius is still tried:
 #: Clarabel's optimum is accurate to ~1e-8, and the exact test judges the witness.
 BREAK_SLACK = 1e-6
@@ -69,7 +71,7 @@ def tilt_towards(normals: np.ndarray, work: np.ndarray, angles: np.ndarray) -> n
                       fallback)
     turn = np.minimum(angles, between)
     turned = np.cos(turn)[..., None] * normals + np.sin(turn)[..., None] * across
-    turned = np.where((between <= angles)[..., None], target, turned)
+    turned = np.where(((between <= angles) & (angles > 0.0))[..., None], target, turned)
     no_work = ~(np.linalg.norm(work, axis=-1) > 0.0)
     return np.where(no_work[..., None], normals, turned)
 
@@ -119,7 +121,10 @@ def breaking_moves(grasps: GraspBatch, radius: np.ndarray, start: np.ndarray | N
     torque = direction[near, 3:]
     _, force, step = deepest_moves(unit, grasps.normals[near], grasps.mu[near], torque,
                                    radius[near] / size)
-    step *= size[:, None, None]
+    # Clarabel keeps |w_i| <= r only to its tolerance: shorten to the radius (rounded in).
+    length = np.linalg.norm(step, axis=-1) * size[:, None]
+    step *= (size[:, None] * np.minimum(1.0, radius[near, None] * (1.0 - 4.0 * _EPS)
+                                        / np.maximum(length, np.finfo(float).tiny)))[..., None]
     # a + b x q_i with q_i = (p_i - c) / size is, times size, (size a - b x c) + b x p_i.
     searched = np.concatenate([size[:, None] * force - np.cross(torque, centre), torque],
                               axis=1)
