@@ -37,6 +37,7 @@ import statistics  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Callable  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
+from functools import partial  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -49,7 +50,7 @@ from grasp_fc_ros.core import (  # noqa: E402
     robustness,
     verify_certificates,
 )
-from grasp_fc_ros.core.grasp_input import GraspBatch, prepare_grasps  # noqa: E402
+from grasp_fc_ros.core.model.grasp_input import GraspBatch, prepare_grasps  # noqa: E402
 from grasp_fc_ros.objects import OBJECT_NAMES, make_object, sample_grasps  # noqa: E402
 
 # The submodules by name: grasp_fc_ros.core.robustness is also the function's name.
@@ -123,7 +124,8 @@ class Judge:
                 self.not_closed += lost.size
                 again = check_force_closure(positions[part][lost], normals[part][lost],
                                             mu[part][lost], certificates=True)
-                self.certified += int(np.sum(~np.isnan(again.separating_wrench).any(axis=1)))
+                wrench = np.asarray(again.separating_wrench)
+                self.certified += int(np.sum(~np.isnan(wrench).any(axis=1)))
 
 
 def repeat(values: np.ndarray, times: int) -> np.ndarray:
@@ -210,7 +212,7 @@ def soundness(grasps: Grasps, per_grasp: int, rng: np.random.Generator, judge: J
 
 
 def _normalised(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    certificates = importlib.import_module("grasp_fc_ros.core.certificates")
+    certificates = importlib.import_module("grasp_fc_ros.core.exact.certificates")
     return certificates.normalise_positions(positions)
 
 
@@ -314,8 +316,7 @@ def speed(per_object: int, repeats: int, seed: int) -> None:
         positions, normals, _ = draw(n_fingers, per_object, seed)
         robustness(positions[:3], normals[:3], 0.5)                  # compile or load
         closed = robustness(positions, normals, 0.5).force_closure
-        seconds = statistics.median(cpu_seconds(lambda p=positions, q=normals:
-                                                robustness(p, q, 0.5))
+        seconds = statistics.median(cpu_seconds(partial(robustness, positions, normals, 0.5))
                                     for _ in range(repeats))
         print(f"speed n = {n_fingers}, mu 0.5: {len(positions) / seconds:,.0f} grasps/s over "
               f"{len(positions)} grasps ({100 * closed.mean():.0f}% force closure), "
@@ -359,17 +360,24 @@ def main() -> None:
           f"certified by a separating wrench {judge.certified}"
           + (" SOUNDNESS VIOLATION" if judge.certified else ""))
 
+    report_tightness(sets, n_closed)
+    report_undecided(sets, mixed, n_closed)
+
+
+def report_tightness(sets: dict[int, Grasps], n_closed: int) -> None:
     print(f"{'n':>2} " + " ".join(f"{m:>7g}x" for m in TILT_MULTIPLES)
           + "   (share of FC grasps a searched tilt breaks within the multiple)")
-    ratios, unconfirmed, broken_share = [], 0, {m: [] for m in TILT_MULTIPLES}
+    ratios: list[np.ndarray] = []
+    broken: dict[float, float] = dict.fromkeys(TILT_MULTIPLES, 0.0)
+    unconfirmed = 0
     for n_fingers, grasps in sets.items():
         shares, ratio, missed = tightness(grasps)
         ratios.append(ratio)
         unconfirmed += missed
         for m in TILT_MULTIPLES:
-            broken_share[m].append(shares[m] * len(grasps.angle))
+            broken[m] += shares[m] * len(grasps.angle)
         print(f"{n_fingers:>2} " + " ".join(f"{100 * shares[m]:>7.1f}%" for m in TILT_MULTIPLES))
-    overall = {m: sum(broken_share[m]) / max(n_closed, 1) for m in TILT_MULTIPLES}
+    overall = {m: broken[m] / max(n_closed, 1) for m in TILT_MULTIPLES}
     print(f"tightness, normals: a searched tilt breaks within 1.05x normal_angle on "
           f"{100 * overall[1.05]:.1f}% of force-closure grasps (1.002x: "
           f"{100 * overall[1.002]:.1f}%, 1.01x: {100 * overall[1.01]:.1f}%)")
@@ -380,21 +388,24 @@ def main() -> None:
           f"{100 * np.mean(ratio > 2):.0f}%, over 5x {100 * np.mean(ratio > 5):.1f}% "
           f"({len(ratio)} confirmed by a witness, {unconfirmed} not)")
 
+
+def report_undecided(sets: dict[int, Grasps], mixed: dict[float, list[np.ndarray]],
+                     n_closed: int) -> None:
     print(f"{'n':>2} " + " ".join(f"{kind[:4]} {m:g}x".rjust(10) for kind, m in SINGLE_ERRORS)
           + " " + " ".join(f"mixed {s:g}".rjust(10) for s in MIXED_SHARES)
           + "   (UNDECIDED share of FC grasps)")
     checked = failed = 0
-    totals: dict[str, list[float]] = {}
+    totals: dict[str, float] = {}
     for index, (n_fingers, grasps) in enumerate(sets.items()):
         shares, c, f = undecided_shares(grasps)
         checked, failed = checked + c, failed + f
         for share in MIXED_SHARES:
             shares[f"mixed {share:g}"] = float(np.mean(mixed[share][index] == Holds.UNDECIDED))
         for key, value in shares.items():
-            totals.setdefault(key, []).append(value * len(grasps.angle))
+            totals[key] = totals.get(key, 0.0) + value * len(grasps.angle)
         print(f"{n_fingers:>2} " + " ".join(f"{100 * v:>9.1f}%" for v in shares.values()))
     print("holds_under UNDECIDED (all n): " + ", ".join(
-        f"{key} {100 * sum(v) / max(n_closed, 1):.1f}%" for key, v in totals.items()))
+        f"{key} {100 * value / max(n_closed, 1):.1f}%" for key, value in totals.items()))
     print(f"holds_under witnesses: {checked} BREAKS checked, {failed} failed"
           + (" SOUNDNESS VIOLATION" if failed else ""))
 

@@ -1,9 +1,10 @@
 """The README's examples work as written.
 
 Every ```python block of the README (and of the ROS-free guides docs/core.md,
-docs/soft_fingers.md and docs/robustness.md) runs in a fresh interpreter, in README order in one folder (the
-labelling blocks share their files), with a node running for the client examples;
-a ``# -> text`` comment after a statement is output the block must print. The
+docs/soft_fingers.md and docs/robustness.md) runs in a fresh interpreter, in README
+order in one folder (the labelling blocks share their files), with a node running for
+the client examples; a ``# -> text`` comment after a statement is output the block must
+print. The
 ``grasp-fc-label`` shell block runs too. The ros2 command lines cannot run here (the
 ``ros2`` CLI is not on PyPI): every name they use must exist (topics, services, action,
 types, executables, parameters, launch arguments, make targets), and the payloads of

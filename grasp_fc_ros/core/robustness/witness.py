@@ -29,10 +29,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..certificates import normalise_positions, verify_batch
-from ..epsilon import epsilon_quality
-from ..grasp_input import GraspBatch
+from ..exact.certificates import normalise_positions, verify_batch
+from ..model.grasp_input import GraspBatch
 from ..pipeline import run_pipeline
+from ..quality.epsilon import epsilon_quality
 from .break_distance import deepest_moves, least_breaking_direction
 
 _EPS = float(np.finfo(np.float64).eps)
