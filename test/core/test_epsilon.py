@@ -4,7 +4,7 @@ and adversarial grasps, rtol 1e-6, soft fingers and the L-infinity budget, input
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from grasp_cases import MU_PAPER, adversarial_grasps, ellipsoid_grasps, random_rotation
@@ -176,6 +176,9 @@ def test_explicit_torque_scale_scales_the_torques():
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n_contacts=st.integers(3, 7),
        mu=st.sampled_from([MU_PAPER, 0.3, 0.5, 1.0]), budget=st.sampled_from(["l1", "linf"]))
+# Grasp 0: all 19 seed directions are worked best by contacts 1 and 2, whose discs span
+# five dimensions; the search gave up (DEGENERATE) on a force-closure grasp.
+@example(seed=4294967295, n_contacts=3, mu=1.0, budget="l1")
 def test_random_grasps_meet_the_contract(seed, n_contacts, mu, budget):
     rng = np.random.default_rng(seed)
     positions, normals = ellipsoid_grasps(rng, 8, n_contacts, axes=rng.uniform(0.5, 3.0, 3))
@@ -185,6 +188,23 @@ def test_random_grasps_meet_the_contract(seed, n_contacts, mu, budget):
     np.testing.assert_array_equal(result.force_closure, verdict.force_closure)
     assert_bounds_contract(result, 1e-3, positions, normals, mu, budget=budget)
     assert result.converged[verdict.force_closure].all()
+
+
+def test_seeds_that_miss_a_contact_are_widened():
+    """A 3-contact grasp whose 19 seed directions are all worked best by the same two
+    contacts (their discs span five dimensions): the search adds directions normal to
+    the points' span and converges, within the pyramids' bracket."""
+    rng = np.random.default_rng(4294967295)
+    positions, normals = ellipsoid_grasps(rng, 8, 3, axes=rng.uniform(0.5, 3.0, 3))
+    centre = rng.normal(scale=0.3, size=3)
+    positions, normals = positions[0], normals[0]
+    result = epsilon_quality(positions, normals, 1.0, center=centre, rtol=1e-6)
+    assert result.force_closure and result.converged
+    assert_bounds_contract(result, 1e-6, positions, normals, 1.0)
+    inner = pyramid_epsilon(positions, normals, 1.0, centre, sides=64)
+    outer = pyramid_epsilon(positions, normals, 1.0, centre, sides=64, inscribed=False)
+    assert inner <= result.upper * (1 + HULL_SLACK)
+    assert result.lower <= outer * (1 + HULL_SLACK)
 
 
 def test_linf_budget_lies_between_one_and_n_times_l1():
