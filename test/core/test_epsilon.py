@@ -2,13 +2,15 @@
 reference, upper = h(direction), invariances, consistency with the verdicts on random
 and adversarial grasps, rtol 1e-6, soft fingers and the L-infinity budget, input errors."""
 
+import warnings
+
 import numpy as np
 import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from grasp_cases import MU_PAPER, adversarial_grasps, ellipsoid_grasps, random_rotation
-from grasp_fc_ros.core import check_force_closure, epsilon_quality
+from grasp_fc_ros.core import EpsilonNotConverged, check_force_closure, epsilon_quality
 from grasp_fc_ros.core.quality.epsilon import MIN_RTOL, ZERO_UPPER_TOL
 from reference_epsilon import pyramid_epsilon, support_value
 
@@ -230,11 +232,15 @@ def test_linf_grasps_on_which_the_search_stalls(seed, n_contacts, mu, index):
     strict=True fails it: drop the mark then."""
     positions, normals, centre = contract_grasps(seed, n_contacts)
     positions, normals = positions[index], normals[index]
-    result = epsilon_quality(positions, normals, mu, center=centre, budget="linf")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = epsilon_quality(positions, normals, mu, center=centre, budget="linf")
     assert result.force_closure
     assert_bounds_contract(result, 1e-3, positions, normals, mu, budget="linf")
     assert result.upper - result.lower <= 0.02 * result.upper
     if not result.converged:
+        # ... and says so.
+        assert [w.category for w in caught] == [EpsilonNotConverged]
         raise NotConverged(f"[{result.lower}, {result.upper}] after "
                            f"{result.support_points} support points")
 
