@@ -122,6 +122,11 @@ EXPECTED: dict[str, Run] = {
              r"core's"),
         Line(r"no grasp lost to a worker's death: meets target"),
     )),
+    # A label job whose node is SIGKILLed mid-job and restarted: complete and equal.
+    "bench_restart": Run(lines=(
+        Line(rf"^killed {N} s into the job and restarted: the job ended {N} s after the "
+             rf"restart, {N} goals sent again; (\d+) of \4 verdicts, 0 differ from the core's"),
+    )),
     # Service calls beside a 12-contact batch from another process and this one, and
     # beside a big service call; the batch (or call) answered in full every time.
     "bench_stall": Run(lines=(
