@@ -307,6 +307,12 @@ class GraspClient:
             Seconds for the whole goal (None: as long as it takes; the action server
             is then looked for for at most 60 s). On expiry the goal is cancelled.
 
+        A node killed mid-job (SIGKILL, a crash) does not end the job: when a node is
+        back (a new action server in the graph), the goals not ended are sent again,
+        and every verdict still comes once, in order. If no action server is left in
+        the graph for ``NODE_RETURN_WAIT_S`` (60 s; a killed node leaves it when its DDS
+        lease ends, 20 s with Fast DDS), the job ends with :class:`NodeGoneError`.
+
         Returns
         -------
         Verdicts
@@ -321,6 +327,9 @@ class GraspClient:
             No action server, or the goal did not end within ``timeout``.
         RuntimeError
             The node rejected the job's first goal (it is shutting down).
+        NodeGoneError
+            The node went away and did not come back (a ConnectionError); its
+            ``verdicts`` are those decided before, a prefix.
         """
         ids = np.arange(n_grasps_of(positions, counts)) if ids is None else ids
         return self.label_action.label(batch_arrays(ids, positions, normals, mu, counts),
