@@ -4,7 +4,8 @@ The force_closure node runs in its own process (its console script, default para
 A ``GraspClient.label_grasps`` job of --grasps 6-finger grasps (timeout None, as a user
 calls it) runs on a thread of this process; once the node has answered part of it, the
 node is SIGKILLed and started again at once. Printed: the seconds from the restart to
-the job's end (target <= 30 s), the goals the client sent again, and whether every verdict came back once, in
+the job's end (target <= 30 s; it includes deciding what the killed node had not
+answered), the goals the client sent again and when, and whether every verdict came back once, in
 order, equal to the core's (check_force_closure in this process on the same grasps).
 
 With --never-back, a second run kills the node and does not restart it: the job must end
@@ -83,6 +84,17 @@ def kill_mid_job(node: subprocess.Popen[bytes], client: GraspClient, job: Job) -
     return time.monotonic()
 
 
+def goals_sent_again(client: GraspClient, job: Job) -> float | None:
+    """When the client sent the job's unfinished goals again (time.monotonic()); None if
+    the job ended first."""
+    deadline = time.monotonic() + JOB_LIMIT_S
+    while client.label_action.last_job_resent == 0:
+        if job.ended_at is not None or time.monotonic() > deadline:
+            return None
+        time.sleep(0.01)
+    return time.monotonic()
+
+
 def equal_to_core(verdicts: Verdicts, expected: np.ndarray) -> tuple[int, int]:
     """(verdicts whose id or status differs from the core's, grasps missing)."""
     n = len(verdicts)
@@ -103,6 +115,7 @@ def killed_and_restarted(namespace: str, positions: np.ndarray, normals: np.ndar
         killed_at = kill_mid_job(node, client, job)
         node = subprocess.Popen(command)
         restarted_at = time.monotonic()
+        resent_at = goals_sent_again(client, job)
         ended = job.join()
     finally:
         client.close()
@@ -119,9 +132,11 @@ def killed_and_restarted(namespace: str, positions: np.ndarray, normals: np.ndar
     end_s = job.ended_at - restarted_at
     ok = (end_s <= TARGET_END_S and differ == 0 and missing == 0
           and client.last_goal_status == GoalStatus.STATUS_SUCCEEDED)
+    resent = ("never" if resent_at is None
+              else f"{resent_at - restarted_at:.1f} s after the restart")
     print(f"killed {killed_at - job.started_at:.1f} s into the job and restarted: the job "
           f"ended {end_s:.1f} s after the restart, {client.label_action.last_job_resent} "
-          f"goals sent again; {len(job.verdicts)} of {len(expected)} verdicts, {differ} "
+          f"goals sent again ({resent}); {len(job.verdicts)} of {len(expected)} verdicts, {differ} "
           f"differ from the core's  [target <= {TARGET_END_S:g} s, complete, equal: "
           f"{verdict(ok)}]")
     return ok

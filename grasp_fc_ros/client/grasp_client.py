@@ -293,6 +293,12 @@ class GraspClient:
         are sent) and returns the verdicts decided so far, a prefix; a second Ctrl-C
         while waiting for them raises.
 
+        A node killed mid-job (SIGKILL, a crash) does not end the job: when a node is
+        back (a new action server in the graph), the goals not ended are sent again,
+        and every verdict still comes once, in order. If no action server is left in
+        the graph for ``NODE_RETURN_WAIT_S`` (60 s; a killed node leaves it when its DDS
+        lease ends, 20 s with Fast DDS), the job ends with :class:`NodeGoneError`.
+
         Parameters
         ----------
         positions, normals : (N, n, 3) float, or stacked (K, 3) with ``counts`` (N,)
@@ -306,12 +312,6 @@ class GraspClient:
         timeout : float, optional
             Seconds for the whole goal (None: as long as it takes; the action server
             is then looked for for at most 60 s). On expiry the goal is cancelled.
-
-        A node killed mid-job (SIGKILL, a crash) does not end the job: when a node is
-        back (a new action server in the graph), the goals not ended are sent again,
-        and every verdict still comes once, in order. If no action server is left in
-        the graph for ``NODE_RETURN_WAIT_S`` (60 s; a killed node leaves it when its DDS
-        lease ends, 20 s with Fast DDS), the job ends with :class:`NodeGoneError`.
 
         Returns
         -------

@@ -125,7 +125,8 @@ EXPECTED: dict[str, Run] = {
     # A label job whose node is SIGKILLed mid-job and restarted: complete and equal.
     "bench_restart": Run(lines=(
         Line(rf"^killed {N} s into the job and restarted: the job ended {N} s after the "
-             rf"restart, {N} goals sent again; (\d+) of \4 verdicts, 0 differ from the core's"),
+             rf"restart, {N} goals sent again \({N} s after the restart\); (\d+) of \5 "
+             r"verdicts, 0 differ from the core's"),
     )),
     # Service calls beside a 12-contact batch from another process and this one, and
     # beside a big service call; the batch (or call) answered in full every time.
