@@ -201,6 +201,16 @@ EXPECTED: dict[str, Run] = {
 
 #: Runs beyond the quick forms: options whose output the quick form does not show.
 OTHER_RUNS: dict[str, tuple[str, Run]] = {
+    # The node and the clients on two simulated hosts (network namespaces, UDP only).
+    "bench_stall --udp-hosts": ("bench_stall", Run(
+        args=("--quick", "--udp-hosts", "--cases", "batch,this"),
+        lines=(*(Line(rf"^batch from {source}: p50 {N} ms, p99 {N} ms, max {N} ms over "
+                      rf"{N} calls") for source in ("another process", "this process")),
+               Line(r"the batch answered in [\d.]+ s, (\d+) of \1 grasps$", count=2),
+               Line(rf"^UDP on the node's host: {N} datagrams in, {N} out, \d+ dropped "
+                    r"at a full receive buffer"),
+               Line(rf"^UDP on the client's host: {N} datagrams in, {N} out")),
+        skip_if=r"two hosts over UDP: skipped")),
     "bench_exact --against e89657b": ("bench_exact", Run(
         args=("--against", "e89657b", "--grasps", "60", "--repeats", "1"),
         lines=_rows(EXACT_CELLS, rf"[\d.]+\s+{N}\s+{N}\s+{N}x\s+{N}\s+{N}x\s+0"),
