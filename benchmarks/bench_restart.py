@@ -71,8 +71,13 @@ class Job:
         return not self._thread.is_alive()
 
 
-def kill_mid_job(node: subprocess.Popen[bytes], client: GraspClient, job: Job) -> float:
-    """SIGKILL ``node`` once it has answered part of ``job``; when it died."""
+def kill_mid_job(node: subprocess.Popen[bytes], client: GraspClient, positions: np.ndarray,
+                 normals: np.ndarray) -> tuple[Job, float]:
+    """Start the job once the node is there; SIGKILL ``node`` once it has answered part
+    of it: (the job, when the node died)."""
+    if not client.wait_for_node(CONNECT_TIMEOUT_S):
+        raise RuntimeError("node did not come up")
+    job = Job(client, positions, normals)
     deadline = time.monotonic() + JOB_LIMIT_S
     while int(client.next_diagnostics(timeout=30.0)["answered"]) == 0:
         if job.ended_at is not None or time.monotonic() > deadline:
@@ -81,7 +86,7 @@ def kill_mid_job(node: subprocess.Popen[bytes], client: GraspClient, job: Job) -
     node.wait(timeout=10)
     if job.ended_at is not None:
         raise RuntimeError("the job ended before the kill: use more --grasps")
-    return time.monotonic()
+    return job, time.monotonic()
 
 
 def goals_sent_again(client: GraspClient, job: Job) -> float | None:
@@ -109,10 +114,7 @@ def killed_and_restarted(namespace: str, positions: np.ndarray, normals: np.ndar
     node = subprocess.Popen(command)
     client = GraspClient(f"{namespace}/force_closure")
     try:
-        if not client.wait_for_node(CONNECT_TIMEOUT_S):
-            raise RuntimeError("node did not come up")
-        job = Job(client, positions, normals)
-        killed_at = kill_mid_job(node, client, job)
+        job, killed_at = kill_mid_job(node, client, positions, normals)
         node = subprocess.Popen(command)
         restarted_at = time.monotonic()
         resent_at = goals_sent_again(client, job)
@@ -136,8 +138,8 @@ def killed_and_restarted(namespace: str, positions: np.ndarray, normals: np.ndar
               else f"{resent_at - restarted_at:.1f} s after the restart")
     print(f"killed {killed_at - job.started_at:.1f} s into the job and restarted: the job "
           f"ended {end_s:.1f} s after the restart, {client.label_action.last_job_resent} "
-          f"goals sent again ({resent}); {len(job.verdicts)} of {len(expected)} verdicts, {differ} "
-          f"differ from the core's  [target <= {TARGET_END_S:g} s, complete, equal: "
+          f"goals sent again ({resent}); {len(job.verdicts)} of {len(expected)} verdicts, "
+          f"{differ} differ from the core's  [target <= {TARGET_END_S:g} s, complete, equal: "
           f"{verdict(ok)}]")
     return ok
 
@@ -147,10 +149,7 @@ def never_back(namespace: str, positions: np.ndarray, normals: np.ndarray,
     node = subprocess.Popen(node_command(namespace))
     client = GraspClient(f"{namespace}/force_closure")
     try:
-        if not client.wait_for_node(CONNECT_TIMEOUT_S):
-            raise RuntimeError("node did not come up")
-        job = Job(client, positions, normals)
-        killed_at = kill_mid_job(node, client, job)
+        job, killed_at = kill_mid_job(node, client, positions, normals)
         ended = job.join()
     finally:
         client.close()

@@ -37,8 +37,8 @@ def complete(future: Future, value, node: Node) -> None:
 class Handle:
     """A goal handle the scripted client gave out: its result future, cancel requests."""
 
-    def __init__(self, part: int, node: Node):
-        self.part = part
+    def __init__(self, query, node: Node):
+        self.query = query  # the goal's grasps
         self.node = node
         self.accepted = True
         self.result = Future()
@@ -51,10 +51,12 @@ class Handle:
         self.cancels += 1
         return Future()
 
-    def end(self, status: int, verdicts: Verdicts, query) -> None:
+    def end(self, status: int, verdict: Status) -> None:
+        """End the goal with ``status``, every grasp of it answered ``verdict``."""
+        verdicts = Verdicts.failed(np.asarray(self.query.ids, np.uint64), verdict, "")
         response = LabelGrasps.Impl.GetResultService.Response(
             status=status, result=LabelGrasps.Result(
-                verdicts=verdicts_to_array_msg(verdicts, query)))
+                verdicts=verdicts_to_array_msg(verdicts, self.query)))
         complete(self.result, response, self.node)
 
 
@@ -63,13 +65,15 @@ class ScriptedActionClient:
 
     def __init__(self, node: Node):
         self.node = node
-        self.requests: list[tuple[int, Future]] = []  # (part, future of its handle)
+        # (part, its grasps, the future of its goal handle)
+        self.requests: list[tuple[int, object, Future]] = []
         self.lock = threading.Lock()
 
     def send_goal_async(self, goal, feedback_callback=None) -> Future:
         future = Future()
         with self.lock:
-            self.requests.append((int(goal.grasps.ids[0]) // GRASPS_PER_PART, future))
+            self.requests.append((int(goal.grasps.ids[0]) // GRASPS_PER_PART, goal.grasps,
+                                  future))
         return future
 
 
@@ -107,11 +111,6 @@ def parts_of(n_parts: int):
             for i in range(n_parts)]
 
 
-def verdicts_of(part, status: Status) -> Verdicts:
-    """Every grasp of ``part`` answered ``status``."""
-    return Verdicts.failed(np.asarray(part.ids, np.uint64), status, "")
-
-
 def run_until(job: LabelJob, condition, timeout: float = WAIT_S) -> None:
     deadline = time.monotonic() + timeout
     while not condition():
@@ -119,23 +118,29 @@ def run_until(job: LabelJob, condition, timeout: float = WAIT_S) -> None:
         job.step(0.01)
 
 
-def requests_of(action: ScriptedActionClient, part: int) -> list[Future]:
+def requests_of(action: ScriptedActionClient, part: int) -> list[tuple[object, Future]]:
+    """(grasps, future of the goal handle) of each goal request of ``part``."""
     with action.lock:
-        return [future for index, future in action.requests if index == part]
+        return [(query, future) for index, query, future in action.requests if index == part]
 
 
 def accept(action: ScriptedActionClient, part: int, attempt: int = -1) -> Handle:
-    handle = Handle(part, action.node)
-    complete(requests_of(action, part)[attempt], handle, action.node)
+    query, future = requests_of(action, part)[attempt]
+    handle = Handle(query, action.node)
+    complete(future, handle, action.node)
     return handle
 
 
-def test_a_new_server_gets_the_unfinished_parts_and_late_answers_are_ignored(spun_node):
-    parts = parts_of(3)
-    action, watch = ScriptedActionClient(spun_node), FakeWatch()
-    job = LabelJob(spun_node, action, parts, watch)
+def job_of_three_parts(node: Node) -> tuple[LabelJob, ScriptedActionClient, FakeWatch, Handle]:
+    """A job of three parts on a scripted client: its first goal sent and accepted."""
+    action, watch = ScriptedActionClient(node), FakeWatch()
+    job = LabelJob(node, action, parts_of(3), watch)
     run_until(job, lambda: requests_of(action, 0))
-    first = accept(action, 0)
+    return job, action, watch, accept(action, 0)
+
+
+def test_a_new_server_gets_the_unfinished_parts_and_late_answers_are_ignored(spun_node):
+    job, action, watch, first = job_of_three_parts(spun_node)
     run_until(job, lambda: requests_of(action, 1))
     second = accept(action, 1)
     run_until(job, lambda: len(job._handles) == 2)  # both parts in flight
@@ -143,20 +148,17 @@ def test_a_new_server_gets_the_unfinished_parts_and_late_answers_are_ignored(spu
     run_until(job, lambda: len(requests_of(action, 0)) == 2)
     assert job.resent == 2
     # The dead node's goals end late (say, a node that was not dead after all): ignored.
-    first.end(GoalStatus.STATUS_SUCCEEDED, verdicts_of(parts[0], Status.INVALID_INPUT),
-              parts[0])
-    second.end(GoalStatus.STATUS_ABORTED, verdicts_of(parts[1], Status.INVALID_INPUT),
-               parts[1])
+    first.end(GoalStatus.STATUS_SUCCEEDED, Status.INVALID_INPUT)
+    second.end(GoalStatus.STATUS_ABORTED, Status.INVALID_INPUT)
     again = accept(action, 0)
     run_until(job, lambda: len(requests_of(action, 1)) == 2)  # one at a time, in order
     again_second = accept(action, 1)
-    again_second.end(GoalStatus.STATUS_SUCCEEDED, verdicts_of(parts[1], Status.FORCE_CLOSURE),
-                     parts[1])  # before part 0: results come in any order
+    # Before part 0's: results come in any order.
+    again_second.end(GoalStatus.STATUS_SUCCEEDED, Status.FORCE_CLOSURE)
     run_until(job, lambda: requests_of(action, 2))
     third = accept(action, 2)
     for handle in (third, again):
-        handle.end(GoalStatus.STATUS_SUCCEEDED,
-                   verdicts_of(parts[handle.part], Status.FORCE_CLOSURE), parts[handle.part])
+        handle.end(GoalStatus.STATUS_SUCCEEDED, Status.FORCE_CLOSURE)
     run_until(job, job.ended)
     verdicts = job.verdicts()
     np.testing.assert_array_equal(verdicts.ids, np.arange(3 * GRASPS_PER_PART))
@@ -176,20 +178,14 @@ def test_an_unanswered_goal_request_goes_again_and_its_late_acceptance_is_cancel
     late = accept(action, 0, attempt=0)  # the first request's answer comes after all
     run_until(job, lambda: late.cancels == 1)
     current = accept(action, 0, attempt=1)
-    current.end(GoalStatus.STATUS_SUCCEEDED, verdicts_of(parts[0], Status.FORCE_CLOSURE),
-                parts[0])
+    current.end(GoalStatus.STATUS_SUCCEEDED, Status.FORCE_CLOSURE)
     run_until(job, job.ended)
     assert len(job.verdicts()) == GRASPS_PER_PART and current.cancels == 0
 
 
 def test_a_cancelled_job_whose_node_restarted_ends_with_its_prefix(spun_node):
-    parts = parts_of(3)
-    action, watch = ScriptedActionClient(spun_node), FakeWatch()
-    job = LabelJob(spun_node, action, parts, watch)
-    run_until(job, lambda: requests_of(action, 0))
-    first = accept(action, 0)
-    first.end(GoalStatus.STATUS_SUCCEEDED, verdicts_of(parts[0], Status.FORCE_CLOSURE),
-              parts[0])
+    job, action, watch, first = job_of_three_parts(spun_node)
+    first.end(GoalStatus.STATUS_SUCCEEDED, Status.FORCE_CLOSURE)
     run_until(job, lambda: requests_of(action, 1))
     accept(action, 1)
     run_until(job, lambda: 0 in job._ended and 1 in job._handles)

@@ -76,12 +76,7 @@ def test_label_job_ends_complete_after_its_node_is_killed_and_restarted(ros, gra
     process = NodeProcess(command)
     client = GraspClient(f"{namespace}/force_closure")
     try:
-        assert client.wait_for_node(60.0)
-        job = Job(client, positions, normals)
-        wait_for_progress(client, job)
-        process.proc.kill()
-        process.proc.wait(timeout=10)
-        assert job.ended_at is None, "the job ended before the kill"
+        job = killed_mid_job(process, client, positions, normals)
         process = NodeProcess(command)
         restarted_at = time.monotonic()
         job.join(RESTART_END_BOUND_S)
@@ -107,11 +102,7 @@ def test_label_job_whose_node_never_returns_ends_with_its_prefix(ros, grasps, mo
     process = NodeProcess(node_command() + ONE_WORKER + ["-r", f"__ns:={namespace}"])
     client = GraspClient(f"{namespace}/force_closure")
     try:
-        assert client.wait_for_node(60.0)
-        job = Job(client, positions, normals)
-        wait_for_progress(client, job)
-        process.proc.kill()
-        process.proc.wait(timeout=10)
+        job = killed_mid_job(process, client, positions, normals)
         killed_at = time.monotonic()
         job.join(LEASE_S + 2.0 + GONE_SLACK_S)
     finally:
@@ -127,9 +118,17 @@ def test_label_job_whose_node_never_returns_ends_with_its_prefix(ros, grasps, mo
     assert job.ended_at - killed_at > LEASE_S / 2  # it waited for the node
 
 
-def wait_for_progress(client: GraspClient, job: Job, timeout: float = 120.0) -> None:
-    """Wait until the node has answered part of the job (its diagnostics say so)."""
+def killed_mid_job(process: NodeProcess, client: GraspClient, positions, normals,
+                   timeout: float = 120.0) -> Job:
+    """Start the job once the node is there; SIGKILL the node once it has answered part
+    of it (its diagnostics say so)."""
+    assert client.wait_for_node(60.0)
+    job = Job(client, positions, normals)
     deadline = time.monotonic() + timeout
     while int(client.next_diagnostics(timeout=30.0)["answered"]) == 0:
         assert job.ended_at is None, f"the job ended before the kill: {job.error!r}"
         assert time.monotonic() < deadline, "the node never received the job"
+    process.proc.kill()
+    process.proc.wait(timeout=10)
+    assert job.ended_at is None, "the job ended before the kill"
+    return job
