@@ -19,6 +19,7 @@ import pytest
 from action_msgs.msg import GoalStatus
 
 from grasp_fc_ros.client import GraspClient, NodeGoneError
+from grasp_fc_ros.client.label_job import PARTS_IN_FLIGHT
 from grasp_fc_ros.core import check_force_closure
 from grasp_fc_ros.objects import make_object, sample_grasps
 from ros_fixtures import NodeProcess, node_command
@@ -120,12 +121,14 @@ def test_label_job_whose_node_never_returns_ends_with_its_prefix(ros, grasps, mo
 
 def killed_mid_job(process: NodeProcess, client: GraspClient, positions, normals,
                    timeout: float = 120.0) -> Job:
-    """Start the job once the node is there; SIGKILL the node once it has answered part
-    of it (its diagnostics say so)."""
+    """Start the job once the node is there; SIGKILL the node once the client has had
+    a part's result: once the node has received more goals than the client keeps
+    unfinished (its diagnostics say so)."""
     assert client.wait_for_node(60.0)
     job = Job(client, positions, normals)
     deadline = time.monotonic() + timeout
-    while int(client.next_diagnostics(timeout=30.0)["answered"]) == 0:
+    while (int(client.next_diagnostics(timeout=30.0)["action_goals_received"])
+           <= PARTS_IN_FLIGHT):
         assert job.ended_at is None, f"the job ended before the kill: {job.error!r}"
         assert time.monotonic() < deadline, "the node never received the job"
     process.proc.kill()
