@@ -27,7 +27,9 @@ while a batch of --grasps grasps of --contacts contacts each (100,000 x 12 by de
 For each it prints the service round trips while the batch was on its way and being
 decided (p50, p99, max; targets p99 <= 50 ms, max <= 100 ms), the seconds from sending
 the batch to its answer, and whether every grasp of it was answered (with how many
-were refused, and why: the node refuses an oversized raw message).
+were refused, and why: the node refuses an oversized raw message); over UDP, also the
+datagrams each host dropped at a full socket receive buffer meanwhile (each one sent
+again later by DDS, after a negative acknowledgement).
 
 With ``--udp-hosts`` the node and this process (with the sending processes) are on two
 simulated hosts: network namespaces joined by a veth pair, DDS over UDP only, as
@@ -36,7 +38,8 @@ saying why, where network namespaces cannot be made).
 
 Usage: python benchmarks/bench_stall.py [--grasps N] [--contacts C] [--period S]
        [--cases batch,goal,raw,raw-goal,call,this,this-goal,this-raw]
-       [--node-args "-p max_message_contacts:=0"] [--udp-hosts] [--quick]
+       [--node-args "-p max_message_contacts:=0"] [--node-profile FILE] [--udp-hosts]
+       [--quick]
        (--send NODE --how HOW is the child process's own form; --node-netns NAME the
        form run in the client's namespace)
 """
@@ -74,7 +77,7 @@ from grasp_fc_ros.interface.names import (
     resolve,
 )
 from grasp_fc_ros.objects import make_object, sample_grasps
-from udp_hosts import UdpHosts, in_namespace, unavailable
+from udp_hosts import UdpHosts, in_namespace, udp_drops, unavailable
 
 GRASPS = 100_000
 QUICK_GRASPS = 20_000
@@ -334,6 +337,10 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"comma-separated, of {', '.join(CASES)} (default all)")
     parser.add_argument("--node-args", default="",
                         help="extra --ros-args for the node, e.g. '-p max_message_contacts:=0'")
+    parser.add_argument("--node-profile", metavar="FILE", type=os.path.abspath,
+                        help="a Fast DDS profiles file for the node (it then sets none of "
+                             "its own: e.g. one of reader times only, without its receive "
+                             "buffers, to compare)")
     parser.add_argument("--udp-hosts", action="store_true",
                         help="the node and the clients on two simulated hosts (network "
                              "namespaces, DDS over UDP); needs root")
@@ -355,9 +362,11 @@ def main(argv: list[str] | None = None) -> int:
     rng = np.random.default_rng(0)
     grasp = sample_grasps(make_object("box"), 1, SERVICE_FINGERS, rng)
     rclpy.init()
+    wrapper = in_namespace(args.node_netns, []) if args.node_netns else []
+    if args.node_profile:
+        wrapper += ["env", f"FASTRTPS_DEFAULT_PROFILES_FILE={args.node_profile}"]
     node, client = start_node("stall", ["-p", f"max_batch:={args.grasps}",
-                                        *shlex.split(args.node_args)],
-                              in_namespace(args.node_netns, []) if args.node_netns else ())
+                                        *shlex.split(args.node_args)], wrapper)
     node_name = f"/grasp_fc_stall_{os.getpid()}/force_closure"  # as start_node names it
     try:
         megabytes = args.grasps * args.contacts * 6 * 8 / 1e6  # positions, normals
@@ -368,9 +377,14 @@ def main(argv: list[str] | None = None) -> int:
         idle = time_calls(client, grasp, args.period, lambda: next(calls) == IDLE_CALLS)
         print(f"idle: {summary(idle)}")
         for case in cases:
+            dropped = (udp_drops(node.pid), udp_drops()) if args.node_netns else None
             print(from_this_process(client, node_name, args, grasp, case)
                   if case in SENT_FROM_HERE_AS else
                   from_another_process(client, node_name, args, grasp, case))
+            if dropped is not None:
+                print(f"    UDP datagrams dropped at a full receive buffer: "
+                      f"{udp_drops(node.pid) - dropped[0]} on the node's host, "
+                      f"{udp_drops() - dropped[1]} on the client's")
         return 0
     finally:
         stop_node(node, client)
@@ -388,15 +402,9 @@ def on_udp_hosts(argv: list[str]) -> int:
         print(f"two hosts over UDP: node in network namespace {hosts.namespaces['node']}, "
               f"clients in {hosts.namespaces['client']}, joined by a veth pair; Fast DDS "
               "on UDPv4 only", flush=True)
-        code = subprocess.run(hosts.command("client", [
+        return subprocess.run(hosts.command("client", [
             sys.executable, __file__, *argv, "--node-netns", hosts.namespaces["node"]])
         ).returncode
-        for host in ("node", "client"):
-            udp = hosts.udp_counters(host)
-            print(f"UDP on the {host}'s host: {udp['InDatagrams']} datagrams in, "
-                  f"{udp['OutDatagrams']} out, {udp['RcvbufErrors']} dropped at a full "
-                  f"receive buffer, {udp['InErrors']} in errors")
-        return code
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ import os
 import shutil
 import subprocess
 from collections.abc import Sequence
+from pathlib import Path
 
 # The two hosts' addresses, in a /24 of 10.231.0.0/16 of their own (the namespaces keep
 # them off every other interface of this machine).
@@ -86,16 +87,6 @@ class UdpHosts:
                 subprocess.run(["kill", "-KILL", pid], capture_output=True)
             subprocess.run(["ip", "netns", "del", namespace], capture_output=True)
 
-    def udp_counters(self, host: str) -> dict[str, int]:
-        """The UDP counters of ``host``'s namespace (/proc/net/snmp): datagrams in and
-        out, and those dropped because a socket's receive buffer was full
-        (``RcvbufErrors``) or for any reason (``InErrors``)."""
-        lines = subprocess.run(
-            ["ip", "netns", "exec", self.namespaces[host], "cat", "/proc/net/snmp"],
-            capture_output=True, text=True, check=True).stdout.splitlines()
-        names, values = (line.split()[1:] for line in lines if line.startswith("Udp:"))
-        return dict(zip(names, map(int, values), strict=True))
-
     def command(self, host: str, command: Sequence[str]) -> list[str]:
         """``command`` run in ``host``'s namespace ("node" or "client"), Fast DDS on
         UDP only."""
@@ -107,6 +98,14 @@ def in_namespace(namespace: str, command: Sequence[str]) -> list[str]:
     and ``env`` exec it: its process id is the command's)."""
     return ["ip", "netns", "exec", namespace, "env",
             *(f"{name}={value}" for name, value in UDP_ENVIRONMENT.items()), *command]
+
+
+def udp_drops(pid: int | str = "self") -> int:
+    """UDP datagrams dropped so far in the network namespace of process ``pid`` because
+    a socket's receive buffer was full (``RcvbufErrors`` of its /proc/net/snmp)."""
+    lines = Path(f"/proc/{pid}/net/snmp").read_text().splitlines()
+    names, values = (line.split()[1:] for line in lines if line.startswith("Udp:"))
+    return int(dict(zip(names, values, strict=True))["RcvbufErrors"])
 
 
 def _ip(*arguments: str) -> None:
