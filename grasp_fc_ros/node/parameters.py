@@ -108,8 +108,8 @@ PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
         "Every verdict carries certified bounds epsilon_lower <= epsilon <= "
         "epsilon_upper on the grasp's Ferrari-Canny epsilon (circular friction cones, "
         "normal forces summing to <= 1, torques about the frame's origin over the largest "
-        "contact distance from it); costs more than the verdict itself, and its first use "
-        "in a fresh install compiles kernels (docs/epsilon.md#cost)")),
+        "contact distance from it); costs more than the verdict itself "
+        "(docs/epsilon.md#cost)")),
     "workers": (DEFAULT_WORKERS, _int_descriptor(
         "Worker processes deciding large batches and service requests (0: none, decide "
         "in the node's threads); set at start-up", 0, MAX_WORKERS, read_only=True)),
