@@ -288,12 +288,13 @@ def verdict(ok: bool) -> str:
     return "meets target" if ok else "BELOW target"
 
 
-def start_node(tag: str,
-               parameters: Sequence[str] = ()) -> tuple[subprocess.Popen[bytes], GraspClient]:
+def start_node(tag: str, parameters: Sequence[str] = (),
+               wrapper: Sequence[str] = ()) -> tuple[subprocess.Popen[bytes], GraspClient]:
     """(node process, connected client) for a node in a namespace of its own, started
-    with extra ``--ros-args`` ``parameters`` (e.g. ``["-p", "certificates:=true"]``)."""
+    with extra ``--ros-args`` ``parameters`` (e.g. ``["-p", "certificates:=true"]``),
+    its command after ``wrapper`` (e.g. ``ip netns exec NAME``), which must exec it."""
     namespace = f"/grasp_fc_{tag}_{os.getpid()}"
-    node = subprocess.Popen(node_command(namespace) + list(parameters))
+    node = subprocess.Popen([*wrapper, *node_command(namespace), *parameters])
     client = GraspClient(f"{namespace}/force_closure")
     if not client.wait_for_node(CONNECT_TIMEOUT_S):
         client.close()

@@ -1,11 +1,17 @@
-"""Fast DDS reader timing for the node's process: acknowledge a sample at once.
+"""Fast DDS settings for the node's process: acknowledge a sample at once, and UDP
+receive buffers that hold a batch part.
 
 A Fast DDS reader answers a writer's heartbeat only after its ``heartbeatResponseDelay``.
 ``GraspClient`` sends a large batch in parts, each once the node acknowledged the one
 before (docs/performance.md#big-batches), so that delay, not the node, set the pace of
-a batch (docs/performance.md#worker-messages). :func:`prompt_acks` gives the node's readers a
-delay of 0 through a Fast DDS XML profile of reader times only (no transport), unless
-the user chose a profiles file or another middleware.
+a batch (docs/performance.md#worker-messages). Over UDP (clients on other hosts), a
+part arrives as datagrams faster than a busy node's receive thread may take them, and a
+socket buffer of the Linux default (208 KiB) drops them, to be sent again after a
+negative acknowledgement (docs/performance.md#service-calls-between-hosts).
+:func:`prompt_acks` gives the node's readers a delay of 0 and its participants' UDP
+sockets :data:`LISTEN_BUFFER_BYTES` of receive buffer through a Fast DDS XML profile
+(no transport: the builtin ones, or ``FASTDDS_BUILTIN_TRANSPORTS``, stay), unless the
+user chose a profiles file or another middleware.
 """
 
 from __future__ import annotations
@@ -16,10 +22,20 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-# The default data reader profile: reader times only, everything else Fast DDS's
-# defaults (ROS QoS settings still apply on top).
-READER_PROFILE = """<?xml version="1.0" encoding="UTF-8" ?>
+# Receive buffer asked for each UDP socket of the node's participants (bytes): a batch
+# part (MAX_MESSAGE_CONTACTS contacts, ~0.3 MB) several times over. Linux grants at most
+# net.core.rmem_max (its default, 208 KiB, grants nothing more: docs/node.rst says how
+# to raise it); Fast DDS takes what it is granted.
+LISTEN_BUFFER_BYTES = 4 * 1024 * 1024
+# The default participant and data reader profiles: socket buffers and reader times
+# only, everything else Fast DDS's defaults (ROS QoS settings still apply on top).
+READER_PROFILE = f"""<?xml version="1.0" encoding="UTF-8" ?>
 <profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+  <participant profile_name="grasp_fc_receive_buffers" is_default_profile="true">
+    <rtps>
+      <listenSocketBufferSize>{LISTEN_BUFFER_BYTES}</listenSocketBufferSize>
+    </rtps>
+  </participant>
   <data_reader profile_name="grasp_fc_prompt_acks" is_default_profile="true">
     <times>
       <heartbeatResponseDelay><sec>0</sec><nanosec>0</nanosec></heartbeatResponseDelay>
@@ -35,7 +51,8 @@ FASTDDS_RMW = "rmw_fastrtps_cpp"
 @contextlib.contextmanager
 def prompt_acks() -> Iterator[bool]:
     """While entered (around ``rclpy.init`` and the node's construction, when Fast DDS
-    reads its profiles), Fast DDS readers acknowledge at once; yields whether the
+    reads its profiles), Fast DDS readers acknowledge at once and UDP sockets get
+    LISTEN_BUFFER_BYTES of receive buffer; yields whether the
     profile was set (not if ``RMW_IMPLEMENTATION`` names another middleware or a
     profiles file is already chosen: the user's settings win)."""
     if (os.environ.get("RMW_IMPLEMENTATION", FASTDDS_RMW) != FASTDDS_RMW
