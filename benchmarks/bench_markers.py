@@ -278,7 +278,7 @@ def markers_latency_s(env: dict[str, str], calls: int) -> list[float | None]:
     from grasp_fc_ros.markers.build import marker_namespace
 
     p, n = sample_grasps(make_object("box"), calls, FINGERS, np.random.default_rng(2))
-    node, client = start_node("markers_latency", ["-p", "publish_markers:=true"], env)
+    node, client = start_node("markers_latency", ["-p", "publish_markers:=true"], env=env)
     viewer = rclpy.create_node("bench_markers_viewer")
     arrivals = MarkerArrivals(viewer, f"/grasp_fc_markers_latency_{os.getpid()}/markers")
     executor = SingleThreadedExecutor()

@@ -156,6 +156,14 @@ DIAGNOSTIC_KEYS = (
     ("processing_time_mean_ms", "mean processing time of the answered messages of the "
                                 "last 2,000 (failures add none)"),
     ("processing_time_p99_ms", "their 99th percentile"),
+    ("incompatible_qos_publishers", "publishers now in the graph whose QoS the node's "
+                                    "subscriptions cannot match (e.g. BEST_EFFORT on "
+                                    "``contacts``): never matched, they get no answer; "
+                                    "with the policies DDS named, e.g. ``1 (RELIABILITY)``, "
+                                    "``0`` when none"),
+    ("incompatible_qos_subscribers", "subscribers now in the graph whose QoS the node's "
+                                     "answer publishers cannot offer (e.g. TRANSIENT_LOCAL "
+                                     "on ``verdicts``): they hear nothing; as above"),
 )
 # Keys present only while the node publishes markers.
 MARKER_DIAGNOSTIC_KEYS = ("markers_published", "markers_dropped")

@@ -53,6 +53,7 @@ from grasp_fc_ros.interface import wire
 from grasp_fc_ros.interface.names import NODE_NAME
 from grasp_fc_ros.node.batches import BatchLane
 from grasp_fc_ros.node.diagnostics import Diagnostics
+from grasp_fc_ros.node.incompatible_qos import IncompatibleQoS
 from grasp_fc_ros.node.label_action import LabelAction
 from grasp_fc_ros.node.lane import Lane, LaneContext, Refusals
 from grasp_fc_ros.node.marker_lane import MarkerLane
@@ -124,14 +125,16 @@ class ForceClosureNode(Node):
         # arrive, so that none pays for it.
         warm_up()
         may_log = Throttle(WARN_THROTTLE_S)
+        incompatible_qos = IncompatibleQoS(self, may_log)
         context = LaneContext(
             pool=self.pool, statistics=self.statistics,
             refusals=Refusals(self.statistics, self.get_logger(), may_log),
             settings=lambda: self.parameters.settings, logger=self.get_logger(),
-            rclpy_context=self.context, may_log=may_log)
+            rclpy_context=self.context, may_log=may_log, incompatible_qos=incompatible_qos)
         # Serialized queries in, serialized verdicts and batch answers out, unless this
         # rmw's layout is not the one grasp_fc_ros.interface.wire reads and writes.
-        self.replies = Replies(self, serialized=wire.layout_matches())
+        self.replies = Replies(self, serialized=wire.layout_matches(),
+                               incompatible_qos=incompatible_qos)
         # In the order they are stopped in reverse: the markers, which the others offer
         # their answers to, last.
         self.markers = self._add(MarkerLane(self, self.parameters, context.internal_error))
@@ -145,7 +148,7 @@ class ForceClosureNode(Node):
         self.label_action = self._add(LabelAction(self, context, self.batch_participant))
         self.diagnostics = Diagnostics(self, self.statistics, lambda: self._lanes,
                                        context.internal_error, self._node_counts,
-                                       self._node_warnings)
+                                       incompatible_qos, node_warnings=self._node_warnings)
         self.markers.wait_ready(MARKER_START_TIMEOUT_S)
         self.get_logger().info(
             f"ready: topics contacts, contacts_batch; services check_force_closure, "

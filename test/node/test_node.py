@@ -443,6 +443,8 @@ def test_diagnostics_report_exact_counter_changes(client, grasps):
     keys |= {"action_goals_received", "action_goals_succeeded", "action_goals_canceled",
              "action_goals_aborted", "action_goals_queued", "action_goals_running",
              "action_grasps_undecided"}
+    # Peers with incompatible QoS (test_incompatible_qos.py checks their values).
+    keys |= {"incompatible_qos_publishers", "incompatible_qos_subscribers"}
     assert set(after) == keys
     served = check_force_closure(positions[:3], normals[:3], DEFAULT_MU).status
     statuses = np.concatenate([expected, served])
@@ -467,6 +469,8 @@ def test_diagnostics_report_exact_counter_changes(client, grasps):
         "workers_configured": 0,
         "workers_alive": 0,
         "messages_lost": 0,
+        "incompatible_qos_publishers": 0,  # "0" while there is none
+        "incompatible_qos_subscribers": 0,
     }
     for key in ("conversion_time_total_s", "validation_time_total_s", "filter_time_total_s",
                 "exact_time_total_s"):

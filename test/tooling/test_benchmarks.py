@@ -130,6 +130,12 @@ EXPECTED: dict[str, Run] = {
         *(Line(rf"^{where}.*: (\d+) of \1 workers back {N} s after (\d+) kills .*; "
                r"worker_restarts \+\3 ") for where in ("node", "engine")),
     )),
+    # A label job whose node is SIGKILLed mid-job and restarted: complete and equal.
+    "bench_restart": Run(lines=(
+        Line(rf"^killed {N} s into the job and restarted: the job ended {N} s after the "
+             rf"restart, {N} goals sent again \({N} s after the restart\); (\d+) of \5 "
+             r"verdicts, 0 differ from the core's"),
+    )),
     # Service calls beside a 12-contact batch from another process and this one, and
     # beside a big service call; the batch (or call) answered in full every time.
     "bench_stall": Run(lines=(
@@ -219,6 +225,15 @@ EXPECTED: dict[str, Run] = {
 
 #: Runs beyond the quick forms: options whose output the quick form does not show.
 OTHER_RUNS: dict[str, tuple[str, Run]] = {
+    # The node and the clients on two simulated hosts (network namespaces, UDP only).
+    "bench_stall --udp-hosts": ("bench_stall", Run(
+        args=("--quick", "--udp-hosts", "--cases", "batch,this"),
+        lines=(*(Line(rf"^batch from {source}: p50 {N} ms, p99 {N} ms, max {N} ms over "
+                      rf"{N} calls") for source in ("another process", "this process")),
+               Line(r"the batch answered in [\d.]+ s, (\d+) of \1 grasps$", count=2),
+               Line(r"^    UDP datagrams dropped at a full receive buffer: \d+ on the "
+                    r"node's host, \d+ on the client's$", count=2)),
+        skip_if=r"two hosts over UDP: skipped")),
     "bench_exact --against e89657b": ("bench_exact", Run(
         args=("--against", "e89657b", "--grasps", "60", "--repeats", "1"),
         lines=_rows(EXACT_CELLS, rf"[\d.]+\s+{N}\s+{N}\s+{N}x\s+{N}\s+{N}x\s+0"),
