@@ -12,6 +12,18 @@ negative acknowledgement (docs/performance.md#service-calls-between-hosts).
 sockets :data:`LISTEN_BUFFER_BYTES` of receive buffer through a Fast DDS XML profile
 (no transport: the builtin ones, or ``FASTDDS_BUILTIN_TRANSPORTS``, stay), unless the
 user chose a profiles file or another middleware.
+
+The profile is a temporary file named by ``FASTRTPS_DEFAULT_PROFILES_FILE``, and it
+lives as long as the node (``grasp-fc-node`` enters :func:`prompt_acks` before rclpy
+starts and leaves it after the node and rclpy are shut down), not only while the node
+is made: the node's child processes inherit the environment, and the marker process
+starts whenever ``publish_markers`` turns on or it must be replaced, and then its own
+Fast DDS reads the file. A variable naming a file already removed made that Fast DDS
+print an XML parser error, which on the marker process's old stdout channel was read as
+a message (issue 28). Keeping the variable out of the children instead would give the
+marker process other Fast DDS settings than the node's, and every spawner would have to know
+of it; the file is a few hundred bytes. Only a SIGKILLed node leaves it behind (in the
+temporary directory).
 """
 
 from __future__ import annotations
@@ -50,11 +62,12 @@ FASTDDS_RMW = "rmw_fastrtps_cpp"
 
 @contextlib.contextmanager
 def prompt_acks() -> Iterator[bool]:
-    """While entered (around ``rclpy.init`` and the node's construction, when Fast DDS
-    reads its profiles), Fast DDS readers acknowledge at once and UDP sockets get
-    LISTEN_BUFFER_BYTES of receive buffer; yields whether the
-    profile was set (not if ``RMW_IMPLEMENTATION`` names another middleware or a
-    profiles file is already chosen: the user's settings win)."""
+    """While entered (from before ``rclpy.init`` until the node and its child processes
+    are gone: each Fast DDS reads its profiles as it starts), Fast DDS readers
+    acknowledge at once and UDP sockets get LISTEN_BUFFER_BYTES of receive buffer;
+    yields whether the profile was set (not if ``RMW_IMPLEMENTATION`` names another
+    middleware or a profiles file is already chosen: the user's settings win, and the
+    children inherit them)."""
     if (os.environ.get("RMW_IMPLEMENTATION", FASTDDS_RMW) != FASTDDS_RMW
             or any(os.environ.get(name) for name in PROFILE_VARIABLES)):
         yield False

@@ -126,6 +126,9 @@ EXPECTED: dict[str, Run] = {
         Line(r"^engine,.*worker \d+ SIGKILLed .*; 0 failures, 0 verdicts differ from the "
              r"core's"),
         Line(r"no grasp lost to a worker's death: meets target"),
+        # Workers killed while starting: all back, every kill counted (no time asserted).
+        *(Line(rf"^{where}.*: (\d+) of \1 workers back {N} s after (\d+) kills .*; "
+               r"worker_restarts \+\3 ") for where in ("node", "engine")),
     )),
     # A label job whose node is SIGKILLed mid-job and restarted: complete and equal.
     "bench_restart": Run(lines=(
@@ -170,6 +173,9 @@ EXPECTED: dict[str, Run] = {
         Line(rf"^\s+service\s+off: {ROUND_TRIP} \| on: {ROUND_TRIP} \| on/off p50\s+{N}"),
         Line(r"^\s+marker arrays received by a listener process \d+ for 40 queries answered "
              r"with markers on; node: markers_published \d+, markers_dropped \d+$"),
+        # Markers from grasp-fc-node started with them on (issue 28: none ever came).
+        *(Line(rf"^\s+{setting}:\s+10 of 10 arrived; p50 {N} ms, max {N} ms")
+          for setting in ("default environment", "a user's profiles file")),
     )),
     "bench_pool": Run(lines=(
         Line(rf"^core +{N} grasps/s; core in 2 processes +{N} \({N}x\); pool +{N} \({N}x\); "
