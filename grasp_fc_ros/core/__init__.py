@@ -6,6 +6,9 @@ Sudsang, "Heuristic Approach for Multiple Queries of 3D N-Finger Frictional Forc
 Closure Grasp". Each idea has one place, grouped by folder; a folder or module imports
 only what stands below it in this list:
 
+* :mod:`.robustness` -- how far contacts may be off with force closure kept: certified
+  radii (:mod:`.robustness.radii`), and holds-or-breaks with evidence
+  (:mod:`.robustness.holds`);
 * :mod:`.quality` -- how good a grasp is:
 
   * :mod:`.quality.epsilon` -- the Ferrari-Canny epsilon (Q1) with circular cones,
@@ -68,6 +71,7 @@ from .one_grasp import warm_up
 from .pipeline import ForceClosureResult, Status, check_force_closure, exact_force_closure
 from .quality.epsilon import EpsilonNotConverged, EpsilonResult, epsilon_quality
 from .quality.minimum_friction import MinimumFriction, minimum_friction, minimum_friction_bounds
+from .robustness import Holds, HoldsUnder, RobustnessRadii, holds_under, robustness
 
 __all__ = [
     "ORIGIN_CHOICES",
@@ -76,14 +80,19 @@ __all__ = [
     "ForceClosureResult",
     "GraspForces",
     "GraspValidation",
+    "Holds",
+    "HoldsUnder",
     "MinimumFriction",
+    "RobustnessRadii",
     "Status",
     "check_force_closure",
     "epsilon_quality",
     "exact_force_closure",
+    "holds_under",
     "minimum_friction",
     "minimum_friction_bounds",
     "optimal_contact_forces",
+    "robustness",
     "torque_filter",
     "validate_grasps",
     "verify_certificates",

@@ -126,6 +126,15 @@ EXPECTED: dict[str, Run] = {
         Line(r"^engine,.*worker \d+ SIGKILLed .*; 0 failures, 0 verdicts differ from the "
              r"core's"),
         Line(r"no grasp lost to a worker's death: meets target"),
+        # Workers killed while starting: all back, every kill counted (no time asserted).
+        *(Line(rf"^{where}.*: (\d+) of \1 workers back {N} s after (\d+) kills .*; "
+               r"worker_restarts \+\3 ") for where in ("node", "engine")),
+    )),
+    # A label job whose node is SIGKILLed mid-job and restarted: complete and equal.
+    "bench_restart": Run(lines=(
+        Line(rf"^killed {N} s into the job and restarted: the job ended {N} s after the "
+             rf"restart, {N} goals sent again \({N} s after the restart\); (\d+) of \5 "
+             r"verdicts, 0 differ from the core's"),
     )),
     # A KEEP_LAST publisher's burst at a stopped node: the rmw's loss report is its own
     # (a figure, not checked); every query received is answered, none counted twice.
@@ -172,6 +181,9 @@ EXPECTED: dict[str, Run] = {
         Line(rf"^\s+service\s+off: {ROUND_TRIP} \| on: {ROUND_TRIP} \| on/off p50\s+{N}"),
         Line(r"^\s+marker arrays received by a listener process \d+ for 40 queries answered "
              r"with markers on; node: markers_published \d+, markers_dropped \d+$"),
+        # Markers from grasp-fc-node started with them on (issue 28: none ever came).
+        *(Line(rf"^\s+{setting}:\s+10 of 10 arrived; p50 {N} ms, max {N} ms")
+          for setting in ("default environment", "a user's profiles file")),
     )),
     "bench_pool": Run(lines=(
         Line(rf"^core +{N} grasps/s; core in 2 processes +{N} \({N}x\); pool +{N} \({N}x\); "
@@ -183,6 +195,19 @@ EXPECTED: dict[str, Run] = {
         Line(r"^n = 6: mu\* finite .*, unresolved 0;"),
         Line(r"^n = 4: mu\* finite .*, unresolved 0;"),
         Line(rf"^six fingers: mu\* {N} grasps/s"),
+    )),
+    "bench_robustness": Run(lines=(
+        Line(rf"^speed n = [46], mu 0\.5: {N} grasps/s over {N} grasps \({N}% force closure\), "
+             rf"{N} force-closure grasps/s$", count=2),
+        Line(rf"^soundness: {N} perturbations \(tilts \(random\) {N}, moves \(random\) {N}, "),
+        Line(r"^soundness: not force closure by the exact test \d+, of which certified by a "
+             r"separating wrench 0$"),
+        Line(rf"^tightness, normals: a searched tilt breaks within 1\.05x normal_angle on {N}% "),
+        Line(rf"^tightness, positions: least breaking move / position_radius: median {N}, "
+             rf"quartiles {N} {N}, max {N}, "),
+        Line(r"^holds_under UNDECIDED \(all n\): normal 0\.5x [\d.]+%, normal 3x [\d.]+%, "
+             r"position 0\.5x [\d.]+%, position 5x [\d.]+%, "),
+        Line(rf"^holds_under witnesses: {N} BREAKS checked, 0 failed$"),
     )),
     "bench_ros": Run(lines=(
         Line(rf"^single-grasp topic:\s+{N} queries/s over 300 queries, no loss, in order"),
@@ -208,6 +233,15 @@ EXPECTED: dict[str, Run] = {
 
 #: Runs beyond the quick forms: options whose output the quick form does not show.
 OTHER_RUNS: dict[str, tuple[str, Run]] = {
+    # The node and the clients on two simulated hosts (network namespaces, UDP only).
+    "bench_stall --udp-hosts": ("bench_stall", Run(
+        args=("--quick", "--udp-hosts", "--cases", "batch,this"),
+        lines=(*(Line(rf"^batch from {source}: p50 {N} ms, p99 {N} ms, max {N} ms over "
+                      rf"{N} calls") for source in ("another process", "this process")),
+               Line(r"the batch answered in [\d.]+ s, (\d+) of \1 grasps$", count=2),
+               Line(r"^    UDP datagrams dropped at a full receive buffer: \d+ on the "
+                    r"node's host, \d+ on the client's$", count=2)),
+        skip_if=r"two hosts over UDP: skipped")),
     "bench_exact --against e89657b": ("bench_exact", Run(
         args=("--against", "e89657b", "--grasps", "60", "--repeats", "1"),
         lines=_rows(EXACT_CELLS, rf"[\d.]+\s+{N}\s+{N}\s+{N}x\s+{N}\s+{N}x\s+0"),

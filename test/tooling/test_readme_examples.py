@@ -13,7 +13,7 @@ exist (topics, services, action, types, executables, parameters, launch argument
 targets), and the payloads of ``ros2 topic pub`` and ``ros2 service call`` are sent to
 the node as those commands would send them, and must be answered as the README says. The
 Python blocks of the ROS-free guides (docs/core.md, docs/soft_fingers.md,
-docs/objects.md) run too.
+docs/objects.md, docs/robustness.md) run too.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
 # Guides whose Python blocks are ROS-free and self-contained.
 GUIDES_WITH_RUNNABLE_PYTHON = (ROOT / "docs" / "core.md", ROOT / "docs" / "soft_fingers.md",
-                               ROOT / "docs" / "objects.md")
+                               ROOT / "docs" / "objects.md", ROOT / "docs" / "robustness.md")
 # Documents whose shell blocks are checked for the names they use.
 SHELL_DOCUMENTS = (README, ROOT / "docs" / "install.md", ROOT / "docs" / "markers.md",
                    ROOT / "docs" / "params.md", ROOT / "docs" / "labelling.md",

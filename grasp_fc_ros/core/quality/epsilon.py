@@ -230,7 +230,9 @@ def epsilon_quality(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.Ar
 def warm_up() -> None:
     """Compile (or load from numba's cache) the search's kernels, both budgets, on a
     force-closure tetrahedron grasp, in a small workspace of its own, so that the calling
-    thread keeps no full one (:func:`_workspace` makes that at its first real search).
+    thread keeps no full one (:func:`search_workspace` makes that at its first real
+    search). The problem is a run-time code, so these also serve the position radius's
+    search (``TORQUE_INRADIUS``).
     """
     corners = np.array([[[1.0, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]]])
     grasps = prepare_grasps(corners, -corners, 0.5)
@@ -238,7 +240,7 @@ def warm_up() -> None:
     for linf in (False, True):
         rows = _Rows(*wrench_rows(grasps, np.zeros((1, 3)), np.ones(1)), grasps.mu, linf)
         direction = epsilon_kernels.epsilon_batch(
-            rows.normal_rows, rows.tangent_rows, rows.mu, rows.wrench_scale, rows.linf,
+            rows.normal_rows, rows.tangent_rows, rows.mu, rows.wrench_scale, rows.problem,
             1e-3, SEED_DIRECTIONS, arrays)[2]
         _certified_uppers(rows, kernel_array(direction))
 
@@ -297,6 +299,11 @@ class _Rows:
         return _Rows(self.normal_rows[index], self.tangent_rows[index], self.mu[index],
                      self.linf)
 
+    @property
+    def problem(self) -> int:
+        """The kernels' code of this budget's epsilon."""
+        return epsilon_kernels.EPSILON_LINF if self.linf else epsilon_kernels.EPSILON_L1
+
 
 def wrench_rows(grasps: GraspBatch, centre: np.ndarray,
                 scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -345,9 +352,10 @@ def _wrench_scale(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndar
 _WORKSPACES = threading.local()
 
 
-def _workspace() -> epsilon_kernels.Workspace:
+def search_workspace() -> epsilon_kernels.Workspace:
     """This thread's search arrays (:func:`.epsilon_kernels.workspace`), made once:
-    allocated per call they cost as much as a grasp's search (docs/epsilon.md#cost)."""
+    allocated per call they cost as much as a grasp's search (docs/epsilon.md#cost).
+    Shared by every search of the thread (epsilon, the position radius)."""
     arrays = getattr(_WORKSPACES, "arrays", None)
     if arrays is None:
         arrays = _WORKSPACES.arrays = epsilon_kernels.workspace(MAX_SUPPORT_POINTS,
@@ -359,8 +367,8 @@ def _search(rows: _Rows,
             rtol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The compiled search on a batch: lower, upper, direction, points, status (N,)."""
     lower, upper, direction, points, status = epsilon_kernels.epsilon_batch(
-        rows.normal_rows, rows.tangent_rows, rows.mu, rows.wrench_scale, rows.linf, rtol,
-        SEED_DIRECTIONS, _workspace())
+        rows.normal_rows, rows.tangent_rows, rows.mu, rows.wrench_scale, rows.problem, rtol,
+        SEED_DIRECTIONS, search_workspace())
     stalled = status != epsilon_kernels.CONVERGED
     if stalled.any():
         # Marginal or rank-deficient grasps: a wrench no contact works on, if any.
@@ -388,7 +396,7 @@ def _least_worked_directions(normal_rows: np.ndarray, tangent_rows: np.ndarray) 
 def _certified_uppers(rows: _Rows, directions: np.ndarray) -> np.ndarray:
     """Upper bounds, valid despite rounding, on h(direction / |direction|) (N,)."""
     return epsilon_kernels.certified_upper_batch(
-        rows.normal_rows, rows.tangent_rows, rows.mu, rows.wrench_scale, rows.linf,
+        rows.normal_rows, rows.tangent_rows, rows.mu, rows.wrench_scale, rows.problem,
         kernel_array(directions))
 
 
