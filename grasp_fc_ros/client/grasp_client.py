@@ -39,6 +39,7 @@ from numpy.typing import ArrayLike
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
+from grasp_fc_ros.client.assessment import Question
 from grasp_fc_ros.client.batches import BatchQueries, n_grasps_of
 from grasp_fc_ros.client.connection import DiagnosticsReader, NodeWatch
 from grasp_fc_ros.client.label_action import LabelActionClient
@@ -276,6 +277,71 @@ class GraspClient:
                                                      friction_or_default(mu),
                                                      max_normal_forces, frame_id, timeout,
                                                      torsional_friction)
+
+    def assess_robustness(self, positions: ArrayLike, normals: ArrayLike,
+                          mu: ArrayLike | None = None, *, position_error: float = 0.0,
+                          normal_error: float = 0.0, friction_error: float = 0.0,
+                          position_sigma: float = 0.0, normal_sigma: float = 0.0,
+                          friction_sigma: float = 0.0, samples: int = 1000,
+                          confidence: float = 0.95, seed: int = 0,
+                          ids: ArrayLike | None = None,
+                          torsional_friction: ArrayLike | None = None, frame_id: str = "",
+                          timeout: float = DEFAULT_TIMEOUT_S) -> Verdicts:
+        """How well grasps hold when their contacts are off (the node's
+        ``assess_robustness`` service; docs/robustness.md).
+
+        Parameters
+        ----------
+        positions, normals : (N, n, 3) float, or (n, 3) for one grasp
+            Contact positions (m) and inward normals.
+        mu : None, scalar, (N, 1) or (N, n) float
+            Friction; None or 0: the node's ``friction_coefficient``.
+        position_error, normal_error, friction_error : float
+            The errors of the holds answer (m, rad, unitless).
+        position_sigma, normal_sigma, friction_sigma : float
+            The random errors of the probability (m, rad, unitless).
+        samples : int
+            Samples per grasp (0: no probability).
+        confidence : float
+            Confidence level of the probability's interval.
+        seed : int
+            Root seed: grasp ``ids[k]`` draws from its own stream (seed, ids[k]), so the
+            same call gives the same answer, however the grasps are split or ordered.
+        ids : (N,) int, optional
+            Query ids (default 0..N-1).
+        torsional_friction : None, scalar or (N, n) float
+            Soft fingers (m; None or 0: hard). They get a probability but no radii and
+            no holds answer (the messages say so).
+        frame_id : str
+            Frame of the contacts (and of the witness and its wrench).
+        timeout : float
+            Seconds for the whole call (many grasps go as several requests, see
+            :mod:`grasp_fc_ros.client.assessment`).
+
+        Returns
+        -------
+        Verdicts
+            The nominal verdicts (``status``, ``force_closure``, ``messages``; ``margin``
+            NaN) and ``robustness``, an :class:`~grasp_fc_ros.packed.Assessments` of
+            numpy arrays: ``normal_angle``, ``position_radius``, ``friction_drop``,
+            ``holds`` (:class:`~grasp_fc_ros.core.Holds` values, 0: not assessed),
+            ``holds_bound``, the witness ``witness_positions``, ``witness_normals``
+            (N * n, 3), ``witness_friction`` (N * n,) and ``separating_wrench`` (N, 6),
+            ``probability``, ``probability_lower``, ``probability_upper`` and
+            ``probability_normal_bound`` (N,). Bad grasps are INVALID_INPUT alone, a
+            refused request INVALID_INPUT for every grasp, its message saying why.
+
+        Raises
+        ------
+        ValueError
+            On mis-shaped input (naming the argument), before anything is sent.
+        TimeoutError
+            If not every response came within ``timeout``; it names the service.
+        """
+        question = Question(position_error, normal_error, friction_error, position_sigma,
+                            normal_sigma, friction_sigma, samples, confidence, seed)
+        return self._services.assess_robustness(positions, normals, mu, torsional_friction,
+                                                ids, question, frame_id, timeout)
 
     # --- the label_grasps action ------------------------------------------------------
 

@@ -78,16 +78,19 @@ JOIN_TIMEOUT_S = 2.0
 def answer_bound_s(chunk: PackedGrasps, settings: Settings, floor_s: float) -> float:
     """Seconds a worker may take to answer ``chunk`` before it counts as hung:
     ``floor_s`` plus :data:`SLOW_CONTACT_S` per contact when the chunk has soft contacts
-    or asks for mu* or epsilon, else :data:`HARD_CONTACT_S`."""
-    return floor_s + len(chunk.mu) * (SLOW_CONTACT_S if is_slow(chunk, settings)
-                                      else HARD_CONTACT_S)
+    or asks for mu*, epsilon or robustness, else :data:`HARD_CONTACT_S`; and for
+    robustness as much again per contact of every sample (each an exact test)."""
+    per_contact = SLOW_CONTACT_S if is_slow(chunk, settings) else HARD_CONTACT_S
+    samples = 0 if settings.robustness is None else settings.robustness.samples
+    per_sample = SLOW_CONTACT_S if chunk.torsional is not None else HARD_CONTACT_S
+    return floor_s + len(chunk.mu) * (per_contact + samples * per_sample)
 
 
 def is_slow(chunk: PackedGrasps, settings: Settings) -> bool:
-    """Whether ``chunk`` has soft contacts or asks for mu* or epsilon (far slower a
-    contact than hard contacts without them)."""
+    """Whether ``chunk`` has soft contacts or asks for mu*, epsilon or robustness (far
+    slower a contact than hard contacts without them)."""
     return (chunk.torsional is not None or settings.compute_min_friction
-            or settings.compute_epsilon)
+            or settings.compute_epsilon or settings.robustness is not None)
 
 
 def describe_chunk(chunk: PackedGrasps) -> str:
