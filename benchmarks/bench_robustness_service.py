@@ -1,0 +1,123 @@
+"""ROS benchmark of the assess_robustness service: the node in its own process (its
+console script, a namespace of its own), called through grasp_fc_ros.client.GraspClient.
+
+Prints
+1. the round trip of one 4-finger box grasp with 1,000 samples (issue 29's errors and
+   noise: 2 mm, 3 degrees, friction 0.1), idle: p50/p99 (target p99 <= 50 ms);
+2. one-grasp ``check_force_closure`` round trips, idle and while another thread's
+   ``assess_robustness`` call of --big-grasps grasps x 1,000 samples is decided: the
+   assessment is served on a thread of its own and decided by the workers, so the
+   check calls should not wait for it;
+3. the answers' consistency: every call's rows equal the core's on the same grasp.
+
+    python benchmarks/bench_robustness_service.py            # 300 calls, 200-grasp call
+    python benchmarks/bench_robustness_service.py --quick    # 20 calls, 20-grasp call
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import threading
+import time
+from collections.abc import Sequence
+
+import numpy as np
+import rclpy
+
+from bench_ros import percentiles, start_node, stop_node
+from grasp_fc_ros.client import GraspClient
+from grasp_fc_ros.core import probability_of_force_closure
+from grasp_fc_ros.objects import make_object, sample_grasps
+
+MU = 0.5
+ISSUE = {"position_error": 0.002, "normal_error": math.radians(3.0), "friction_error": 0.1,
+         "position_sigma": 0.002, "normal_sigma": math.radians(3.0), "friction_sigma": 0.1}
+SAMPLES = 1000
+
+
+def assess_times(client: GraspClient, positions: np.ndarray, normals: np.ndarray,
+                 calls: int) -> tuple[np.ndarray, int]:
+    """Round trips (ms) of one-grasp assessments, grasp k % N of the given ones; and how
+    many answers differ from the core's probability on the same grasp."""
+    times, wrong = [], 0
+    for k in range(calls):
+        g = k % len(positions)
+        start = time.perf_counter()
+        answer = client.assess_robustness(positions[g], normals[g], MU, samples=SAMPLES,
+                                          seed=k, ids=[g], timeout=30.0, **ISSUE)
+        times.append(1e3 * (time.perf_counter() - start))
+        core = probability_of_force_closure(positions[g], normals[g], MU, samples=SAMPLES,
+                                            seed=k, grasp_ids=[g],
+                                            **{key: value for key, value in ISSUE.items()
+                                               if key.endswith("sigma")})
+        wrong += int(answer.robustness.probability[0] != core.estimate)
+    return np.array(times), wrong
+
+
+def check_times(client: GraspClient, positions: np.ndarray, normals: np.ndarray,
+                calls: int, until: threading.Event | None = None) -> np.ndarray:
+    """Round trips (ms) of one-grasp check_force_closure calls: ``calls``, or until
+    ``until`` is set."""
+    times = []
+    k = 0
+    while (until is None and k < calls) or (until is not None and not until.is_set()):
+        g = k % len(positions)
+        start = time.perf_counter()
+        client.call(positions[g:g + 1], normals[g:g + 1], MU, timeout=30.0)
+        times.append(1e3 * (time.perf_counter() - start))
+        k += 1
+    return np.array(times)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--calls", type=int, default=300)
+    parser.add_argument("--big-grasps", type=int, default=200)
+    parser.add_argument("--quick", action="store_true", help="20 calls, a 20-grasp call")
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.calls, args.big_grasps = 20, 20
+    rng = np.random.default_rng(0)
+    positions, normals = sample_grasps(make_object("box"), max(args.big_grasps, 50), 4, rng)
+    rclpy.init()
+    node, client = start_node("robustness")
+    try:
+        client.assess_robustness(positions[0], normals[0], MU, samples=SAMPLES, **ISSUE)
+        times, wrong = assess_times(client, positions[:50], normals[:50], args.calls)
+        print(f"assess_robustness, one grasp x {SAMPLES} samples, idle: {percentiles(times)}"
+              f" [target p99 <= 50 ms: {'met' if np.percentile(times, 99) <= 50 else 'NOT met'}]"
+              f"; answers differing from the core's: {wrong}")
+        idle = check_times(client, positions, normals, args.calls)
+        done = threading.Event()
+        big: dict[str, float] = {}
+
+        def assess_big() -> None:
+            # (start_node's namespace for the tag "robustness")
+            with GraspClient(f"/grasp_fc_robustness_{os.getpid()}/force_closure") as other:
+                other.wait_for_node(20.0)
+                start = time.perf_counter()
+                other.assess_robustness(positions[:args.big_grasps],
+                                        normals[:args.big_grasps], MU, samples=SAMPLES,
+                                        timeout=600.0, **ISSUE)
+                big["s"] = time.perf_counter() - start
+            done.set()
+
+        worker = threading.Thread(target=assess_big)
+        worker.start()
+        time.sleep(0.5)  # the other client's node connects, its call starts
+        busy = check_times(client, positions, normals, 0, until=done)
+        worker.join()
+        print(f"check_force_closure, one grasp, idle: {percentiles(idle)}")
+        print(f"check_force_closure, one grasp, during a {args.big_grasps}-grasp x "
+              f"{SAMPLES}-sample assessment ({big.get('s', float('nan')):.2f} s): "
+              f"{percentiles(busy)}")
+    finally:
+        stop_node(node, client)
+        rclpy.shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
