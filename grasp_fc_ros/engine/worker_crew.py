@@ -93,6 +93,13 @@ def is_slow(chunk: PackedGrasps, settings: Settings) -> bool:
             or settings.compute_epsilon or settings.robustness is not None)
 
 
+def uses_epsilon_kernels(settings: Settings) -> bool:
+    """Whether deciding with ``settings`` runs the epsilon kernels (compiled on first use,
+    see :class:`_Slot`): epsilon, and the robustness radii (their position radius is an
+    epsilon search)."""
+    return bool(settings.compute_epsilon) or settings.robustness is not None
+
+
 def describe_chunk(chunk: PackedGrasps) -> str:
     """Which grasps ``chunk`` holds, for messages: 'grasps 40,960-43,007'."""
     if chunk.name_by_id:
@@ -354,9 +361,10 @@ class _Slot:
         self._deadline: float | None = None
         self._bound_s = 0.0
         self._killed_late = False
-        # Whether the current process has answered an epsilon chunk: a worker warms
-        # only the verdict kernels at start, so its first epsilon chunk compiles (or
-        # loads from numba's cache) the epsilon kernels and gets the start-up allowance.
+        # Whether the current process has answered an epsilon (or robustness) chunk: a
+        # worker warms only the verdict kernels at start, so its first such chunk
+        # compiles (or loads from numba's cache) the epsilon kernels and gets the
+        # start-up allowance (uses_epsilon_kernels).
         self._epsilon_warm = False
         self._thread = threading.Thread(target=self._run, daemon=True,
                                         name=f"grasp_fc_worker_{index}")
@@ -446,7 +454,8 @@ class _Slot:
             for task in tasks:
                 settle_failed(task, f"internal error: {exc}")
             return True
-        compiles = any(task.settings.compute_epsilon for task in tasks) and not self._epsilon_warm
+        compiles = (any(uses_epsilon_kernels(task.settings) for task in tasks)
+                    and not self._epsilon_warm)
         with self._lock:
             self._arm(self.crew.worker_timeout_s
                       + sum(answer_bound_s(task.chunk, task.settings, 0.0) for task in tasks)
@@ -460,7 +469,7 @@ class _Slot:
             self.crew.message_died(tasks, self._lost(process, exc, "deciding a chunk"))
             return False
         self._disarm()
-        self._epsilon_warm |= any(bool(task.settings.compute_epsilon) for task in tasks)
+        self._epsilon_warm |= any(uses_epsilon_kernels(task.settings) for task in tasks)
         for task, (ok, answer) in zip(tasks, answers, strict=True):
             if ok:
                 settle(task, answer)

@@ -51,11 +51,13 @@ It covers the true probability with at least that probability, for every p and S
 
 Sample-free lower bound (normals only)
 --------------------------------------
-Where only the normals are noisy (``position_sigma`` = ``friction_sigma`` = 0), every
-choice of normals each within the grasp's ``normal_angle`` delta of its own keeps force
-closure (:func:`.robustness`), so P(force closure) >= P(every theta_i <= delta)
-= prod_i P(|N(0, sigma^2)| <= delta) = erf(delta / (sigma sqrt 2))^n
-(:func:`tilt_probability_bound`): ``normal_lower_bound``, NaN under any other noise.
+Where only the normals are noisy (``position_sigma`` = ``friction_sigma`` = 0) and the
+contacts are hard, every choice of normals each within the grasp's certified
+``normal_angle`` delta of its own keeps force closure (:func:`.radii.robustness`), and
+each sampled normal is at most theta_i from its own, so P(force closure) >= P(every
+theta_i <= delta) = prod_i P(|N(0, sigma^2)| <= delta) = erf(delta / (sigma sqrt 2))^n
+(:func:`tilt_probability_bound`; the tilts are independent): ``normal_lower_bound``,
+NaN under any other noise and for soft fingers (whose radii the core refuses).
 """
 
 from __future__ import annotations
@@ -72,6 +74,7 @@ from ..grasp_input import GraspBatch, prepare_grasps
 from ..pipeline import Status, run_pipeline
 from ..stacked_socp import tangent_bases
 from ..tolerances import MAX_FRICTION_COEFFICIENT
+from .radii import robustness
 
 #: Perturbed grasps per call of the exact pipeline. Bounds the memory of a call (a few
 #: kB per perturbed grasp of n <= 8 contacts in the pipeline's arrays, so tens of MB per
@@ -187,7 +190,11 @@ def probability_of_force_closure(
         _decide_block(grasps, first, last, rows, model, streams, successes, undecided)
     lower, upper = clopper_pearson(successes, successes + undecided, samples, confidence)
     bound = np.full(n_grasps, np.nan)
-    # (the sample-free bound needs robustness(); wired where only normals are noisy)
+    if (model.position_sigma == model.friction_sigma == 0 and grasps.torsional is None
+            and n_grasps):
+        radii = robustness(grasps.positions, grasps.normals, grasps.mu)
+        bound = tilt_probability_bound(radii.normal_angle, model.normal_sigma,
+                                       grasps.positions.shape[1])
     return ForceClosureProbability(
         estimate=grasps.unbatch(successes / samples), lower=grasps.unbatch(lower),
         upper=grasps.unbatch(upper), successes=grasps.unbatch(successes), samples=samples,
