@@ -15,7 +15,7 @@ a reference from ``--reference-samples`` samples drawn from other streams; the s
 grasps whose interval contains the reference (target >= 0.94 for 2,000 against 100,000
 on 500 grasps), overall and among grasps whose reference is in (0.02, 0.98).
 
-``--blocks`` times the call for several SAMPLE_BLOCK sizes.
+``--blocks`` times the call for several BLOCK_CONTACTS sizes.
 
     python benchmarks/bench_probability.py                 # speed
     python benchmarks/bench_probability.py --coverage      # 500 grasps x 102,000 samples
@@ -112,16 +112,16 @@ def speed(n_grasps: int, samples: int, repeats: int, rng: np.random.Generator) -
 def blocks(n_grasps: int, samples: int, sizes: Sequence[int], repeats: int,
            rng: np.random.Generator) -> None:
     positions, normals = sample_grasps(make_object("box"), n_grasps, 4, rng)
-    print(f"SAMPLE_BLOCK: {n_grasps} box grasps x {samples} samples, CPU time")
-    default = probability.SAMPLE_BLOCK
+    print(f"BLOCK_CONTACTS: {n_grasps} box grasps x {samples} samples, CPU time")
+    default = probability.BLOCK_CONTACTS
     try:
         for size in sizes:
-            probability.SAMPLE_BLOCK = size
+            probability.BLOCK_CONTACTS = size
             seconds = cpu_seconds(lambda: probability_of_force_closure(
                 positions, normals, MU, samples=samples, seed=1, **NOISE), repeats)
             print(f"  {size:>8} {n_grasps * samples / seconds:>10.0f} samples/s")
     finally:
-        probability.SAMPLE_BLOCK = default
+        probability.BLOCK_CONTACTS = default
 
 
 def coverage(n_grasps: int, interval_samples: int, reference_samples: int,
@@ -162,7 +162,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--interval-samples", type=int, default=2000)
     parser.add_argument("--reference-samples", type=int, default=100_000)
     parser.add_argument("--blocks", type=int, nargs="*", default=None,
-                        help="time these SAMPLE_BLOCK sizes")
+                        help="time these BLOCK_CONTACTS sizes")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--quick", action="store_true", help="small sizes, one repeat")
     args = parser.parse_args(argv)
@@ -175,7 +175,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         coverage(args.grasps or (40 if args.quick else 500), args.interval_samples,
                  args.reference_samples, rng)
     elif args.blocks is not None:
-        blocks(args.grasps or 100, args.samples, args.blocks or [4096, 16_384, 65_536],
+        blocks(args.grasps or 100, args.samples, args.blocks or [16_384, 65_536, 262_144],
                args.repeats, rng)
     else:
         speed(args.grasps or (20 if args.quick else 100), args.samples, args.repeats, rng)

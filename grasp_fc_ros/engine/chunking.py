@@ -27,7 +27,7 @@ SOFT_CHUNK_DIVISOR = 64
 
 # An assess_robustness request (settings with a robustness query) is sized in samples:
 # each grasp costs its samples (one exact test each) plus RADII_SAMPLES for its radii and
-# holds answer, about their cost in exact tests (tuned: docs/performance.md#robustness).
+# holds answer, about their cost in exact tests (tuned: docs/performance.md#robustness-service).
 # A chunk holds ASSESSMENT_CHUNK_SAMPLES of that, about as long as a batch chunk; a
 # request of at most INLINE_ASSESSMENT_SAMPLES (one grasp with 1,000 samples) is decided
 # in the calling thread, as small check requests are.

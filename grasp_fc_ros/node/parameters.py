@@ -42,7 +42,7 @@ MAX_MESSAGE_CONTACTS_LIMIT = 100_000_000
 DEFAULT_MAX_MESSAGE_CONTACTS = 491_520
 MAX_WORKERS = 64
 # Samples (grasps x samples per grasp) of one assess_robustness request by default:
-# about 2.5 s of one core at 4 contacts (docs/performance.md#robustness), so that a
+# about 2.5 s of one core at 4 contacts (docs/performance.md#robustness-service), so that a
 # request cannot keep the workers from batches for long; 1,000 grasps at 1,000 samples.
 DEFAULT_MAX_ASSESSMENT_SAMPLES = 1_000_000
 MAX_ASSESSMENT_SAMPLES_LIMIT = 1_000_000_000

@@ -251,8 +251,8 @@ def test_a_grasps_answer_does_not_depend_on_its_batch(monkeypatch):
                                         seed=9, grasp_ids=[5, 6, 7], **NOISE)
     assert (part.successes == whole.successes[5:8]).all()
     # Blocks smaller than a grasp's samples (its stream drawn in parts), and odd sizes.
-    for block in (7, 128, 1000):
-        monkeypatch.setattr(probability, "SAMPLE_BLOCK", block)
+    for block in (7, 128, 1000):                          # samples of 4 contacts
+        monkeypatch.setattr(probability, "BLOCK_CONTACTS", 4 * block)
         blocked = probability_of_force_closure(positions, normals, 0.5, samples=300, seed=9,
                                                **NOISE)
         assert (blocked.successes == whole.successes).all()

@@ -36,8 +36,8 @@ are drawn as one row, so the first s samples of a call with ``samples`` > s are 
 of the call with ``samples`` = s (a 25-sample label is a prefix of a 2,000-sample one).
 
 Every sample is decided by the exact test (:func:`.pipeline.run_pipeline` without the
-filter, verdicts only: the same verdicts), SAMPLE_BLOCK perturbed grasps per call:
-memory stays bounded for any N x samples. A sample the solver cannot decide
+filter, verdicts only: the same verdicts), perturbed grasps of BLOCK_CONTACTS contacts
+in all per call: memory stays bounded for any N x samples. A sample the solver cannot decide
 (Status.SOLVER_FAILURE, rare) counts as neither: ``successes`` excludes it,
 ``undecided`` counts it, and the interval covers both readings (its lower end from
 ``successes``, its upper end from ``successes + undecided``).
@@ -76,11 +76,11 @@ from ..stacked_socp import tangent_bases
 from ..tolerances import MAX_FRICTION_COEFFICIENT
 from .radii import robustness
 
-#: Perturbed grasps per call of the exact pipeline. Bounds the memory of a call (a few
-#: kB per perturbed grasp of n <= 8 contacts in the pipeline's arrays, so tens of MB per
-#: block) whatever N x samples is; larger blocks gain nothing measurable
-#: (benchmarks/bench_probability.py --blocks, docs/performance.md#probability).
-SAMPLE_BLOCK = 16_384
+#: Contacts of the perturbed grasps given to one call of the exact test (16,384 grasps
+#: of 4 contacts, 1,024 of 64). Bounds the memory of a call whatever N x samples is:
+#: its peak was 11.5 MB at 4, 8 and 32 contacts (tracemalloc); larger blocks gain little
+#: (benchmarks/bench_probability.py --blocks, docs/performance.md#probability-of-force-closure).
+BLOCK_CONTACTS = 65_536
 
 #: Smallest sampled friction coefficient kept as drawn. The truncated offset d keeps
 #: mu + d > 0 in exact arithmetic; its rounding can still give 0 or a subnormal at the
@@ -183,7 +183,8 @@ def probability_of_force_closure(
     successes = np.zeros(n_grasps, dtype=np.int64)
     undecided = np.zeros(n_grasps, dtype=np.int64)
     span, streams = (0, 0), []
-    for first, last, rows in _blocks(n_grasps, samples, SAMPLE_BLOCK):
+    block = max(1, BLOCK_CONTACTS // grasps.positions.shape[1])
+    for first, last, rows in _blocks(n_grasps, samples, block):
         if (first, last) != span:      # (a grasp drawn in parts keeps its generator)
             span, streams = (first, last), [_stream(entropy, int(ids[k]))
                                             for k in range(first, last)]
@@ -376,7 +377,7 @@ def _decide_block(grasps: GraspBatch, first: int, last: int, rows: int, model: _
                          np.ascontiguousarray(mu), single=False, torsional=torsional)
     # (the exact test alone: samples of one grasp are alike, so the filter rarely rejects
     # most of a block, and it costs more than it saves even on random grasps at n = 4,
-    # docs/performance.md#probability)
+    # docs/performance.md#probability-of-force-closure)
     status = run_pipeline(sampled, use_filter=False, margin="bound").status
     status = status.reshape(last - first, rows)
     successes[first:last] += (status == _FORCE_CLOSURE).sum(axis=1)
