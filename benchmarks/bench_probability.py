@@ -36,7 +36,7 @@ from collections.abc import Callable, Sequence  # noqa: E402
 import numpy as np  # noqa: E402
 
 from grasp_fc_ros.core import check_force_closure, warm_up  # noqa: E402
-from grasp_fc_ros.core.grasp_input import prepare_grasps  # noqa: E402
+from grasp_fc_ros.core.model.grasp_input import prepare_grasps  # noqa: E402
 from grasp_fc_ros.core.robustness import probability  # noqa: E402
 from grasp_fc_ros.core.robustness.probability import (  # noqa: E402
     _ErrorModel,

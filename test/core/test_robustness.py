@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from grasp_cases import adversarial_grasps, ellipsoid_grasps, random_rotation
 from grasp_fc_ros.core import check_force_closure
-from grasp_fc_ros.core.grasp_input import prepare_grasps
+from grasp_fc_ros.core.model.grasp_input import prepare_grasps
 from grasp_fc_ros.core.robustness import RobustnessRadii, robustness
 from grasp_fc_ros.core.robustness.break_distance import least_breaking_direction
 from grasp_fc_ros.core.robustness.position_radius import INRADIUS_RTOL, torque_inradius

@@ -21,9 +21,9 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..certificates import normalise_positions
-from ..grasp_input import GraspBatch
-from ..stacked_socp import SOLVE_BATCH, BlockShape, solve_stacked, tangent_bases
+from ..exact.certificates import normalise_positions
+from ..exact.stacked_socp import SOLVE_BATCH, BlockShape, solve_stacked, tangent_bases
+from ..model.grasp_input import GraspBatch
 
 #: Directions b of the first grid (a Fibonacci lattice of the sphere: ~0.6 rad apart).
 GRID_DIRECTIONS = 32

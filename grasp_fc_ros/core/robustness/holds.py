@@ -25,8 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from ..certificates import verify_batch
-from ..grasp_input import GraspBatch
+from ..exact.certificates import verify_batch
+from ..model.grasp_input import GraspBatch
 from .position_radius import torque_inradius
 from .radii import hard_grasps
 from .shrink import SHRINK_ROUNDING, closed_under, with_friction

@@ -28,11 +28,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import epsilon_kernels
 from .._kernels.jit import kernel_array
-from ..certificates import normalise_positions
-from ..epsilon import SEED_DIRECTIONS, search_workspace, wrench_rows
-from ..grasp_input import GraspBatch
+from ..exact.certificates import normalise_positions
+from ..model.grasp_input import GraspBatch
+from ..quality import epsilon_kernels
+from ..quality.epsilon import SEED_DIRECTIONS, search_workspace, wrench_rows
 
 #: Relative accuracy of the torque inradius: the search stops once its certified lower
 #: bound is within 1% of its upper bound. The radius is a lower bound either way; an

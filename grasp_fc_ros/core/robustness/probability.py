@@ -70,9 +70,9 @@ import numpy as np
 import numpy.typing as npt
 from scipy import special, stats
 
-from ..grasp_input import GraspBatch, prepare_grasps
+from ..exact.stacked_socp import tangent_bases
+from ..model.grasp_input import GraspBatch, prepare_grasps
 from ..pipeline import Status, run_pipeline
-from ..stacked_socp import tangent_bases
 from ..tolerances import MAX_FRICTION_COEFFICIENT
 from .radii import robustness
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..grasp_input import GraspBatch
+from ..model.grasp_input import GraspBatch
 from ..pipeline import run_pipeline
 from .break_distance import least_breaking_direction
 

@@ -55,7 +55,7 @@ from typing import TypeAlias
 
 import numpy as np
 
-from ._kernels.jit import jit
+from .._kernels.jit import jit
 
 _EPS = float(np.finfo(np.float64).eps)
 
