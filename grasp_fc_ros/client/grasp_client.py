@@ -278,58 +278,32 @@ class GraspClient:
                                                      max_normal_forces, frame_id, timeout,
                                                      torsional_friction)
 
-    def assess_robustness(self, positions: ArrayLike, normals: ArrayLike,
-                          mu: ArrayLike | None = None, *, position_error: float = 0.0,
-                          normal_error: float = 0.0, friction_error: float = 0.0,
-                          position_sigma: float = 0.0, normal_sigma: float = 0.0,
-                          friction_sigma: float = 0.0, samples: int = 1000,
-                          confidence: float = 0.95, seed: int = 0,
-                          ids: ArrayLike | None = None,
-                          torsional_friction: ArrayLike | None = None, frame_id: str = "",
-                          timeout: float = DEFAULT_TIMEOUT_S) -> Verdicts:
-        """How well grasps hold when their contacts are off (the node's
-        ``assess_robustness`` service; docs/robustness.md).
+    def assess_robustness(
+            self, positions: ArrayLike, normals: ArrayLike, mu: ArrayLike | None = None, *,
+            position_error: float = 0.0, normal_error: float = 0.0, friction_error: float = 0.0,
+            position_sigma: float = 0.0, normal_sigma: float = 0.0, friction_sigma: float = 0.0,
+            samples: int = 1000, confidence: float = 0.95, seed: int = 0,
+            ids: ArrayLike | None = None, torsional_friction: ArrayLike | None = None,
+            frame_id: str = "", timeout: float = DEFAULT_TIMEOUT_S) -> Verdicts:
+        """How well grasps hold when their contacts are off: the node's
+        ``assess_robustness`` service (docs/robustness.md, docs/client.md).
 
-        Parameters
-        ----------
-        positions, normals : (N, n, 3) float, or (n, 3) for one grasp
-            Contact positions (m) and inward normals.
-        mu : None, scalar, (N, 1) or (N, n) float
-            Friction; None or 0: the node's ``friction_coefficient``.
-        position_error, normal_error, friction_error : float
-            The errors of the holds answer (m, rad, unitless).
-        position_sigma, normal_sigma, friction_sigma : float
-            The random errors of the probability (m, rad, unitless).
-        samples : int
-            Samples per grasp (0: no probability).
-        confidence : float
-            Confidence level of the probability's interval.
-        seed : int
-            Root seed: grasp ``ids[k]`` draws from its own stream (seed, ids[k]), so the
-            same call gives the same answer, however the grasps are split or ordered.
-        ids : (N,) int, optional
-            Query ids (default 0..N-1).
-        torsional_friction : None, scalar or (N, n) float
-            Soft fingers (m; None or 0: hard). They get a probability but no radii and
-            no holds answer (the messages say so).
-        frame_id : str
-            Frame of the contacts (and of the witness and its wrench).
-        timeout : float
-            Seconds for the whole call (many grasps go as several requests, see
-            :mod:`grasp_fc_ros.client.assessment`).
+        ``positions``, ``normals``: (N, n, 3), or (n, 3) for one grasp; ``mu``: None (the
+        node's ``friction_coefficient``), a scalar, (N, 1) or (N, n); the errors of the
+        holds answer (m, rad, unitless) and the sigmas of the probability; ``samples``
+        per grasp (0: no probability); grasp ``ids[k]`` (default k) draws its samples
+        from stream (``seed``, ``ids[k]``), so the answers do not depend on how the call
+        is split or ordered; ``torsional_friction`` (m): soft fingers get a probability
+        but no radii and no holds answer. ``timeout`` bounds the whole call (many
+        grasps go as several requests).
 
         Returns
         -------
         Verdicts
-            The nominal verdicts (``status``, ``force_closure``, ``messages``; ``margin``
-            NaN) and ``robustness``, an :class:`~grasp_fc_ros.packed.Assessments` of
-            numpy arrays: ``normal_angle``, ``position_radius``, ``friction_drop``,
-            ``holds`` (:class:`~grasp_fc_ros.core.Holds` values, 0: not assessed),
-            ``holds_bound``, the witness ``witness_positions``, ``witness_normals``
-            (N * n, 3), ``witness_friction`` (N * n,) and ``separating_wrench`` (N, 6),
-            ``probability``, ``probability_lower``, ``probability_upper`` and
-            ``probability_normal_bound`` (N,). Bad grasps are INVALID_INPUT alone, a
-            refused request INVALID_INPUT for every grasp, its message saying why.
+            The nominal verdicts (``margin`` NaN) and ``robustness``, an
+            :class:`~grasp_fc_ros.packed.Assessments` of numpy arrays, one row per grasp
+            (the witness one per contact). Bad grasps are INVALID_INPUT alone, a refused
+            request INVALID_INPUT for every grasp, the message saying why.
 
         Raises
         ------

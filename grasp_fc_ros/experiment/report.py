@@ -270,8 +270,8 @@ def robustness_section(objects: Sequence[ObjectRobustness], rows: Sequence[Row],
         "the object's centre, L = the grasp's largest |p_i - c|), the certified radii "
         "`normal_angle` (rad), `position_radius` (m) and `friction_drop`, and the "
         f"probability of force closure under {noise(NOISE)} ({samples} samples a grasp; "
-        "docs/robustness.md#probability). Spearman's rank correlation over the "
-        "force-closure grasps of all objects:",
+        "docs/robustness.md#probability-of-force-closure). Spearman's rank correlation "
+        "over the force-closure grasps of all objects:",
         "",
         _table([""] + list(MEASURES),
                [[name] + [rho(float(v)) for v in matrix[k]] for k, name in enumerate(MEASURES)]),

@@ -32,12 +32,12 @@ MU = 0.5
 #: Issue 29's noise: each position coordinate 2 mm, each normal tilted |N(0, 3 deg)|,
 #: the friction coefficient 0.1 (the objects are in metres).
 NOISE = {"position_sigma": 0.002, "normal_sigma": math.radians(3.0), "friction_sigma": 0.1}
-#: Dex-Net's test config (docs/robustness.md#probability) moves the gripper by 5 mm and
-#: the object by 1 cm (standard deviations, rigidly), rotates them by 0.001 and 0.01 rad
-#: and shifts mu = 0.5 by 0.1. Here every contact moves and tilts on its own: the two
-#: translations' sigmas add in quadrature into one per contact, as do the rotations'
-#: into a tilt (a rigid rotation by theta tilts every normal by at most theta). The same
-#: sizes, a different (independent per contact) law.
+#: Dex-Net's test config (docs/robustness.md#probability-of-force-closure) moves the
+#: gripper by 5 mm and the object by 1 cm (standard deviations, rigidly), rotates them by
+#: 0.001 and 0.01 rad and shifts mu = 0.5 by 0.1. Here every contact moves and tilts on
+#: its own: the two translations' sigmas add in quadrature into one per contact, as do
+#: the rotations' into a tilt (a rigid rotation by theta tilts every normal by at most
+#: theta). The same sizes, a different (independent per contact) law.
 DEXNET_NOISE = {"position_sigma": math.hypot(0.005, 0.01),
                 "normal_sigma": math.hypot(0.001, 0.01), "friction_sigma": 0.1}
 DEXNET_SAMPLES = 25
