@@ -333,7 +333,8 @@ def run_epsilon_only(args: argparse.Namespace) -> tuple[Path, list[str]]:
     surfaces = load_objects(args)
     args.out.mkdir(parents=True, exist_ok=True)
     lines, problems = _epsilon_part(surfaces, args)
-    path = _short_report(args.out / report.EPSILON_REPORT_MD, lines, start)
+    path = _short_report(args.out / report.EPSILON_REPORT_MD,
+                         "Exact epsilon against the pyramid Q1", lines, start)
     for line in problems:
         print(f"SOUNDNESS VIOLATION: {line}", file=sys.stderr)
     return path, problems
@@ -347,15 +348,16 @@ def run_robustness_only(args: argparse.Namespace) -> Path:
     surfaces = load_objects(args)
     args.out.mkdir(parents=True, exist_ok=True)
     lines = _robustness_part(surfaces, args)
-    return _short_report(args.out / report.ROBUSTNESS_REPORT_MD, lines, start)
+    return _short_report(args.out / report.ROBUSTNESS_REPORT_MD,
+                         "Robustness of force closure: the study", lines, start)
 
 
-def _short_report(path: Path, lines: list[str], start: float) -> Path:
-    """Write a part's report (its lines, the machine, the time, the command)."""
+def _short_report(path: Path, title: str, lines: list[str], start: float) -> Path:
+    """Write a part's report: ``title``, its lines, the machine, the time, the command."""
     from . import report
 
     total = time.perf_counter() - start
-    path.write_text("\n".join(lines + [
+    path.write_text("\n".join([f"# {title}", ""] + lines + [
         f"Machine: {report.machine_description()}; code: {report.code_version()}; "
         f"{total:.0f} s.", "", f"Reproduce: `{report.command_line()}`", ""]))
     print(f"report: {path} ({total:.1f} s)", file=sys.stderr)
