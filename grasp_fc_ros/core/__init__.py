@@ -7,8 +7,9 @@ Closure Grasp". Each idea has one place, grouped by folder; a folder or module i
 only what stands below it in this list:
 
 * :mod:`.robustness` -- how far contacts may be off with force closure kept: certified
-  radii, holds-or-breaks with evidence, and the probability of force closure under
-  random errors;
+  radii (:mod:`.robustness.radii`), holds-or-breaks with evidence
+  (:mod:`.robustness.holds`), and the probability of force closure under random errors
+  (:mod:`.robustness.probability`);
 * :mod:`.quality` -- how good a grasp is:
 
   * :mod:`.quality.epsilon` -- the Ferrari-Canny epsilon (Q1) with circular cones,

@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from grasp_cases import adversarial_grasps, ellipsoid_grasps, random_rotation
-from grasp_fc_ros.core import check_force_closure
+from grasp_fc_ros.core import Holds, check_force_closure, holds_under
 from grasp_fc_ros.core.model.grasp_input import prepare_grasps
 from grasp_fc_ros.core.robustness import RobustnessRadii, robustness
 from grasp_fc_ros.core.robustness.break_distance import least_breaking_direction
@@ -248,3 +248,17 @@ def test_bad_input_is_refused_by_name(kwargs, message):
     positions, normals, mu = (arguments.pop(k) for k in ("positions", "normals", "mu"))
     with pytest.raises(ValueError, match=message):
         robustness(positions, normals, mu, **arguments)
+
+
+def test_a_contact_whose_cone_shrinks_away_is_left_out():
+    """A seventh contact of tiny friction beside the cube's six (mu 1): tilts and drops
+    past its cone leave it out, so the radii are those of the cube (arctan 1 and 1, up
+    to the bracket), not of the smallest cone; holds_under proves HOLDS past it too."""
+    positions = np.vstack([CUBE, [[0.5, 0.5, 1.0]]])
+    normals = np.vstack([-CUBE, [[0.0, 0.0, -1.0]]])
+    mu = np.array([1.0] * 6 + [0.01])
+    radii = robustness(positions, normals, mu)
+    assert radii.normal_angle >= np.arctan(1.0) * (1 - 2 * BRACKET_RTOL)
+    assert radii.friction_drop >= 1.0 * (1 - 2 * BRACKET_RTOL)
+    answer = holds_under(positions, normals, mu, normal_error=0.5, friction_error=0.2)
+    assert answer.status == Holds.HOLDS and answer.bound == "shrunk_cones"

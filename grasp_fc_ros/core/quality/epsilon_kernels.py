@@ -37,10 +37,10 @@ its own until the origin lies strictly inside every facet, and only then switche
 facets oriented about the origin.
 
 The same search bounds the torque inradius of the position radius
-(:mod:`.robustness.position_radius`, ``problem=TORQUE_INRADIUS``): W is then the hull
-of the origin and every contact's wrenches of forces of length at most 1 in its cone,
-and the bounded quantity is min over u of h(u) / |u_t|, the radius of the largest
-ball about the origin of the torque space {(0, tau)} inside W. A ray from the origin
+(:mod:`grasp_fc_ros.core.robustness.position_radius`, ``problem=TORQUE_INRADIUS``):
+W is then the hull of the origin and every contact's wrenches of forces of length at
+most 1 in its cone, and the bounded quantity is min over u of h(u) / |u_t|, the radius
+of the largest ball about the origin of the torque space {(0, tau)} inside W. A ray from the origin
 in that space, (0, s tau) with |tau| = 1, meets a facet of unit normal m and certified
 offset d no nearer than s = d / |m_t|: that facet's key, which the search refines
 instead of d, and the least key is the lower bound. A convex hull that holds a ball of
@@ -100,8 +100,8 @@ CONVERGED, BUDGET, STUCK, NOT_CONTAINED, DEGENERATE = 0, 1, 2, 3, 4
 
 #: What a search bounds (the ``problem`` argument): epsilon with the L1 or the
 #: L-infinity budget (disc generators, the facets' offsets), or the torque inradius of
-#: :mod:`.robustness.position_radius` (unit-force generators; facets keyed by their
-#: distance from the origin along the torque space).
+#: :mod:`grasp_fc_ros.core.robustness.position_radius` (unit-force generators; facets
+#: keyed by their distance from the origin along the torque space).
 EPSILON_L1, EPSILON_LINF, TORQUE_INRADIUS = 0, 1, 2
 
 #: Room of the per-insertion scratch: facets seen by one new point, ridges of the

@@ -5,9 +5,9 @@ Errors: every contact may move by up to r (anywhere), every normal tilt by up to
 and every friction coefficient drop (or rise) by up to dmu, independently.
 
 * HOLDS: every cone shrunk to half-angle alpha_i' = arctan(mu_i - dmu) - delta at its own
-  normal (all alpha_i' > 0) gives a force-closure grasp (exact test), and r is below its
-  torque inradius rho' (certified lower bound) where r > 0. Every perturbed grasp's
-  cones contain the shrunk ones at the moved contacts (tilt lemma, friction
+  normal (contacts with alpha_i' <= 0 left out) gives a force-closure grasp (exact
+  test), and r is below its torque inradius rho' (certified lower bound) where r > 0.
+  Every perturbed grasp's cones contain the shrunk ones at the moved contacts (tilt lemma, friction
   monotonicity), and the moved shrunk grasp is force closure (r < rho'): so is the
   perturbed one. ``bound`` says which was used: "shrunk_cones" (r = 0) or
   "shrunk_cones+position_radius".
@@ -29,8 +29,15 @@ from ..exact.certificates import verify_batch
 from ..model.grasp_input import GraspBatch
 from .position_radius import torque_inradius
 from .radii import hard_grasps
-from .shrink import SHRINK_ROUNDING, closed_under, with_friction
-from .witness import breaking_moves, exact_verdicts, tilt_towards, work_vectors
+from .shrink import SHRINK_ROUNDING, closed_under, with_friction, without_vanished
+from .witness import (
+    breaking_moves,
+    exact_verdicts,
+    frictionless_wrench,
+    tilt_towards,
+    turned_axes_wrench,
+    work_vectors,
+)
 
 #: The witness never shrinks a cone below this half-angle (radians) or drops a friction
 #: coefficient below its tangent (or below mu_i if that is smaller): the exact test
@@ -114,7 +121,7 @@ def holds_under(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayL
     tilt = _error(normal_error, "normal_error", n_grasps, np.pi)
     drop = _error(friction_error, "friction_error", n_grasps, np.inf)
     answers = _Answers.empty(grasps)
-    witness_mu, kept, turn = _witness_cones(grasps.mu, tilt, drop)
+    witness_mu, kept = _witness_cones(grasps.mu, tilt, drop)
     holds_mu = _holds_cones(grasps.mu, tilt, drop)
 
     # The witness's shrunk cones, with certificates: often the same as HOLDS's.
@@ -122,7 +129,7 @@ def holds_under(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayL
         GraspBatch(grasps.positions, grasps.normals, kept, False, None))
     same = (holds_mu == kept).all(axis=1)
     closed = np.where(same, shrunk_closed, False)
-    other = np.flatnonzero(~same & (holds_mu > 0).all(axis=1))
+    other = np.flatnonzero(~same)
     if other.size:
         closed[other] = closed_under(grasps, other, holds_mu[other])
     answers.hold(np.flatnonzero(closed & (radius == 0)), SHRUNK_CONES)
@@ -131,7 +138,7 @@ def holds_under(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayL
     moving = np.flatnonzero(closed & (radius > 0))
     directions = np.full((n_grasps, 6), np.nan)
     if moving.size:
-        inradius = torque_inradius(with_friction(grasps, moving, holds_mu[moving]))
+        inradius = torque_inradius(without_vanished(grasps, moving, holds_mu[moving])[0])
         safe = radius[moving] < inradius.lower
         answers.hold(moving[safe], SHRUNK_CONES_AND_POSITION_RADIUS)
         directions[moving] = inradius.direction
@@ -148,12 +155,26 @@ def holds_under(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayL
         found, step, breaking = breaking_moves(with_friction(grasps, search, kept[search]),
                                                radius[search], start)
         moves[search[found]], wrench[search[found]] = step[found], breaking[found]
+    spare = tilt[:, None] - (np.arctan(witness_mu) - np.arctan(kept))
+    # (Such shrunk grasps are often marginal: tiny cones leave a margin below MARGIN_TOL.)
+    turning = np.flatnonzero(np.isnan(wrench).any(axis=1) & (answers.status != Holds.HOLDS)
+                             & (spare > 0).any(axis=1))
+    if turning.size:
+        wrench[turning] = turned_axes_wrench(with_friction(grasps, turning, kept[turning]),
+                                             np.maximum(spare[turning], 0.0))
+    # Friction that may drop to nothing: a witness with nearly none.
+    bare = np.flatnonzero(np.isnan(wrench).any(axis=1) & (answers.status != Holds.HOLDS)
+                          & (grasps.mu <= drop[:, None]).all(axis=1))
+    if bare.size:
+        wrench[bare], witness_mu[bare] = frictionless_wrench(with_friction(
+            grasps, bare, grasps.mu[bare]), witness_mu[bare])
     candidates = np.flatnonzero(~np.isnan(wrench).any(axis=1) & (answers.status != Holds.HOLDS))
     if candidates.size:
         moved = grasps.positions[candidates] + moves[candidates]
         answers.check_witnesses(candidates, moved, tilt_towards(
             grasps.normals[candidates], work_vectors(moved, wrench[candidates]),
-            turn[candidates]), witness_mu[candidates], wrench[candidates])
+            np.broadcast_to(tilt[candidates, None], moved.shape[:2])),
+            witness_mu[candidates], wrench[candidates])
     return answers.result(grasps.single)
 
 
@@ -176,7 +197,8 @@ def _error(value: npt.ArrayLike, name: str, n_grasps: int, largest: float) -> np
 
 def _holds_cones(mu: np.ndarray, tilt: np.ndarray, drop: np.ndarray) -> np.ndarray:
     """Friction of the cones every perturbation contains (N, n): tan(arctan(mu - dmu) -
-    delta), rounded down; 0 where that half-angle is not positive (no HOLDS)."""
+    delta), rounded down; 0 where that half-angle is not positive (the contact is left
+    out of the proof)."""
     lowered = mu - drop[:, None]
     angle = np.arctan(np.maximum(lowered, 0.0)) - tilt[:, None]
     ok = (lowered > 0.0) & (angle > 0.0)
@@ -184,16 +206,16 @@ def _holds_cones(mu: np.ndarray, tilt: np.ndarray, drop: np.ndarray) -> np.ndarr
 
 
 def _witness_cones(mu: np.ndarray, tilt: np.ndarray, drop: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """The witness's friction mu_w (N, n) (mu - dmu, not below tan(WITNESS_MIN_HALF_ANGLE)
-    or mu if smaller), the shrunk friction the witness is searched with (half-angle
-    arctan(mu_w) - delta, not below WITNESS_MIN_HALF_ANGLE or arctan(mu_w)), and the
-    tilts that turn one into the other (<= delta)."""
+    or mu if smaller), and the shrunk friction its wrench is searched with (half-angle
+    arctan(mu_w) - delta, not below WITNESS_MIN_HALF_ANGLE or arctan(mu_w)): tilting by
+    delta towards -v_i of a wrench that separates the shrunk grasp separates mu_w's."""
     floor = np.minimum(mu, np.tan(WITNESS_MIN_HALF_ANGLE))
     witness_mu = np.maximum(mu - drop[:, None], floor)
     full = np.arctan(witness_mu)
     kept = np.maximum(full - tilt[:, None], np.minimum(full, WITNESS_MIN_HALF_ANGLE))
-    return witness_mu, np.tan(kept), full - kept
+    return witness_mu, np.tan(kept)
 
 
 class _Answers:

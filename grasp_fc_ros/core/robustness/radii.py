@@ -3,8 +3,8 @@ and friction drop, each alone, before a grasp can lose force closure.
 
 * ``normal_angle``: the largest delta at which the grasp with every cone shrunk to
   half-angle arctan(mu_i) - delta at its own normal is force closure (tilt lemma,
-  :mod:`.shrink`), bracketed by exact tests; the radius is the lower end, a shrink
-  tested force closure.
+  :mod:`.shrink`; cones shrunk away left out), bracketed by exact tests; the radius is
+  the lower end, a shrink tested force closure.
 * ``friction_drop``: likewise with every mu_i lowered by d.
 * ``position_radius``: the torque inradius rho (:mod:`.position_radius`), its certified
   lower bound.
@@ -44,7 +44,8 @@ class RobustnessRadii:
         ball of this radius (normals and friction as given).
     friction_drop : ndarray of float
         Force closure when every contact's friction coefficient drops by up to this
-        much (at most the least mu_i: a cone is never shrunk away).
+        much (below the largest mu_i; a contact whose friction would reach 0 is left
+        out of the proof, not trusted as frictionless).
     force_closure : ndarray of bool
         The nominal verdict of the exact test; the radii are 0 where it is False.
     """
@@ -84,8 +85,8 @@ def robustness(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayLi
     grasps = hard_grasps(positions, normals, mu, torsional_friction)
     closed = solve_exact(grasps, "bound").force_closure
     angle, _ = largest_closed_shrink(grasps, closed, tilted_friction,
-                                     np.arctan(grasps.mu).min(axis=1))
-    drop, _ = largest_closed_shrink(grasps, closed, dropped_friction, grasps.mu.min(axis=1))
+                                     np.arctan(grasps.mu).max(axis=1))
+    drop, _ = largest_closed_shrink(grasps, closed, dropped_friction, grasps.mu.max(axis=1))
     radius = np.zeros(closed.shape)
     index = np.flatnonzero(closed)
     if index.size:

@@ -6,7 +6,9 @@ is force closure with half-angles alpha_i - delta at its own normals is force cl
 for every choice of normals each within delta of its own; with friction coefficients
 dropped by d it is the cone of mu_i - d that shrinks. Force closure only grows with the
 cones, so "force closure at shrink s" is monotone in s, and the largest such s is
-bracketed by exact tests (:func:`largest_closed_shrink`).
+bracketed by exact tests (:func:`largest_closed_shrink`). A cone shrunk away (delta
+past alpha_i, or d past mu_i) is left out: force closure without a contact implies it
+with the contact, wherever its normal points.
 """
 
 from __future__ import annotations
@@ -57,14 +59,33 @@ def with_friction(grasps: GraspBatch, index: np.ndarray, mu: np.ndarray) -> Gras
                       np.ascontiguousarray(mu), False, None)
 
 
+def without_vanished(grasps: GraspBatch, index: np.ndarray, mu: np.ndarray
+                     ) -> tuple[GraspBatch, np.ndarray]:
+    """The grasps ``index`` with friction ``mu`` (len(index), n), where a contact whose
+    cone has shrunk away (mu 0) is left out: it becomes a copy of the grasp's first
+    contact that keeps a cone, which adds no wrench of its own, so every grasp keeps n
+    contacts (one batch). Leaving a contact out only shrinks the wrenches a grasp can
+    apply, so force closure without it implies force closure with it, whatever its
+    normal. Returns the batch and which grasps keep a cone at all (N,)."""
+    kept = mu > 0.0
+    any_kept = kept.any(axis=1)
+    first = kept.argmax(axis=1)
+    rows = np.arange(index.size)[:, None]
+    source = np.where(kept, np.arange(mu.shape[1])[None, :], first[:, None])
+    return GraspBatch(grasps.positions[index[:, None], source],
+                      grasps.normals[index[:, None], source],
+                      np.ascontiguousarray(mu[rows, source]), False, None), np.asarray(any_kept)
+
+
 def closed_under(grasps: GraspBatch, index: np.ndarray, mu: np.ndarray) -> np.ndarray:
     """The exact test's verdicts (len(index),) on the grasps ``index`` with friction
-    ``mu``; grasps with a coefficient of 0 (a cone shrunk away) are not tested: False."""
+    ``mu``, contacts of friction 0 (cones shrunk away) left out (:func:`without_vanished`)."""
     closed = np.zeros(index.size, dtype=bool)
-    positive = np.flatnonzero((mu > 0.0).all(axis=1))
-    if positive.size:
-        closed[positive] = solve_exact(with_friction(grasps, index[positive], mu[positive]),
-                                       "bound").force_closure
+    batch, any_kept = without_vanished(grasps, index, mu)
+    tested = np.flatnonzero(any_kept)
+    if tested.size:
+        closed[tested] = solve_exact(with_friction(batch, tested, batch.mu[tested]),
+                                     "bound").force_closure
     return closed
 
 
@@ -83,7 +104,7 @@ def largest_closed_shrink(grasps: GraspBatch, closed: np.ndarray,
     shrunk : callable
         (mu (k, n), s (k, 1)) -> friction (k, n), decreasing in s.
     limit : ndarray, shape (N,)
-        Shrinks are tried below it (where a cone would vanish).
+        Shrinks are tried below it (where the last cone would vanish).
 
     Returns
     -------
