@@ -16,7 +16,7 @@ a reference from ``--reference-samples`` samples drawn from other streams; the s
 grasps whose interval contains the reference (target >= 0.94 for 2,000 against 100,000
 on 500 grasps), overall and among grasps whose reference is in (0.02, 0.98).
 
-``--blocks`` times the call for several BLOCK_CONTACTS sizes.
+``--blocks`` times the call for several BLOCK_CONTACTS sizes, and its peak memory.
 
     python benchmarks/bench_probability.py                 # speed
     python benchmarks/bench_probability.py --coverage      # 500 grasps x 102,000 samples
@@ -32,6 +32,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMB
 import argparse  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
+import tracemalloc  # noqa: E402
 from collections.abc import Callable, Sequence  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -124,7 +125,13 @@ def blocks(n_grasps: int, samples: int, sizes: Sequence[int], repeats: int,
             probability.BLOCK_CONTACTS = size
             seconds = cpu_seconds(lambda: probability_of_force_closure(
                 positions, normals, MU, samples=samples, seed=1, **NOISE), repeats)
-            print(f"  {size:>8} {n_grasps * samples / seconds:>10.0f} samples/s")
+            tracemalloc.start()
+            probability_of_force_closure(positions, normals, MU, samples=samples, seed=1,
+                                         **NOISE)
+            peak = tracemalloc.get_traced_memory()[1]
+            tracemalloc.stop()
+            print(f"  {size:>8} {n_grasps * samples / seconds:>10.0f} samples/s, peak "
+                  f"{peak / 1e6:.1f} MB (tracemalloc)")
     finally:
         probability.BLOCK_CONTACTS = default
 

@@ -8,7 +8,9 @@ Prints
    ``assess_robustness`` call of --big-grasps grasps x 1,000 samples is decided: the
    assessment is served on a thread of its own and decided by the workers, so the
    check calls should not wait for it;
-3. the answers' consistency: every call's rows equal the core's on the same grasp.
+3. the answers' consistency: every call's rows equal the core's on the same grasp;
+4. the work of one such call without DDS, in this process: CPU time p50/p99 of the
+   engine's ``evaluate`` on the same grasps (what 1. costs on an idle core).
 
     python benchmarks/bench_robustness_service.py            # 300 calls, 200-grasp call
     python benchmarks/bench_robustness_service.py --quick    # 20 calls, 20-grasp call
@@ -30,7 +32,10 @@ import rclpy
 from bench_ros import percentiles, start_node, stop_node
 from grasp_fc_ros.client import GraspClient
 from grasp_fc_ros.core import probability_of_force_closure
+from grasp_fc_ros.engine.evaluation import evaluate, warm_up_epsilon
+from grasp_fc_ros.interface.conversions import batch_to_packed, grasps_to_batch_msg
 from grasp_fc_ros.objects import make_object, sample_grasps
+from grasp_fc_ros.packed import RobustnessQuery, Settings
 
 MU = 0.5
 ERROR = {"position_error": 0.002, "normal_error": math.radians(3.0), "friction_error": 0.1}
@@ -63,6 +68,25 @@ def assess_times(client: GraspClient, positions: np.ndarray, normals: np.ndarray
                                             seed=k, grasp_ids=[g], **NOISE)
         wrong += int(answer.robustness.probability[0] != core.estimate)
     return np.array(times), wrong
+
+
+def engine_cpu_ms(positions: np.ndarray, normals: np.ndarray, calls: int) -> np.ndarray:
+    """CPU time (ms) of the engine's evaluate on one-grasp assessment requests, grasp
+    k % N, as the service decides them (kernels warm)."""
+    warm_up_epsilon()
+    query = RobustnessQuery(ERROR["position_error"], ERROR["normal_error"],
+                            ERROR["friction_error"], NOISE["position_sigma"],
+                            NOISE["normal_sigma"], NOISE["friction_sigma"], SAMPLES)
+    settings = Settings(robustness=query)
+    times = []
+    for k in range(calls + 1):
+        g = k % len(positions)
+        packed = batch_to_packed(grasps_to_batch_msg([g], positions[g:g + 1],
+                                                     normals[g:g + 1], MU))
+        start = time.process_time()
+        evaluate(packed, settings)
+        times.append(1e3 * (time.process_time() - start))
+    return np.array(times[1:])
 
 
 def check_times(client: GraspClient, positions: np.ndarray, normals: np.ndarray,
@@ -118,6 +142,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         busy = check_times(client, positions, normals, 0, until=done)
         worker.join()
         print(f"check_force_closure, one grasp, idle: {percentiles(idle)}")
+        cpu = engine_cpu_ms(positions[:50], normals[:50], args.calls)
+        print(f"the work of one assessment (engine, this process, CPU time): "
+              f"{percentiles(cpu)}")
         print(f"check_force_closure, one grasp, during a {args.big_grasps}-grasp x "
               f"{SAMPLES}-sample assessment ({big.get('s', float('nan')):.2f} s): "
               f"{percentiles(busy)}")
