@@ -10,7 +10,9 @@ Prints
    check calls should not wait for it;
 3. the answers' consistency: every call's rows equal the core's on the same grasp;
 4. the work of one such call without DDS, in this process: CPU time p50/p99 of the
-   engine's ``evaluate`` on the same grasps (what 1. costs on an idle core).
+   engine's ``evaluate`` on the same grasps (what 1. costs on an idle core), and of its
+   three parts alone: the core's ``probability_of_force_closure``, ``robustness`` and
+   ``holds_under``.
 
     python benchmarks/bench_robustness_service.py            # 300 calls, 200-grasp call
     python benchmarks/bench_robustness_service.py --quick    # 20 calls, 20-grasp call
@@ -31,7 +33,7 @@ import rclpy
 
 from bench_ros import percentiles, start_node, stop_node
 from grasp_fc_ros.client import GraspClient
-from grasp_fc_ros.core import probability_of_force_closure
+from grasp_fc_ros.core import holds_under, probability_of_force_closure, robustness
 from grasp_fc_ros.engine.evaluation import evaluate, warm_up_epsilon
 from grasp_fc_ros.interface.conversions import batch_to_packed, grasps_to_batch_msg
 from grasp_fc_ros.objects import make_object, sample_grasps
@@ -87,6 +89,25 @@ def engine_cpu_ms(positions: np.ndarray, normals: np.ndarray, calls: int) -> np.
         evaluate(packed, settings)
         times.append(1e3 * (time.process_time() - start))
     return np.array(times[1:])
+
+
+def part_cpu_ms(positions: np.ndarray, normals: np.ndarray, calls: int) -> dict[str, np.ndarray]:
+    """CPU time (ms) of each core part of a one-grasp assessment, grasp k % N."""
+    parts = {
+        "probability": lambda g: probability_of_force_closure(
+            positions[g], normals[g], MU, samples=SAMPLES, seed=g, **NOISE),
+        "robustness": lambda g: robustness(positions[g], normals[g], MU),
+        "holds_under": lambda g: holds_under(positions[g], normals[g], MU, **ERROR)}
+    times: dict[str, np.ndarray] = {}
+    for name, part in parts.items():
+        part(0)
+        spent = []
+        for k in range(calls):
+            start = time.process_time()
+            part(k % len(positions))
+            spent.append(1e3 * (time.process_time() - start))
+        times[name] = np.array(spent)
+    return times
 
 
 def check_times(client: GraspClient, positions: np.ndarray, normals: np.ndarray,
@@ -145,6 +166,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         cpu = engine_cpu_ms(positions[:50], normals[:50], args.calls)
         print(f"the work of one assessment (engine, this process, CPU time): "
               f"{percentiles(cpu)}")
+        for name, spent in part_cpu_ms(positions[:50], normals[:50], args.calls).items():
+            print(f"  of which {name} alone: {percentiles(spent)}")
         print(f"check_force_closure, one grasp, during a {args.big_grasps}-grasp x "
               f"{SAMPLES}-sample assessment ({big.get('s', float('nan')):.2f} s): "
               f"{percentiles(busy)}")

@@ -206,6 +206,8 @@ EXPECTED: dict[str, Run] = {
         Line(rf"^check_force_closure, one grasp, idle: p50 {N} ms, p99 {N} ms over 20 calls$"),
         Line(rf"^the work of one assessment \(engine, this process, CPU time\): p50 {N} ms, "
              rf"p99 {N} ms over 20 calls$"),
+        *(Line(rf"^  of which {part} alone: p50 [\d.]+ ms, p99 {N} ms over 20 calls$")
+          for part in ("probability", "robustness", "holds_under")),
         Line(rf"^check_force_closure, one grasp, during a 20-grasp x 1000-sample assessment "
              rf"\({N} s\): p50 {N} ms, p99 {N} ms over {N} calls$"),
     ), timeout_s=240),
