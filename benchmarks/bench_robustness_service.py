@@ -114,9 +114,10 @@ def check_times(client: GraspClient, positions: np.ndarray, normals: np.ndarray,
                 calls: int, until: threading.Event | None = None) -> np.ndarray:
     """Round trips (ms) of one-grasp check_force_closure calls: ``calls``, or until
     ``until`` is set."""
-    times = []
+    times: list[float] = []
     k = 0
-    while (until is None and k < calls) or (until is not None and not until.is_set()):
+    # (at least one call while ``until`` is not set when the loop starts)
+    while (until is None and k < calls) or (until is not None and (not k or not until.is_set())):
         g = k % len(positions)
         start = time.perf_counter()
         client.call(positions[g:g + 1], normals[g:g + 1], MU, timeout=30.0)
@@ -144,13 +145,14 @@ def main(argv: Sequence[str] | None = None) -> int:
               f" [target p99 <= 50 ms: {'met' if np.percentile(times, 99) <= 50 else 'NOT met'}]"
               f"; answers differing from the core's: {wrong}")
         idle = check_times(client, positions, normals, args.calls)
-        done = threading.Event()
+        started, done = threading.Event(), threading.Event()
         big: dict[str, float] = {}
 
         def assess_big() -> None:
             # (start_node's namespace for the tag "robustness")
             with GraspClient(f"/grasp_fc_robustness_{os.getpid()}/force_closure") as other:
                 other.wait_for_node(20.0)
+                started.set()
                 start = time.perf_counter()
                 assess(other, positions[:args.big_grasps], normals[:args.big_grasps], 1,
                        np.arange(args.big_grasps), 600.0)
@@ -159,7 +161,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         worker = threading.Thread(target=assess_big)
         worker.start()
-        time.sleep(0.5)  # the other client's node connects, its call starts
+        started.wait(60.0)  # the other client's node is connected: its call goes out now
         busy = check_times(client, positions, normals, 0, until=done)
         worker.join()
         print(f"check_force_closure, one grasp, idle: {percentiles(idle)}")
