@@ -177,6 +177,7 @@ def test_per_grasp_errors_shapes_and_empty_batch():
     (dict(position_error=-1.0), "position_error of grasp 0 must be finite, >= 0"),
     (dict(normal_error=4.0), r"normal_error of grasp 0 must be finite, >= 0 and <= 3.14159"),
     (dict(friction_error=np.nan), "friction_error of grasp 0"),
+    (dict(position_error=np.inf), "position_error of grasp 0 must be finite"),
     (dict(position_error=[0.1, 0.2]), r"position_error must be a number or have shape \(1,\)"),
     (dict(normal_error="a"), "normal_error must be real numbers"),
 ])

@@ -41,6 +41,11 @@ NEIGHBOURS = 6
 REFINE_STEPS = 8
 FIRST_STEP_RAD = 0.3
 
+#: The coarse search of :func:`deepest_breaking_direction` settles a grasp once it finds
+#: moves that put every work vector this deep (over r) into its polar cone: room enough
+#: for the exact test's certificate (CERTIFICATE_TOL is 1e-6 of the work vectors).
+ENOUGH_DEPTH = 1e-3
+
 #: Grasps per chunk of stacked solves (bounds the memory of the constraint matrices).
 GRASPS_PER_CHUNK = 64
 
@@ -163,15 +168,11 @@ def _solve(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, b: np.ndarray,
     return optimum, force, moves
 
 
-def least_breaking_direction(grasps: GraspBatch, start: np.ndarray | None = None,
-                             target: np.ndarray | None = None
+def least_breaking_direction(grasps: GraspBatch, start: np.ndarray | None = None
                              ) -> tuple[np.ndarray, np.ndarray]:
-    """Per grasp the least r*(b) found over the sphere of b, and its direction.
-
-    With a ``target``, a coarse search first (GRID_DIRECTIONS, one refined track), and
-    where it found nothing at most the target a fine one (FINE_GRID_DIRECTIONS,
-    FINE_TRACKS refined tracks; without a target, the fine one alone): r*(b) has
-    several valleys on the sphere.
+    """Per grasp the least r*(b) found over the sphere of b, and its direction (the
+    fine search: FINE_GRID_DIRECTIONS, FINE_TRACKS refined tracks; r*(b) has several
+    valleys on the sphere).
 
     Parameters
     ----------
@@ -179,8 +180,6 @@ def least_breaking_direction(grasps: GraspBatch, start: np.ndarray | None = None
         N hard grasps.
     start : ndarray, shape (N, 3), optional
         A torque direction to try besides the grid (e.g. the torque inradius search's).
-    target : ndarray, shape (N,), optional
-        Distances that suffice (the errors of :func:`.holds.holds_under`).
 
     Returns
     -------
@@ -190,26 +189,57 @@ def least_breaking_direction(grasps: GraspBatch, start: np.ndarray | None = None
     direction : ndarray, shape (N, 6)
         (a, b), |b| = 1, force and torque about the caller's origin, attaining it.
     """
+    value, direction = _search(grasps, start, None, [(FINE_GRID, FINE_TRACKS)])
+    return value * normalise_positions(grasps.positions)[2], direction
+
+
+def deepest_breaking_direction(grasps: GraspBatch, radius: np.ndarray,
+                               start: np.ndarray | None = None
+                               ) -> tuple[np.ndarray, np.ndarray]:
+    """Per grasp the torque direction b whose moves of at most ``radius`` (N,) put the
+    work vectors deepest into their polar cones (the most of :func:`deepest_moves`'s
+    sigma found over the sphere), and that depth: > 0 where those moves break force
+    closure with room to spare. A coarse search (GRID_DIRECTIONS, one refined track),
+    then the fine one where it found no depth of ENOUGH_DEPTH r.
+
+    Returns
+    -------
+    depth : ndarray, shape (N,)
+        sigma / r at the best direction found (dimensionless).
+    direction : ndarray, shape (N, 6)
+        (a, b), |b| = 1, force and torque about the caller's origin.
+    """
+    value, direction = _search(grasps, start, radius,
+                               [(GRID, 1), (FINE_GRID, FINE_TRACKS)])
+    return -value, direction
+
+
+def _search(grasps: GraspBatch, start: np.ndarray | None, radius: np.ndarray | None,
+            stages: list[tuple[np.ndarray, int]]) -> tuple[np.ndarray, np.ndarray]:
+    """The least objective (r*(b) of the unit grasp, or -sigma / r with a radius) found
+    by the grid stages, each on the grasps no earlier stage settled, and its direction."""
     n_grasps = grasps.mu.shape[0]
-    distance, direction = np.full(n_grasps, np.inf), np.zeros((n_grasps, 6))
-    stages = [(GRID, 1)] if target is not None else []
-    for grid, tracks in stages + [(FINE_GRID, FINE_TRACKS)]:
-        todo = np.flatnonzero(distance > (-np.inf if target is None else target))
+    value, direction = np.full(n_grasps, np.inf), np.zeros((n_grasps, 6))
+    for grid, tracks in stages:
+        todo = np.flatnonzero(value > (-ENOUGH_DEPTH if radius is not None else -np.inf))
         for begin in range(0, todo.size, GRASPS_PER_CHUNK):
             chunk = todo[begin:begin + GRASPS_PER_CHUNK]
             found, towards = _search_chunk(grasps, chunk, None if start is None
-                                           else start[chunk], grid, tracks)
-            better = found < distance[chunk]
-            distance[chunk[better]], direction[chunk[better]] = found[better], towards[better]
-    return distance, direction
+                                           else start[chunk], None if radius is None
+                                           else radius[chunk], grid, tracks)
+            better = found < value[chunk]
+            value[chunk[better]], direction[chunk[better]] = found[better], towards[better]
+    return value, direction
 
 
 def _search_chunk(grasps: GraspBatch, chunk: np.ndarray, start: np.ndarray | None,
-                  grid: np.ndarray, tracks: int) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`least_breaking_direction` on the grasps ``chunk`` with one grid, refining
-    its ``tracks`` best directions."""
+                  radius: np.ndarray | None, grid: np.ndarray, tracks: int
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_search` on the grasps ``chunk`` with one grid, refining its ``tracks``
+    best directions."""
     unit, centre, size = normalise_positions(grasps.positions[chunk])
-    problem = (unit, grasps.normals[chunk], grasps.mu[chunk])
+    problem = (unit, grasps.normals[chunk], grasps.mu[chunk],
+               None if radius is None else radius / size)
     n_grasps = chunk.size
     candidates = np.broadcast_to(grid, (n_grasps,) + grid.shape)
     if start is not None:
@@ -245,16 +275,22 @@ def _search_chunk(grasps: GraspBatch, chunk: np.ndarray, start: np.ndarray | Non
     b, a = best_b[rows, track], best_a[rows, track]
     # Back to the caller's frame: a + b x q_i (q_i = (p_i - c) / size) is, times size,
     # (size a - b x c) + b x p_i.
-    return best[rows, track] * size, np.concatenate([size[:, None] * a - np.cross(b, centre),
-                                                     b], axis=1)
+    return best[rows, track], np.concatenate([size[:, None] * a - np.cross(b, centre), b],
+                                             axis=1)
 
 
-def _values(problem: tuple[np.ndarray, np.ndarray, np.ndarray],
+def _values(problem: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None],
             candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """r*(b) (N, C) and a (N, C, 3) of ``candidates`` (N, C, 3) unit b per grasp."""
-    unit, normals, mu = problem
+    """The objective (N, C) and a (N, C, 3) of ``candidates`` (N, C, 3) unit b per
+    grasp: r*(b), or -sigma / r of :func:`deepest_moves` where a radius r (N,) is given."""
+    unit, normals, mu, radius = problem
     n_grasps, count = candidates.shape[:2]
     pairs = np.repeat(np.arange(n_grasps), count)
-    distance, force = break_distances(unit[pairs], normals[pairs], mu[pairs],
-                                      candidates.reshape(-1, 3))
-    return distance.reshape(n_grasps, count), force.reshape(n_grasps, count, 3)
+    b = candidates.reshape(-1, 3)
+    if radius is None:
+        value, force = break_distances(unit[pairs], normals[pairs], mu[pairs], b)
+    else:
+        depth, force, _ = deepest_moves(unit[pairs], normals[pairs], mu[pairs], b,
+                                        radius[pairs])
+        value = -depth / radius[pairs]
+    return value.reshape(n_grasps, count), force.reshape(n_grasps, count, 3)

@@ -33,13 +33,14 @@ from ..exact.certificates import normalise_positions, verify_batch
 from ..model.grasp_input import GraspBatch
 from ..pipeline import run_pipeline
 from ..quality.epsilon import epsilon_quality
-from .break_distance import deepest_moves, least_breaking_direction
+from .break_distance import deepest_breaking_direction, deepest_moves
 
 _EPS = float(np.finfo(np.float64).eps)
 
-#: A direction whose r*(b) is up to this much (relative) over the radius is still tried:
-#: Clarabel's optimum is accurate to ~1e-8, and the exact test judges the witness.
-BREAK_SLACK = 1e-6
+#: Moves whose depth (sigma / r) is at least minus this are judged by the exact test:
+#: some least breaking moves keep every work vector on its cone's boundary (depth 0,
+#: which Clarabel returns as a few -1e-10), and the moved grasp may still be certified.
+DEPTH_SLACK = 1e-6
 
 #: Rounds of :func:`turned_axes_wrench`, and the accuracy of its epsilon searches (only
 #: a direction is needed). One round found every witness on the benchmark's grasps
@@ -84,9 +85,9 @@ def work_vectors(positions: np.ndarray, wrench: np.ndarray) -> np.ndarray:
 def breaking_moves(grasps: GraspBatch, radius: np.ndarray, start: np.ndarray | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Search moves of at most ``radius`` (N,) that break force closure of force-closure
-    grasps: the direction of the least r*(b) found (:mod:`.break_distance`), where it is
-    at most the radius, then the moves of length <= r that put every work vector
-    deepest into its polar cone for it.
+    grasps: the torque direction whose moves of length <= r put every work vector
+    deepest into its polar cone (:mod:`.break_distance`), where that depth is positive,
+    and those moves.
 
     Parameters
     ----------
@@ -111,10 +112,9 @@ def breaking_moves(grasps: GraspBatch, radius: np.ndarray, start: np.ndarray | N
     found = np.zeros(n_grasps, dtype=bool)
     moves = np.full((n_grasps, n_contacts, 3), np.nan)
     wrench = np.full((n_grasps, 6), np.nan)
-    distance, direction = least_breaking_direction(grasps, start, radius)
-    # Clarabel's r*(b) is accurate to ~1e-8 relative: a little over the radius may
-    # still break with moves of the whole radius.
-    near = np.flatnonzero(distance <= radius * (1.0 + BREAK_SLACK))
+    depth, direction = deepest_breaking_direction(grasps, radius, start)
+    # Depth 0 up to Clarabel's accuracy is worth a try too: the exact test judges.
+    near = np.flatnonzero(depth > -DEPTH_SLACK)
     if not near.size:
         return found, moves, wrench
     unit, centre, size = normalise_positions(grasps.positions[near])
