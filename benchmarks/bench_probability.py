@@ -33,7 +33,7 @@ import argparse  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
 import tracemalloc  # noqa: E402
-from collections.abc import Callable, Sequence  # noqa: E402
+from collections.abc import Sequence  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -46,6 +46,7 @@ from grasp_fc_ros.core.robustness.probability import (  # noqa: E402
     probability_of_force_closure,
 )
 from grasp_fc_ros.objects import OBJECT_NAMES, make_object, sample_grasps  # noqa: E402
+from timing import median_cpu_seconds  # noqa: E402
 
 MU = 0.5
 #: Issue 29's noise: 2 mm (the objects are in metres), 3 degrees, 0.1 on mu.
@@ -53,17 +54,6 @@ NOISE = {"position_sigma": 0.002, "normal_sigma": float(np.radians(3.0)),
          "friction_sigma": 0.1}
 #: Streams of the reference samples start here, far from the interval's 0..N-1.
 REFERENCE_STREAMS = 1 << 40
-
-
-def cpu_seconds(function: Callable[[], object], repeats: int) -> float:
-    """Median CPU time of ``repeats`` calls after one untimed warm-up."""
-    function()
-    times = []
-    for _ in range(repeats):
-        start = time.process_time()
-        function()
-        times.append(time.process_time() - start)
-    return statistics.median(times)
 
 
 def materialised(positions: np.ndarray, normals: np.ndarray, samples: int,
@@ -82,16 +72,17 @@ def speed(n_grasps: int, samples: int, repeats: int, rng: np.random.Generator) -
     surface = make_object("box")
     positions, normals = sample_grasps(surface, n_grasps, 4, rng)
     total = n_grasps * samples
-    prob_s = cpu_seconds(lambda: probability_of_force_closure(
+    prob_s = median_cpu_seconds(lambda: probability_of_force_closure(
         positions, normals, MU, samples=samples, seed=1, **NOISE), repeats)
     random_p, random_n = sample_grasps(surface, total, 4, rng)
-    random_s = cpu_seconds(lambda: check_force_closure(random_p, random_n, MU, margin="bound"),
-                           repeats)
+    random_s = median_cpu_seconds(
+        lambda: check_force_closure(random_p, random_n, MU, margin="bound"), repeats)
     same_p, same_n, same_mu = materialised(positions, normals, samples, 1)
-    same_s = cpu_seconds(lambda: check_force_closure(same_p, same_n, same_mu, margin="bound"),
-                         repeats)
-    bare_s = cpu_seconds(lambda: check_force_closure(same_p, same_n, same_mu, margin="bound",
-                                                     use_filter=False), repeats)
+    same_s = median_cpu_seconds(
+        lambda: check_force_closure(same_p, same_n, same_mu, margin="bound"), repeats)
+    bare_s = median_cpu_seconds(
+        lambda: check_force_closure(same_p, same_n, same_mu, margin="bound", use_filter=False),
+        repeats)
     result = probability_of_force_closure(positions, normals, MU, samples=samples, seed=1,
                                           **NOISE)
     print(f"speed: {n_grasps} box grasps, 4 fingers, mu = {MU}, {samples} samples each, "
@@ -123,7 +114,7 @@ def blocks(n_grasps: int, samples: int, sizes: Sequence[int], repeats: int,
     try:
         for size in sizes:
             probability.BLOCK_CONTACTS = size
-            seconds = cpu_seconds(lambda: probability_of_force_closure(
+            seconds = median_cpu_seconds(lambda: probability_of_force_closure(
                 positions, normals, MU, samples=samples, seed=1, **NOISE), repeats)
             tracemalloc.start()
             probability_of_force_closure(positions, normals, MU, samples=samples, seed=1,

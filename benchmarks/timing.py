@@ -25,6 +25,18 @@ def median_seconds(function: Callable[[], object], repeats: int) -> float:
     return statistics.median(times)
 
 
+def median_cpu_seconds(function: Callable[[], object], repeats: int) -> float:
+    """Median CPU time of this process over ``repeats`` calls, after one untimed warm-up
+    call (other processes on a shared machine do not inflate it)."""
+    function()
+    times = []
+    for _ in range(repeats):
+        start = time.process_time()
+        function()
+        times.append(time.process_time() - start)
+    return statistics.median(times)
+
+
 def ratio_or_nan(numerator: float, denominator: float) -> float:
     """``numerator / denominator``, or NaN (printed "nan") when the denominator is not
     positive.

@@ -11,7 +11,7 @@ grasps were split.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict
 
 import numpy as np
 from grasp_fc_msgs.srv import AssessRobustness
@@ -20,30 +20,15 @@ from numpy.typing import ArrayLike
 from grasp_fc_ros.client.batches import grasp_ranges
 from grasp_fc_ros.interface.conversions import friction_or_default, grasp_to_contact_array
 from grasp_fc_ros.interface.names import MAX_REQUEST_CONTACTS, MAX_REQUEST_SAMPLES
+from grasp_fc_ros.packed import RobustnessQuery
 
 #: Largest ``samples`` the request's field holds (uint32).
 MAX_SAMPLES = 2 ** 32 - 1
 
 
-@dataclass(frozen=True)
-class Question:
-    """What is asked of every grasp: the request's scalar fields (see
-    :meth:`grasp_fc_ros.client.GraspClient.assess_robustness`)."""
-
-    position_error: float = 0.0
-    normal_error: float = 0.0
-    friction_error: float = 0.0
-    position_sigma: float = 0.0
-    normal_sigma: float = 0.0
-    friction_sigma: float = 0.0
-    samples: int = 1000
-    confidence: float = 0.95
-    seed: int = 0
-
-
 def assessment_requests(positions: ArrayLike, normals: ArrayLike, mu: ArrayLike | None,
                         torsional_friction: ArrayLike | None, ids: ArrayLike | None,
-                        question: Question, frame_id: str) -> list[AssessRobustness.Request]:
+                        question: RobustnessQuery, frame_id: str) -> list[AssessRobustness.Request]:
     """The requests asking ``question`` of grasps (N, n, 3) (or one grasp (n, 3)).
 
     Raises
@@ -77,9 +62,9 @@ def assessment_requests(positions: ArrayLike, normals: ArrayLike, mu: ArrayLike 
         grasp.header.frame_id = frame_id
     per_part = max(1, min(MAX_REQUEST_CONTACTS // max(n_contacts, 1),
                           MAX_REQUEST_SAMPLES // max(question.samples, 1)))
-    return [AssessRobustness.Request(grasps=grasps[first:last], **vars(question))
+    return [AssessRobustness.Request(grasps=grasps[first:last], **asdict(question))
             for first, last in grasp_ranges([1] * n_grasps, per_part)] or [
-        AssessRobustness.Request(grasps=[], **vars(question))]
+        AssessRobustness.Request(grasps=[], **asdict(question))]
 
 
 def _grasps(values: ArrayLike, name: str) -> np.ndarray:

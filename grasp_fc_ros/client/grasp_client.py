@@ -39,7 +39,6 @@ from numpy.typing import ArrayLike
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
-from grasp_fc_ros.client.assessment import Question
 from grasp_fc_ros.client.batches import BatchQueries, n_grasps_of
 from grasp_fc_ros.client.connection import DiagnosticsReader, NodeWatch
 from grasp_fc_ros.client.label_action import LabelActionClient
@@ -58,7 +57,7 @@ from grasp_fc_ros.interface.names import (
     VERDICTS_TOPIC,
     resolve,
 )
-from grasp_fc_ros.packed import ContactForces, Verdicts
+from grasp_fc_ros.packed import ContactForces, RobustnessQuery, Verdicts
 
 
 class GraspClient:
@@ -312,7 +311,7 @@ class GraspClient:
         TimeoutError
             If not every response came within ``timeout``; it names the service.
         """
-        question = Question(position_error, normal_error, friction_error, position_sigma,
+        question = RobustnessQuery(position_error, normal_error, friction_error, position_sigma,
                             normal_sigma, friction_sigma, samples, confidence, seed)
         return self._services.assess_robustness(positions, normals, mu, torsional_friction,
                                                 ids, question, frame_id, timeout)

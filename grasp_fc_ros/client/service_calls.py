@@ -21,7 +21,7 @@ from grasp_fc_msgs.srv import AssessRobustness, CheckForceClosure, ComputeContac
 from numpy.typing import ArrayLike
 from rclpy.node import Node
 
-from grasp_fc_ros.client.assessment import Question, assessment_requests
+from grasp_fc_ros.client.assessment import assessment_requests
 from grasp_fc_ros.client.batches import grasp_ranges
 from grasp_fc_ros.interface.conversions import (
     assessment_to_numpy,
@@ -36,7 +36,7 @@ from grasp_fc_ros.interface.names import (
     resolve,
 )
 from grasp_fc_ros.interface.wait_sets import ServiceCaller
-from grasp_fc_ros.packed import ContactForces, Verdicts
+from grasp_fc_ros.packed import ContactForces, RobustnessQuery, Verdicts
 
 
 class ServiceCalls:
@@ -123,7 +123,7 @@ class ServiceCalls:
 
     def assess_robustness(self, positions: ArrayLike, normals: ArrayLike, mu: ArrayLike | None,
                           torsional_friction: ArrayLike | None, ids: ArrayLike | None,
-                          question: Question, frame_id: str, timeout: float) -> Verdicts:
+                          question: RobustnessQuery, frame_id: str, timeout: float) -> Verdicts:
         """See :meth:`grasp_fc_ros.client.GraspClient.assess_robustness`."""
         requests = assessment_requests(positions, normals, mu, torsional_friction, ids,
                                        question, frame_id)

@@ -29,8 +29,7 @@ from grasp_fc_ros.core import Status
 from grasp_fc_ros.engine.pool import Cancelled
 from grasp_fc_ros.interface.conversions import assessment_response, contact_arrays_to_packed
 from grasp_fc_ros.interface.names import ASSESS_SERVICE
-from grasp_fc_ros.interface.wait_sets import ServiceLoop
-from grasp_fc_ros.node.lane import Drained, LaneContext, Refusal
+from grasp_fc_ros.node.lane import Drained, HelperServices, LaneContext, Refusal
 from grasp_fc_ros.packed import Assessments, RobustnessQuery, Settings, Verdicts
 
 
@@ -46,20 +45,11 @@ class RobustnessLane:
 
     def __init__(self, node: Node, context: LaneContext):
         self._context = context
-        self._stopping = False
-        self._helper = Node(f"{node.get_name()}_robustness", namespace=node.get_namespace(),
-                            context=node.context, use_global_arguments=False,
-                            start_parameter_services=False)
-        service = self._helper.create_service(
-            AssessRobustness, node.resolve_service_name(ASSESS_SERVICE), self._on_assess)
-        self._loop = ServiceLoop(
-            [service], node.context,
-            lambda service, exc: context.internal_error(
-                f"a {service.srv_name} request (no response sent)", exc),
-            name="robustness")
+        self._served = HelperServices(node, "robustness", context,
+                                      [(AssessRobustness, ASSESS_SERVICE, self._on_assess)])
 
     def stopping(self) -> bool:
-        return self._stopping
+        return self._served.stopping
 
     def counts(self) -> dict[str, int]:
         return {}
@@ -124,9 +114,7 @@ class RobustnessLane:
     def stop(self) -> None:
         """Let the request in progress be answered (a shutdown answer if it waits for the
         workers), then stop serving."""
-        self._stopping = True
-        self._loop.stop()
-        self._helper.destroy_node()
+        self._served.stop()
 
     def drain(self) -> Drained:
         return Drained()  # a request is answered in its callback, never queued here

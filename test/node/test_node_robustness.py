@@ -10,7 +10,7 @@ import pytest
 from grasp_fc_msgs.srv import AssessRobustness
 
 from grasp_fc_ros.client import GraspClient
-from grasp_fc_ros.client.assessment import Question, assessment_requests
+from grasp_fc_ros.client.assessment import assessment_requests
 from grasp_fc_ros.core import (
     Holds,
     Status,
@@ -40,7 +40,6 @@ QUERY = RobustnessQuery(position_error=0.002, normal_error=float(np.radians(3.0)
                         friction_error=0.1, position_sigma=0.002,
                         normal_sigma=float(np.radians(3.0)), friction_sigma=0.1,
                         samples=300, confidence=0.95, seed=17)
-QUESTION = Question(**vars(QUERY))
 
 
 @pytest.fixture(scope="module")
@@ -168,22 +167,22 @@ def test_mis_shaped_input_is_refused_by_name(change, message):
                  "torsional_friction": None, "ids": None} | change
     with pytest.raises(ValueError, match=message):
         assessment_requests(arguments["positions"], arguments["normals"], arguments["mu"],
-                            arguments["torsional_friction"], arguments["ids"], QUESTION, "")
+                            arguments["torsional_friction"], arguments["ids"], QUERY, "")
 
 
 def test_samples_and_seed_must_fit_their_fields():
     with pytest.raises(ValueError, match="samples must be in"):
         assessment_requests(np.ones((1, 4, 3)), np.ones((1, 4, 3)), None, None, None,
-                            Question(samples=-1), "")
+                            RobustnessQuery(samples=-1), "")
     with pytest.raises(ValueError, match="seed must be in"):
         assessment_requests(np.ones((1, 4, 3)), np.ones((1, 4, 3)), None, None, None,
-                            Question(seed=2 ** 64), "")
+                            RobustnessQuery(seed=2 ** 64), "")
 
 
 def test_many_grasps_go_as_requests_under_the_sample_budget():
     n = 2 * MAX_REQUEST_SAMPLES // 1000 + 3
     requests = assessment_requests(np.ones((n, 4, 3)), np.ones((n, 4, 3)), 0.5, None, None,
-                                   Question(samples=1000), "object")
+                                   RobustnessQuery(samples=1000), "object")
     assert len(requests) >= 3
     assert all(len(r.grasps) * 1000 <= MAX_REQUEST_SAMPLES for r in requests)
     assert [g.id for r in requests for g in r.grasps] == list(range(n))
