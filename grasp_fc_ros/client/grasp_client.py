@@ -39,7 +39,8 @@ from numpy.typing import ArrayLike
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
-from grasp_fc_ros.client.batches import BatchQueries, n_grasps_of
+from grasp_fc_ros.client import shapes
+from grasp_fc_ros.client.batches import BatchQueries
 from grasp_fc_ros.client.connection import DiagnosticsReader, NodeWatch
 from grasp_fc_ros.client.label_action import LabelActionClient
 from grasp_fc_ros.client.pending import RESEND_AFTER_S
@@ -164,8 +165,11 @@ class GraspClient:
         TimeoutError
             If no room was made within ``timeout`` (nothing was registered).
         ValueError
-            If ``query_id`` is already in flight (nothing was registered).
+            If the arrays' shapes do not match (naming them), or ``query_id`` is already
+            in flight (nothing was registered).
         """
+        positions, normals = shapes.one_grasp(positions, normals)
+        shapes.per_contact(mu, "mu", positions)
         return self._singles.submit(positions, normals, friction_or_default(mu), query_id,
                                     frame_id, timeout)
 
@@ -185,9 +189,11 @@ class GraspClient:
         value per contact (m).
 
         The batch is kept until answered, as for :meth:`submit` (its bound grows with
-        its size). Raises only the ValueError of a mis-shaped input, before anything is
-        registered or sent.
+        its size). Raises only the ValueError of a mis-shaped input, naming the arrays
+        and their shapes, before anything is registered or sent.
         """
+        positions, normals, _ = _checked_batch(positions, normals, mu, counts, ids,
+                                               torsional_friction)
         return self._batches.submit(positions, normals, mu, counts, ids, frame_id,
                                     torsional_friction)
 
@@ -227,7 +233,13 @@ class GraspClient:
         ------
         TimeoutError
             If not every response came within ``timeout``; it names the service.
+        ValueError
+            If the arrays' shapes do not match, naming them (nothing was sent).
         """
+        positions, normals, n_grasps = shapes.grasp_batch(positions, normals,
+                                                          stacked=False)
+        shapes.per_grasp(ids, "ids", n_grasps)
+        shapes.per_contact(mu, "mu", positions)
         return self._services.call(positions, normals, friction_or_default(mu), ids, timeout)
 
     def call_request(self, request: Any, timeout: float = DEFAULT_TIMEOUT_S) -> Verdicts:
@@ -271,7 +283,14 @@ class GraspClient:
         ------
         TimeoutError
             If no response came within ``timeout``.
+        ValueError
+            If the arrays' shapes do not match, naming them (nothing was sent).
         """
+        positions, normals = shapes.one_grasp(positions, normals)
+        wrench = shapes.wrench(wrench)
+        for values, name in ((mu, "mu"), (max_normal_forces, "max_normal_forces"),
+                             (torsional_friction, "torsional_friction")):
+            shapes.per_contact(values, name, positions)
         return self._services.compute_contact_forces(positions, normals, wrench,
                                                      friction_or_default(mu),
                                                      max_normal_forces, frame_id, timeout,
@@ -360,8 +379,11 @@ class GraspClient:
             No action server, or the goal did not end within ``timeout``.
         RuntimeError
             The node rejected the job's first goal (it is shutting down).
+        ValueError
+            If the arrays' shapes do not match, naming them (nothing was sent).
         """
-        ids = np.arange(n_grasps_of(positions, counts)) if ids is None else ids
+        positions, normals, n_grasps = _checked_batch(positions, normals, mu, counts, ids)
+        ids = np.arange(n_grasps) if ids is None else ids
         return self.label_action.label(batch_arrays(ids, positions, normals, mu, counts),
                                        progress, timeout, self.client_id)
 
@@ -410,3 +432,17 @@ class GraspClient:
 
     def __exit__(self, *exc_info: object) -> None:
         self.close()
+
+
+def _checked_batch(positions: ArrayLike, normals: ArrayLike, mu: ArrayLike | None,
+                   counts: ArrayLike | None, ids: ArrayLike | None,
+                   torsional_friction: ArrayLike | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, int]:
+    """A batch's positions and normals as float64 arrays and its number of grasps, once
+    every shape was checked (:mod:`.shapes`; ValueError naming the arrays and their
+    shapes)."""
+    positions, normals, n_grasps = shapes.grasp_batch(positions, normals, counts)
+    shapes.per_grasp(ids, "ids", n_grasps)
+    shapes.per_contact(mu, "mu", positions, flat=True)
+    shapes.per_contact(torsional_friction, "torsional_friction", positions, flat=True)
+    return positions, normals, n_grasps

@@ -68,9 +68,6 @@ class ServiceCalls:
         positions = np.asarray(positions, dtype=np.float64)
         normals = np.asarray(normals, dtype=np.float64)
         ids = np.arange(len(positions)) if ids is None else np.asarray(ids)
-        if len(ids) != len(positions):
-            raise ValueError(f"{len(ids)} ids for {len(positions)} grasps: give one id per "
-                             "grasp, or none")
         mu = np.broadcast_to(np.asarray(mu, dtype=np.float64), positions.shape[:2])
         request = CheckForceClosure.Request(grasps=[
             grasp_to_contact_array(i, p, n, m)
@@ -107,8 +104,9 @@ class ServiceCalls:
         force, torque = request.wrench.force, request.wrench.torque
         force.x, force.y, force.z, torque.x, torque.y, torque.z = w
         if max_normal_forces is not None:
-            request.max_normal_forces = np.asarray(max_normal_forces,
-                                                   dtype=np.float64).reshape(-1).tolist()
+            request.max_normal_forces = np.broadcast_to(
+                np.asarray(max_normal_forces, dtype=np.float64),
+                (len(request.grasp.contacts),)).tolist()
         # wait_for_node waits for check_force_closure only; this service may be
         # discovered a moment later, and a request sent before would go unanswered.
         if not self._forces_client.wait_for_service(timeout_sec=timeout):

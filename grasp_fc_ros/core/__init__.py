@@ -70,7 +70,7 @@ from .forces.grasp_forces import GraspForces, optimal_contact_forces
 from .model.grasp_input import GraspValidation, validate_grasps
 from .one_grasp import warm_up
 from .pipeline import ForceClosureResult, Status, check_force_closure, exact_force_closure
-from .quality.epsilon import EpsilonResult, epsilon_quality
+from .quality.epsilon import EpsilonNotConverged, EpsilonResult, epsilon_quality
 from .quality.minimum_friction import MinimumFriction, minimum_friction, minimum_friction_bounds
 from .robustness import (
     ForceClosureProbability,
@@ -84,6 +84,7 @@ from .robustness import (
 
 __all__ = [
     "ORIGIN_CHOICES",
+    "EpsilonNotConverged",
     "EpsilonResult",
     "ForceClosureProbability",
     "ForceClosureResult",

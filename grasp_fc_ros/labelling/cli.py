@@ -25,6 +25,7 @@ from grasp_fc_ros.objects import DEFAULT_N_POINTS, OBJECT_NAMES
 from .runner import DEFAULT_CHUNK_SIZE
 
 if TYPE_CHECKING:
+    from .output import OutputConflict
     from .runner import Plan, Summary
 
 #: --filter's choices, as check_force_closure's use_filter.
@@ -35,6 +36,13 @@ PROG = "grasp-fc-label"
 DEFAULT_MU = 0.17632698070846498
 DEFAULT_FINGERS = 6
 DEFAULT_QUALITY_RTOL = 1e-3
+#: The options behind each setting a run's manifest records (an output made with other
+#: values is refused naming these, not the manifest's keys).
+SETTING_OPTIONS = {
+    "chunk_size": "--chunk-size", "use_filter": "--filter", "origins": "--origins",
+    "quality_rtol": "--quality/--quality-rtol",
+    "sources": "the INPUT files (or --objects, --mesh and the options drawing on them)",
+    "format": "the grasp-fc-label version that wrote it", "layout": "its layout"}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -143,7 +151,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         plan = make_plan(args)
         with dask_client(args.scheduler, args.workers, args.scheduler_file) as client:
             summary = run(plan, args.out, client, progress=not args.no_progress)
-    except (InputError, OutputConflict) as error:
+    except OutputConflict as error:
+        print(f"{PROG}: error: {_conflict_message(error, args.out)}", file=sys.stderr)
+        return 2
+    except InputError as error:
         print(f"{PROG}: error: {error}", file=sys.stderr)
         return 2
     except (TaskFailed, OSError, TimeoutError) as error:
@@ -154,6 +165,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     _report(summary)
     return 0
+
+
+def _conflict_message(error: OutputConflict, out: str) -> str:
+    """Why ``--out`` is refused, naming the options in which its run differs."""
+    if not error.differing:
+        return str(error)
+    options = "; ".join(SETTING_OPTIONS.get(key, key) for key in error.differing)
+    return (f"--out {out} holds labels of a run with other options ({options}); remove "
+            "it, choose another --out, or repeat that run's options to resume it")
 
 
 def _report(summary: Summary) -> None:

@@ -29,12 +29,23 @@ TEMP_PREFIX = "."
 
 
 class OutputConflict(Exception):
-    """The output path holds something this run must not overwrite or mix with."""
+    """The output path holds something this run must not overwrite or mix with.
+
+    Attributes
+    ----------
+    differing : tuple of str
+        Where the output holds another run: the keys of the manifest (settings,
+        ``sources``) in which that run differs from this one; else empty.
+    """
+
+    def __init__(self, message: str, differing: tuple[str, ...] = ()) -> None:
+        super().__init__(message)
+        self.differing = differing
 
 
-def _manifest_difference(stored: dict[str, Any], wanted: dict[str, Any]) -> str:
-    keys = sorted(k for k in set(stored) | set(wanted) if stored.get(k) != wanted.get(k))
-    return ", ".join(keys) or "layout"
+def _manifest_difference(stored: dict[str, Any], wanted: dict[str, Any]) -> tuple[str, ...]:
+    return tuple(sorted(k for k in set(stored) | set(wanted)
+                        if stored.get(k) != wanted.get(k))) or ("layout",)
 
 
 class Output:
@@ -70,9 +81,11 @@ class Output:
                 raise OutputConflict(f"{self.out} exists and is not a Parquet file") from None
             stored = metadata.get(METADATA_KEY)
             if stored is None or json.loads(stored) != self.manifest:
+                differing = () if stored is None else _manifest_difference(
+                    json.loads(stored), self.manifest)
                 raise OutputConflict(
                     f"{self.out} already exists and holds another run's labels; remove it "
-                    "or choose another --out")
+                    "or choose another --out", differing)
             return None
         if not self.parts_dir.exists():
             return set()
@@ -86,10 +99,10 @@ class Output:
             return set()
         stored = json.loads(manifest_path.read_text())
         if stored != self.manifest:
+            differing = _manifest_difference(stored, self.manifest)
             raise OutputConflict(
                 f"{self.parts_dir} holds a run with other inputs or settings (differs in: "
-                f"{_manifest_difference(stored, self.manifest)}); remove it or choose "
-                "another --out")
+                f"{', '.join(differing)}); remove it or choose another --out", differing)
         return {path.name for path in self.parts_dir.glob("part-*.parquet")}
 
     def create(self) -> None:

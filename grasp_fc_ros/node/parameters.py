@@ -113,8 +113,8 @@ PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
         "Every verdict carries certified bounds epsilon_lower <= epsilon <= "
         "epsilon_upper on the grasp's Ferrari-Canny epsilon (circular friction cones, "
         "normal forces summing to <= 1, torques about the frame's origin over the largest "
-        "contact distance from it); costs more than the verdict itself, and its first use "
-        "in a fresh install compiles kernels (docs/epsilon.md#cost)")),
+        "contact distance from it); costs more than the verdict itself "
+        "(docs/epsilon.md#cost)")),
     "max_assessment_samples": (DEFAULT_MAX_ASSESSMENT_SAMPLES, _int_descriptor(
         "Largest number of samples (grasps x samples per grasp) of one assess_robustness "
         "request; a larger one is answered whole with INVALID_INPUT saying so",

@@ -10,6 +10,7 @@ import grasp_fc_ros.core as core
 
 PUBLIC_NAMES = [
     "ORIGIN_CHOICES",
+    "EpsilonNotConverged",
     "EpsilonResult",
     "ForceClosureProbability",
     "ForceClosureResult",

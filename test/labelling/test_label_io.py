@@ -246,6 +246,36 @@ def test_quality_usage_errors(tmp_path, capsys):
     assert "epsilon_direction" in cli.build_parser().format_help()
 
 
+@pytest.mark.parametrize("out_name", ["labels", "labels.parquet"])
+def test_cli_refusing_another_runs_output_names_the_users_option(tmp_path, capsys,
+                                                                 monkeypatch, out_name):
+    """A run with --quality on an output of a run without it exits 2 naming --quality,
+    not the manifest's key quality_rtol."""
+    import contextlib
+
+    from grasp_fc_ros.labelling import runner
+    from grasp_fc_ros.labelling.output import METADATA_KEY
+
+    positions, normals = _grasps(10)
+    np.savez(tmp_path / "a.npz", positions=positions, normals=normals, mu=0.5)
+    out = tmp_path / out_name
+    command = [str(tmp_path / "a.npz"), "--out", str(out), "--no-progress"]
+    earlier = cli.make_plan(cli.build_parser().parse_args(command)).manifest()
+    if out.suffix == ".parquet":
+        pq.write_table(pa.table({"id": [0]}).replace_schema_metadata(
+            {METADATA_KEY: json.dumps(earlier)}), out)
+    else:
+        Output(out, earlier).create()
+    # The conflict is found before any task: no cluster is needed.
+    monkeypatch.setattr(runner, "dask_client", lambda *_: contextlib.nullcontext())
+    assert cli.main(command + ["--quality"]) == 2
+    error = capsys.readouterr().err
+    assert f"--out {out} holds labels of a run with other options (--quality/--quality-rtol)" \
+        in error and "quality_rtol" not in error
+    assert cli.main(command + ["--chunk-size", "7"]) == 2
+    assert "(--chunk-size)" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("arrays, message", [
     ({"positions": np.zeros((4, 3, 3)), "mu": 0.5}, "missing array(s) normals"),
     ({"positions": np.zeros((4, 3)), "normals": np.zeros((4, 3)), "mu": 0.5},
@@ -280,8 +310,9 @@ def test_cli_usage_errors(tmp_path):
 def test_output_refuses_another_runs_directory(tmp_path):
     Output(tmp_path / "o", {"chunk_size": 10}).create()
     assert Output(tmp_path / "o", {"chunk_size": 10}).existing_parts() == set()
-    with pytest.raises(OutputConflict, match="differs in: chunk_size"):
+    with pytest.raises(OutputConflict, match="differs in: chunk_size") as refused:
         Output(tmp_path / "o", {"chunk_size": 20}).existing_parts()
+    assert refused.value.differing == ("chunk_size",)
     (tmp_path / "other").mkdir()
     (tmp_path / "other" / "x.txt").write_text("x")
     with pytest.raises(OutputConflict, match="not a grasp-fc-label output"):

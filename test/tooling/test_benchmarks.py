@@ -108,6 +108,11 @@ EXPECTED: dict[str, Run] = {
                rf"24\s+[\d.]+\s+{N}\s+{N}\s+{N}\s+0\s+0\s+0\s+.*"),
         Line(r"^least ratio .*; violations 0, inconsistencies 0$"),
     )),
+    "bench_first_call": Run(lines=(
+        Line(rf"^first calls, fresh processes, installed cache: epsilon_quality {N} s, "
+             rf"minimum_friction {N} s, optimal_contact_forces {N} s, check_force_closure "
+             rf"{N} s$"),
+    )),
     "bench_exact": Run(lines=(
         # clarabel and fast grasps/s, their ratio, +margin and its ratio; 0 disagreements.
         *_rows(EXACT_CELLS, rf"[\d.]+\s+{N}\s+{N}\s+{N}x\s+{N}\s+{N}x\s+\d+\s+0"),
