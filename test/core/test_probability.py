@@ -338,6 +338,14 @@ def test_bad_options_are_refused_by_name(option, value, message):
         probability_of_force_closure(positions, normals, 0.5, **{option: value})
 
 
+def test_noise_that_moves_contacts_out_of_range_is_refused():
+    positions, normals = some_grasps(2)
+    with pytest.raises(ValueError, match="position_sigma = 1e\\+305 moves contacts of grasps 0 "
+                                         "to 1 beyond"):
+        probability_of_force_closure(positions, normals, 0.5, position_sigma=1e305,
+                                     samples=10, seed=0)
+
+
 def test_bad_grasps_are_refused_naming_grasp_and_contact():
     positions, normals = some_grasps(3)
     normals[2, 1] = 0.0

@@ -73,7 +73,7 @@ from scipy import special, stats
 from ..exact.stacked_socp import tangent_bases
 from ..model.grasp_input import GraspBatch, prepare_grasps
 from ..pipeline import Status, run_pipeline
-from ..tolerances import MAX_FRICTION_COEFFICIENT
+from ..tolerances import MAX_ABS_COORDINATE, MAX_FRICTION_COEFFICIENT
 from .radii import robustness
 
 #: Contacts of the perturbed grasps given to one call of the exact test (16,384 grasps
@@ -83,9 +83,10 @@ from .radii import robustness
 BLOCK_CONTACTS = 65_536
 
 #: Smallest sampled friction coefficient kept as drawn. The truncated offset d keeps
-#: mu + d > 0 in exact arithmetic; its rounding can still give 0 or a subnormal at the
-#: boundary (a probability below 1e-300 for any sigma the validation accepts), which is
-#: lifted to this, the smallest normal float, so that every sample is valid input.
+#: mu + d > 0 in exact arithmetic; rounding can still give 0 or a subnormal for an offset
+#: within an ulp of the boundary (a chance of order 1e-16 per sample), which is lifted to
+#: this, the smallest normal float, so that every sample is valid input (the largest
+#: coefficient is kept at MAX_FRICTION_COEFFICIENT likewise).
 MIN_SAMPLED_FRICTION = np.finfo(np.float64).tiny
 
 _FORCE_CLOSURE, _SOLVER_FAILURE = int(Status.FORCE_CLOSURE), int(Status.SOLVER_FAILURE)
@@ -373,10 +374,14 @@ def _decide_block(grasps: GraspBatch, first: int, last: int, rows: int, model: _
                                            grasps.mu[first:last], draws)
     torsional = (None if grasps.torsional is None
                  else np.repeat(grasps.torsional[first:last], rows, axis=0))
+    if model.position_sigma > 0 and not np.abs(positions).max() <= MAX_ABS_COORDINATE:
+        raise ValueError(
+            f"position_sigma = {model.position_sigma:g} moves contacts of grasps {first} to "
+            f"{last - 1} beyond +-{MAX_ABS_COORDINATE:.3g}: use a larger length unit")
     sampled = GraspBatch(np.ascontiguousarray(positions), np.ascontiguousarray(normals),
                          np.ascontiguousarray(mu), single=False, torsional=torsional)
     # (the exact test alone: samples of one grasp are alike, so the filter rarely rejects
-    # most of a block, and it costs more than it saves even on random grasps at n = 4,
+    # most of a block, and on perturbed grasps it costs more than it saves at n = 4,
     # docs/performance.md#probability-of-force-closure)
     status = run_pipeline(sampled, use_filter=False, margin="bound").status
     status = status.reshape(last - first, rows)
