@@ -1,5 +1,20 @@
 """assess_robustness requests from numpy arrays, with their shapes checked (client side).
 
+:meth:`grasp_fc_ros.client.GraspClient.assess_robustness` asks the node how well grasps
+hold when their contacts are off (docs/robustness.md). Its arguments: ``positions``,
+``normals`` (N, n, 3), or (n, 3) for one grasp; ``mu`` None (the node's
+``friction_coefficient``), a scalar, (N, 1) or (N, n); ``position_error``,
+``normal_error``, ``friction_error`` (m, rad, unitless) for the holds answer;
+``position_sigma``, ``normal_sigma``, ``friction_sigma`` for the probability;
+``samples`` per grasp (0: no probability), ``confidence``, ``seed``; ``ids`` (N,)
+(default 0..N-1): grasp ``ids[k]`` draws its samples from stream (``seed``, ``ids[k]``);
+``torsional_friction`` (m): soft fingers get a probability but no radii and no holds
+answer; ``frame_id``; ``timeout`` for the whole call. It returns the nominal
+:class:`~grasp_fc_ros.packed.Verdicts` (``margin`` NaN) with ``robustness``, an
+:class:`~grasp_fc_ros.packed.Assessments` of numpy arrays, one row per grasp (the
+witness one per contact). Bad grasps are INVALID_INPUT alone, a refused request
+INVALID_INPUT for every grasp, the message saying why.
+
 :func:`assessment_requests` turns grasps (N, n, 3) and the question's errors, sigmas and
 samples into AssessRobustness requests of whole grasps: several where the grasps are
 many (at most :data:`~grasp_fc_ros.interface.names.MAX_REQUEST_CONTACTS` contacts and
@@ -17,6 +32,7 @@ import numpy as np
 from grasp_fc_msgs.srv import AssessRobustness
 from numpy.typing import ArrayLike
 
+from grasp_fc_ros.client import shapes
 from grasp_fc_ros.client.batches import grasp_ranges
 from grasp_fc_ros.interface.conversions import friction_or_default, grasp_to_contact_array
 from grasp_fc_ros.interface.names import MAX_REQUEST_CONTACTS, MAX_REQUEST_SAMPLES
@@ -37,20 +53,24 @@ def assessment_requests(positions: ArrayLike, normals: ArrayLike, mu: ArrayLike 
         On mis-shaped input, naming the argument and the shapes, or ``samples`` or
         ``seed`` outside their fields' ranges; before anything is sent.
     """
-    points = _grasps(positions, "positions")
-    directions = _grasps(normals, "normals")
-    if directions.shape != points.shape:
-        raise ValueError(f"normals must have the shape of positions {points.shape}, got "
-                         f"{directions.shape}")
+    if np.ndim(positions) == 2:                 # one grasp: a batch of one
+        one = shapes.one_grasp(positions, normals)
+        points, directions = one[0][None], one[1][None]
+        mu, torsional_friction = _batch_of_one(mu), _batch_of_one(torsional_friction)
+    else:
+        points, directions, _ = shapes.grasp_batch(positions, normals, stacked=False)
     n_grasps, n_contacts = points.shape[:2]
-    mus = _per_contact(friction_or_default(mu), "mu", (n_grasps, n_contacts))
-    gammas = _per_contact(0.0 if torsional_friction is None else torsional_friction,
-                          "torsional_friction", (n_grasps, n_contacts))
+    shapes.per_contact(mu, "mu", points)
+    shapes.per_contact(torsional_friction, "torsional_friction", points)
+    shapes.per_grasp(ids, "ids", n_grasps)
     grasp_ids = np.arange(n_grasps) if ids is None else np.asarray(ids)
-    if grasp_ids.shape != (n_grasps,) or (n_grasps and not np.issubdtype(grasp_ids.dtype,
-                                                                          np.integer)):
-        raise ValueError(f"ids must be {n_grasps} integers (one per grasp), got shape "
-                         f"{grasp_ids.shape} of {grasp_ids.dtype}")
+    if n_grasps and not np.issubdtype(grasp_ids.dtype, np.integer):
+        raise ValueError(f"ids must be integers, got {grasp_ids.dtype}")
+    mus = np.broadcast_to(np.asarray(friction_or_default(mu), dtype=np.float64),
+                          (n_grasps, n_contacts))
+    gammas = np.broadcast_to(np.asarray(0.0 if torsional_friction is None
+                                        else torsional_friction, dtype=np.float64),
+                             (n_grasps, n_contacts))
     if not 0 <= question.samples <= MAX_SAMPLES:
         raise ValueError(f"samples must be in 0..{MAX_SAMPLES}, got {question.samples}")
     if not 0 <= question.seed < 2 ** 64:
@@ -67,22 +87,8 @@ def assessment_requests(positions: ArrayLike, normals: ArrayLike, mu: ArrayLike 
         AssessRobustness.Request(grasps=[], **asdict(question))]
 
 
-def _grasps(values: ArrayLike, name: str) -> np.ndarray:
-    """``values`` as float64 (N, n, 3); one grasp (n, 3) becomes a batch of one."""
-    array = np.asarray(values, dtype=np.float64)
-    if array.ndim == 2:
-        array = array[None]
-    if array.ndim != 3 or array.shape[2] != 3:
-        raise ValueError(f"{name} must have shape (N, n, 3) or (n, 3), got "
-                         f"{np.shape(values)}")
-    return array
-
-
-def _per_contact(values: ArrayLike, name: str, shape: tuple[int, int]) -> np.ndarray:
-    """A per-contact value (scalar, (N, 1), (N, n), or (n,) for one grasp) as (N, n)."""
-    array = np.asarray(values, dtype=np.float64)
-    try:
-        return np.broadcast_to(array, shape)
-    except ValueError:
-        raise ValueError(f"{name} of shape {array.shape} does not broadcast to (grasps, "
-                         f"contacts) = {shape} (one per grasp: shape (N, 1))") from None
+def _batch_of_one(values: ArrayLike | None) -> ArrayLike | None:
+    """A per-contact value of one grasp (None, a scalar or (n,)) as its batch of one's."""
+    if values is None or np.ndim(values) == 0:
+        return values
+    return np.asarray(values, dtype=np.float64)[None]

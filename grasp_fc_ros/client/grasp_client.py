@@ -303,37 +303,16 @@ class GraspClient:
             samples: int = 1000, confidence: float = 0.95, seed: int = 0,
             ids: ArrayLike | None = None, torsional_friction: ArrayLike | None = None,
             frame_id: str = "", timeout: float = DEFAULT_TIMEOUT_S) -> Verdicts:
-        """How well grasps hold when their contacts are off: the node's
-        ``assess_robustness`` service (docs/robustness.md, docs/client.md).
-
-        ``positions``, ``normals``: (N, n, 3), or (n, 3) for one grasp; ``mu``: None (the
-        node's ``friction_coefficient``), a scalar, (N, 1) or (N, n); the errors of the
-        holds answer (m, rad, unitless) and the sigmas of the probability; ``samples``
-        per grasp (0: no probability); grasp ``ids[k]`` (default k) draws its samples
-        from stream (``seed``, ``ids[k]``), so the answers do not depend on how the call
-        is split or ordered; ``torsional_friction`` (m): soft fingers get a probability
-        but no radii and no holds answer. ``timeout`` bounds the whole call (many
-        grasps go as several requests).
-
-        Returns
-        -------
-        Verdicts
-            The nominal verdicts (``margin`` NaN) and ``robustness``, an
-            :class:`~grasp_fc_ros.packed.Assessments` of numpy arrays, one row per grasp
-            (the witness one per contact). Bad grasps are INVALID_INPUT alone, a refused
-            request INVALID_INPUT for every grasp, the message saying why.
-
-        Raises
-        ------
-        ValueError
-            On mis-shaped input (naming the argument), before anything is sent.
-        TimeoutError
-            If not every response came within ``timeout``; it names the service.
-        """
-        question = RobustnessQuery(position_error, normal_error, friction_error, position_sigma,
-                            normal_sigma, friction_sigma, samples, confidence, seed)
-        return self._services.assess_robustness(positions, normals, mu, torsional_friction,
-                                                ids, question, frame_id, timeout)
+        """How well grasps (N, n, 3) (or one (n, 3)) hold when their contacts are off:
+        the node's ``assess_robustness`` service. Returns the nominal :class:`Verdicts`
+        with ``robustness`` (:class:`~grasp_fc_ros.packed.Assessments`); the arguments and
+        answers are described in :mod:`grasp_fc_ros.client.assessment`. Raises ValueError
+        on mis-shaped input, before anything is sent, and TimeoutError if not every
+        response came within ``timeout`` (for the whole call)."""
+        return self._services.assess_robustness(
+            positions, normals, mu, torsional_friction, ids, RobustnessQuery(
+                position_error, normal_error, friction_error, position_sigma, normal_sigma,
+                friction_sigma, samples, confidence, seed), frame_id, timeout)
 
     # --- the label_grasps action ------------------------------------------------------
 

@@ -38,6 +38,14 @@ FORCES = {"max_normal_force": ((0,), np.floating),
           "forces": ((0, N_CONTACTS, 3), np.floating),
           "torques": ((0, N_CONTACTS), np.floating)}
 PAIR = {"0": ((0,), np.bool_), "1": ((0,), np.bool_)}
+RADII = {"normal_angle": ((0,), np.floating), "position_radius": ((0,), np.floating),
+         "friction_drop": ((0,), np.floating), "force_closure": ((0,), np.bool_)}
+HOLDS = {"status": ((0,), np.integer), "witness_positions": ((0, N_CONTACTS, 3), np.floating),
+         "witness_normals": ((0, N_CONTACTS, 3), np.floating),
+         "witness_mu": ((0, N_CONTACTS), np.floating), "separating_wrench": ((0, 6), np.floating)}
+PROBABILITY = {"estimate": ((0,), np.floating), "lower": ((0,), np.floating),
+               "upper": ((0,), np.floating), "successes": ((0,), np.integer),
+               "normal_lower_bound": ((0,), np.floating), "undecided": ((0,), np.integer)}
 FILTER_PAIR = {"0": ((0,), np.bool_), "1": ((0, 6), np.floating)}
 
 
@@ -81,6 +89,13 @@ CASES: dict[str, list[tuple[dict[str, Any], Callable[[Any], None]]]] = {
                       ({"mu": 0.5, "origins": "all", "certificates": True},
                        lambda r: _fields(r, FILTER_PAIR))],
     "validate_grasps": [({"mu": 0.5}, _validation), ({"mu": 0.5, **SOFT}, _validation)],
+    "robustness": [({"mu": 0.5}, lambda r: _fields(r, RADII))],
+    "holds_under": [({"mu": 0.5, "position_error": 0.01, "normal_error": 0.1,
+                      "friction_error": 0.1}, lambda r: _fields(r, HOLDS))],
+    "probability_of_force_closure": [
+        ({"mu": 0.5, "position_sigma": 0.01, "friction_sigma": 0.1},
+         lambda r: _fields(r, PROBABILITY)),
+        ({"mu": 0.5, "normal_sigma": 0.1, **SOFT}, lambda r: _fields(r, PROBABILITY))],
     "verify_certificates": [
         ({"mu": 0.5, "contact_forces": EMPTY, "separating_wrench": np.zeros((0, 6))},
          lambda r: _fields(r, PAIR)),

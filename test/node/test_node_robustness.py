@@ -155,12 +155,15 @@ def test_the_response_round_trips(grasps):
 
 
 @pytest.mark.parametrize(("change", "message"), [
-    ({"positions": np.zeros((3, 4, 2))}, r"positions must have shape \(N, n, 3\)"),
-    ({"normals": np.ones((3, 5, 3))}, "normals must have the shape of positions"),
-    ({"mu": np.ones(3)}, r"mu of shape \(3,\) does not broadcast"),
-    ({"torsional_friction": np.ones((2, 4))}, "torsional_friction of shape"),
-    ({"ids": [1, 2]}, "ids must be 3 integers"),
-    ({"ids": [0.5, 1.5, 2.5]}, "ids must be 3 integers"),
+    ({"positions": np.zeros((3, 4, 2))}, r"positions has shape \(3, 4, 2\), but a batch is"),
+    ({"normals": np.ones((3, 5, 3))}, r"but normals \(3, 5, 3\)"),
+    ({"positions": np.ones((4, 3)), "normals": np.ones((5, 3))}, r"but normals \(5, 3\)"),
+    ({"mu": np.ones(3)}, r"mu has shape \(3,\), but positions \(3, 4, 3\)"),
+    ({"positions": np.ones((4, 3)), "normals": np.ones((4, 3)), "mu": np.ones(5)},
+     r"mu has shape \(1, 5\), but positions \(1, 4, 3\)"),
+    ({"torsional_friction": np.ones((2, 4))}, "torsional_friction has shape"),
+    ({"ids": [1, 2]}, r"ids has shape \(2,\), but there are 3 grasps"),
+    ({"ids": [0.5, 1.5, 2.5]}, "ids must be integers"),
 ])
 def test_mis_shaped_input_is_refused_by_name(change, message):
     arguments = {"positions": np.ones((3, 4, 3)), "normals": np.ones((3, 4, 3)), "mu": 0.5,
@@ -168,6 +171,18 @@ def test_mis_shaped_input_is_refused_by_name(change, message):
     with pytest.raises(ValueError, match=message):
         assessment_requests(arguments["positions"], arguments["normals"], arguments["mu"],
                             arguments["torsional_friction"], arguments["ids"], QUERY, "")
+
+
+def test_one_grasp_and_per_grasp_friction_are_taken():
+    requests = assessment_requests(np.ones((4, 3)), np.ones((4, 3)), [0.1, 0.2, 0.3, 0.4],
+                                   None, [7], QUERY, "")
+    assert [g.id for g in requests[0].grasps] == [7]
+    assert [c.friction_coefficient for c in requests[0].grasps[0].contacts] == [
+        0.1, 0.2, 0.3, 0.4]
+    per_grasp = assessment_requests(np.ones((2, 4, 3)), np.ones((2, 4, 3)), [[0.3], [0.6]],
+                                    0.01, None, QUERY, "")
+    assert [c.friction_coefficient for c in per_grasp[0].grasps[1].contacts] == [0.6] * 4
+    assert per_grasp[0].grasps[0].contacts[0].torsional_friction == 0.01
 
 
 def test_samples_and_seed_must_fit_their_fields():
