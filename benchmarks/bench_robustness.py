@@ -69,9 +69,9 @@ TILT_MULTIPLES = (1.002, 1.01, 1.05)
 SINGLE_ERRORS = (("normal", 0.5), ("normal", 3.0), ("position", 0.5), ("position", 5.0),
                  ("friction", 0.5), ("friction", 3.0))
 MIXED_SHARES = (0.3, 0.5)
-#: A least breaking move r* counts as confirmed where holds_under's witness search
-#: breaks the grasp with moves of (1 + this) r* (at r* itself the work vectors lie on
-#: the cones' boundaries, which no certificate can show).
+#: A least breaking move r* counts as confirmed where the deepest moves of (1 + this) r*
+#: for its torque direction break the grasp, certified by the exact test (at r* itself
+#: the work vectors lie on the cones' boundaries, which no certificate can show).
 CONFIRM_SLACK = 1e-3
 #: Speed cells: contacts at mu 0.5.
 SPEED_FINGERS = (4, 6)
@@ -271,8 +271,8 @@ def tightness(grasps: Grasps) -> tuple[dict[float, float], np.ndarray, int]:
             print("SOUNDNESS VIOLATION: a tilt witness does not check out")
         broken_by[multiple] = float(np.mean(answer.status == Holds.BREAKS))
     batch = prepare_grasps(grasps.positions, grasps.normals, grasps.mu)
-    distance, _ = break_distance.least_breaking_direction(batch)
-    found, _, _ = witness.breaking_moves(batch, distance * (1 + CONFIRM_SLACK))
+    distance, direction = break_distance.least_breaking_direction(batch)
+    found, _, _ = witness.moves_towards(batch, distance * (1 + CONFIRM_SLACK), direction[:, 3:])
     return broken_by, distance[found] / grasps.radius[found], int(np.sum(~found))
 
 

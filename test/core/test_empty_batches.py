@@ -37,12 +37,14 @@ BOUNDS = {name: ((0,), np.number) for name in ("value", "lower", "upper", "solve
 FORCES = {"max_normal_force": ((0,), np.floating),
           "forces": ((0, N_CONTACTS, 3), np.floating),
           "torques": ((0, N_CONTACTS), np.floating)}
-PAIR = {"0": ((0,), np.bool_), "1": ((0,), np.bool_)}
 RADII = {"normal_angle": ((0,), np.floating), "position_radius": ((0,), np.floating),
          "friction_drop": ((0,), np.floating), "force_closure": ((0,), np.bool_)}
-HOLDS = {"status": ((0,), np.integer), "witness_positions": ((0, N_CONTACTS, 3), np.floating),
+HOLDS = {"status": ((0,), np.integer), "bound": ((0,), np.str_),
+         "witness_positions": ((0, N_CONTACTS, 3), np.floating),
          "witness_normals": ((0, N_CONTACTS, 3), np.floating),
-         "witness_mu": ((0, N_CONTACTS), np.floating), "separating_wrench": ((0, 6), np.floating)}
+         "witness_mu": ((0, N_CONTACTS), np.floating),
+         "separating_wrench": ((0, 6), np.floating)}
+PAIR = {"0": ((0,), np.bool_), "1": ((0,), np.bool_)}
 PROBABILITY = {"estimate": ((0,), np.floating), "lower": ((0,), np.floating),
                "upper": ((0,), np.floating), "successes": ((0,), np.integer),
                "normal_lower_bound": ((0,), np.floating), "undecided": ((0,), np.integer)}
@@ -85,13 +87,13 @@ CASES: dict[str, list[tuple[dict[str, Any], Callable[[Any], None]]]] = {
         ({"mu": 0.5, "wrench": np.zeros(6)}, lambda r: _fields(r, FORCES)),
         ({"mu": 0.5, "wrench": np.zeros((0, 6)), "max_normal_force": 1.0, **SOFT},
          lambda r: _fields(r, FORCES))],
+    "robustness": [({"mu": 0.5}, lambda r: _fields(r, RADII))],
+    "holds_under": [({"mu": 0.5, "position_error": 0.1, "normal_error": 0.1,
+                      "friction_error": 0.1}, lambda r: _fields(r, HOLDS))],
     "torque_filter": [({"mu": 0.5}, _array((0,), np.bool_)),
                       ({"mu": 0.5, "origins": "all", "certificates": True},
                        lambda r: _fields(r, FILTER_PAIR))],
     "validate_grasps": [({"mu": 0.5}, _validation), ({"mu": 0.5, **SOFT}, _validation)],
-    "robustness": [({"mu": 0.5}, lambda r: _fields(r, RADII))],
-    "holds_under": [({"mu": 0.5, "position_error": 0.01, "normal_error": 0.1,
-                      "friction_error": 0.1}, lambda r: _fields(r, HOLDS))],
     "probability_of_force_closure": [
         ({"mu": 0.5, "position_sigma": 0.01, "friction_sigma": 0.1},
          lambda r: _fields(r, PROBABILITY)),

@@ -32,9 +32,9 @@ support value seen. Nothing in the result rests on the surface being a convex hu
   may lie from the exact one).
 
 The surface starts as the simplex of support points in 7 fixed directions (those of a
-regular simplex; 19 where these span too little), built around an interior point of
-its own until the origin lies strictly inside every facet, and only then switches to
-facets oriented about the origin.
+regular simplex; 19, then all the seeds given, where these span too little), built
+around an interior point of its own until the origin lies strictly inside every facet,
+and only then switches to facets oriented about the origin.
 
 The same search bounds the torque inradius of the position radius
 (:mod:`grasp_fc_ros.core.robustness.position_radius`, ``problem=TORQUE_INRADIUS``):
@@ -92,8 +92,12 @@ VISIBLE_RETRY = 1e-3
 #: of a facet would be ill-conditioned.
 CONTAINMENT_TOL = 1e-10
 
-#: The first surface is the simplex of the support points in this many seed directions.
+#: The first surface is the simplex of the support points in this many seed directions;
+#: where they span less than six dimensions, the hull of the first SEED_FALLBACK (the
+#: simplex and +-each axis), then of all the seeds given (more only for the position
+#: radius: :mod:`grasp_fc_ros.core.robustness.position_radius`).
 SEED_SIMPLEX = 7
+SEED_FALLBACK = 19
 
 #: Status codes of a grasp.
 CONVERGED, BUDGET, STUCK, NOT_CONTAINED, DEGENERATE = 0, 1, 2, 3, 4
@@ -696,15 +700,19 @@ def _epsilon_one(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarr
     status); ``direction`` (6,) <- the direction certifying upper.
 
     The first surface uses the support points in the first ``SEED_SIMPLEX`` rows of
-    ``seeds`` (a regular simplex of directions), or all of them where those do not span
-    six dimensions (several directions with one support point)."""
+    ``seeds`` (a regular simplex of directions), or the first ``SEED_FALLBACK``, then
+    all of them, where those do not span six dimensions (several directions with one
+    support point)."""
     allowance = SUPPORT_ROUNDING_ULPS * _EPS * scale
     tol = VISIBLE_TOL * scale
     reference = np.zeros(6)
     upper = np.inf
     n_points, n_facets, stamp = 0, 0, 0
-    for n_seeds in (SEED_SIMPLEX, seeds.shape[0]):
-        n_points = n_seeds
+    tried = 0
+    for n_seeds in (SEED_SIMPLEX, min(SEED_FALLBACK, seeds.shape[0]), seeds.shape[0]):
+        if n_seeds == tried:
+            continue
+        tried = n_points = n_seeds
         n_facets, stamp, upper = _seed_surface(
             normal_rows, tangent_rows, mu, problem, allowance, tol, CONTAINMENT_TOL * scale,
             seeds, n_seeds, points, vertices, neighbours, normals, offsets, certified, alive,

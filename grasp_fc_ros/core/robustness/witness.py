@@ -108,17 +108,26 @@ def breaking_moves(grasps: GraspBatch, radius: np.ndarray, start: np.ndarray | N
     wrench : ndarray, shape (N, 6)
         That separating wrench (NaN where not found).
     """
+    depth, direction = deepest_breaking_direction(grasps, radius, start)
+    # Depth 0 up to Clarabel's accuracy is worth a try too: the exact test judges.
+    return moves_towards(grasps, radius, direction[:, 3:], depth > -DEPTH_SLACK)
+
+
+def moves_towards(grasps: GraspBatch, radius: np.ndarray, torque: np.ndarray,
+                  tried: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The moves of at most ``radius`` (N,) that put every work vector deepest into its
+    polar cone for the unit torque directions ``torque`` (N, 3) (:func:`.break_distance.
+    deepest_moves`), judged by the exact test; only the grasps ``tried`` (N,) bool, or
+    all. Returns what :func:`breaking_moves` does."""
     n_grasps, n_contacts = grasps.mu.shape
     found = np.zeros(n_grasps, dtype=bool)
     moves = np.full((n_grasps, n_contacts, 3), np.nan)
     wrench = np.full((n_grasps, 6), np.nan)
-    depth, direction = deepest_breaking_direction(grasps, radius, start)
-    # Depth 0 up to Clarabel's accuracy is worth a try too: the exact test judges.
-    near = np.flatnonzero(depth > -DEPTH_SLACK)
+    near = np.arange(n_grasps) if tried is None else np.flatnonzero(tried)
     if not near.size:
         return found, moves, wrench
+    torque = torque[near]
     unit, centre, size = normalise_positions(grasps.positions[near])
-    torque = direction[near, 3:]
     _, force, step = deepest_moves(unit, grasps.normals[near], grasps.mu[near], torque,
                                    radius[near] / size)
     # Clarabel keeps |w_i| <= r only to its tolerance: shorten to the radius (rounded in).
