@@ -26,6 +26,9 @@ BUILD_DIR ?= build
 BENCH_OUT ?= bench_out
 # Per-test time limit: a hung DDS discovery must fail the run, not stall it.
 PYTEST_ARGS ?= --timeout=600
+# Hypothesis profile (test/conftest.py): ci = the same examples on every run; random =
+# new examples each run, to look for counterexamples.
+HYPOTHESIS_PROFILE ?= ci
 # Passed to the console scripts as they are.
 ARGS ?=
 
@@ -66,7 +69,8 @@ node: setup
 # GRASP_FC_REQUIRE_COLCON: the colcon workspace test fails instead of skipping when
 # colcon is missing, since this setup installs it.
 test: setup-test
-	GRASP_FC_REQUIRE_COLCON=1 $(VENV_PY) -m pytest $(PYTEST_ARGS) test
+	HYPOTHESIS_PROFILE=$(HYPOTHESIS_PROFILE) GRASP_FC_REQUIRE_COLCON=1 \
+		$(VENV_PY) -m pytest $(PYTEST_ARGS) test
 
 # Every benchmarks/bench_*.py, then the paper's experiment. BENCH_<NAME>_ARGS passes flags
 # to benchmarks/bench_<name>.py (make puts command-line variables in the recipe's

@@ -8,7 +8,13 @@ through the node and on the worker pool alone; no grasp may be lost to it.
 2. engine: the same grasps on grasp_fc_ros.engine.pool.EvaluationPool in this process,
    a busy worker SIGKILLed the same way.
 
-Each prints the grasps answered SOLVER_FAILURE (target 0) and the verdicts that differ
+3. recovery: a worker SIGKILLed, then each replacement as soon as it appears, while it
+   starts (--kills in all), through the node (the time until its /diagnostics, once a
+   second, say workers_alive is back to workers_configured) and on the pool alone
+   (polled every 10 ms); issue 28's target: all workers back within 10 s of the last
+   kill, and every kill counted in worker_restarts.
+
+1. and 2. print the grasps answered SOLVER_FAILURE (target 0) and the verdicts that differ
 from the core's (check_force_closure in this process on the same grasps: status and
 force closure; target 0), whether the kill came while the request was still being
 decided (a kill after it tests nothing and fails the target), and the seconds from
@@ -18,7 +24,7 @@ The core's kernels are compiled (a fresh clone: numba's cache is empty) or loade
 process first, so that the node and its workers load them from the cache and start
 within seconds.
 
-Usage: python benchmarks/bench_faults.py [--grasps N] [--quick]
+Usage: python benchmarks/bench_faults.py [--grasps N] [--kills K] [--quick]
 """
 
 from __future__ import annotations
@@ -52,6 +58,13 @@ BUSY_CPU_S = 0.02
 REPLY_TIMEOUT_S = 600.0
 QUICK_REPLY_TIMEOUT_S = 120.0
 WORKER_MODULE = "grasp_fc_ros.engine.worker"
+# 3.: kills in a row (the first of a running worker, the others of its replacements while
+# they start), and issue 28's target for the workers to be back after the last.
+KILLS = 6
+QUICK_KILLS = 3
+RECOVERY_TARGET_S = 10.0
+RECOVERY_TIMEOUT_S = 120.0
+POLL_S = 0.01
 
 
 def worker_pids(parent: int) -> list[int]:
@@ -153,12 +166,79 @@ def on_pool(positions: np.ndarray, normals: np.ndarray, expected: ForceClosureRe
         pool.close()
 
 
+def kill_replacements(pids: Callable[[], Iterable[int]], kills: int) -> float:
+    """SIGKILL a running worker, then each new one as soon as it appears (while it
+    starts), ``kills`` in all; the perf_counter time of the last kill."""
+    seen = set(pids())
+    os.kill(min(seen), signal.SIGKILL)
+    killed = 1
+    deadline = time.monotonic() + RECOVERY_TIMEOUT_S
+    while killed < kills:
+        for pid in set(pids()) - seen:
+            seen.add(pid)
+            os.kill(pid, signal.SIGKILL)
+            killed += 1
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"only {killed} of {kills} kills: no replacement started")
+        time.sleep(POLL_S / 10)
+    return time.perf_counter()
+
+
+def report_recovery(where: str, configured: int, back_s: float, kills: int,
+                    restarts: int) -> bool:
+    ok = back_s <= RECOVERY_TARGET_S and restarts == kills
+    print(f"{where}: {configured} of {configured} workers back {back_s:.1f} s after "
+          f"{kills} kills (each replacement killed while starting); worker_restarts "
+          f"+{restarts}  [target <= {RECOVERY_TARGET_S:g} s, every kill counted: "
+          f"{verdict(ok)}]")
+    return ok
+
+
+def recovery_through_node(kills: int) -> bool:
+    node, client = start_node("recovery")
+    try:
+        first = client.next_diagnostics(RECOVERY_TIMEOUT_S)
+        configured = int(first["workers_configured"])
+        last_kill = kill_replacements(lambda: worker_pids(node.pid), kills)
+        deadline = time.monotonic() + RECOVERY_TIMEOUT_S
+        while True:
+            values = client.next_diagnostics(RECOVERY_TIMEOUT_S)
+            if values["workers_alive"] == str(configured):
+                back_s = time.perf_counter() - last_kill
+                break
+            if time.monotonic() > deadline:
+                raise RuntimeError("the node's workers did not come back")
+        restarts = int(values["worker_restarts"]) - int(first["worker_restarts"])
+        return report_recovery("node (seen on /diagnostics, once a second)", configured,
+                               back_s, kills, restarts)
+    finally:
+        stop_node(node, client)
+
+
+def recovery_on_pool(kills: int, log: Callable[[str], None]) -> bool:
+    pool = EvaluationPool(os.cpu_count() or 1, log=log)
+    try:
+        last_kill = kill_replacements(pool.worker_pids, kills)
+        deadline = time.monotonic() + RECOVERY_TIMEOUT_S
+        while pool.worker_counts()["workers_alive"] < pool.workers:
+            if time.monotonic() > deadline:
+                raise RuntimeError("the pool's workers did not come back")
+            time.sleep(POLL_S)
+        return report_recovery("engine (polled)", pool.workers,
+                               time.perf_counter() - last_kill, kills, pool.worker_restarts)
+    finally:
+        pool.close()
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="a worker SIGKILLed mid-batch: no grasp lost")
     parser.add_argument("--grasps", type=int, default=None,
                         help=f"grasps in the batch (default {GRASPS}; --quick {QUICK_GRASPS})")
+    parser.add_argument("--kills", type=int, default=None,
+                        help=f"3.: kills in a row (default {KILLS}; --quick {QUICK_KILLS})")
     parser.add_argument("--quick", action="store_true", help="the smoke test's short form")
     args = parser.parse_args(argv)
+    kills = args.kills or (QUICK_KILLS if args.quick else KILLS)
     n_grasps = args.grasps or (QUICK_GRASPS if args.quick else GRASPS)
     positions, normals = sample_grasps(make_object("box"), n_grasps, N_FINGERS,
                                        np.random.default_rng(0))
@@ -174,11 +254,14 @@ def main(argv: list[str] | None = None) -> int:
     rclpy.init()
     try:
         node_ok = through_node(positions, normals, expected, timeout_s)
+        node_back = recovery_through_node(kills)
     finally:
         rclpy.try_shutdown()
     engine_ok = on_pool(positions, normals, expected,
                         lambda line: print(f"    pool: {line}"), timeout_s)
+    engine_back = recovery_on_pool(kills, lambda line: print(f"    pool: {line}"))
     print(f"no grasp lost to a worker's death: {verdict(node_ok and engine_ok)}")
+    print(f"workers back after kills while starting: {verdict(node_back and engine_back)}")
     return 0
 
 

@@ -11,9 +11,15 @@
    run time), so both see the same machine load. A subscriber in a process of its own
    receives the markers (serialized, as RViz's C++ would cheaply) and counts them. Prints
    p50/p99 per setting and the ratio of the p50s (the issue's target: on <= 1.1 x off).
+3. Markers from ``grasp-fc-node`` started with ``publish_markers:=true`` as a user does
+   (its marker process starts with the node; issue 28: it never published): one-grasp
+   service calls, each followed by the arrival of its markers at a viewer in this
+   process; the seconds from the answer to the markers, in the default environment and
+   with a user's own Fast DDS profiles file (target: within 1 s).
 
     .venv/bin/python benchmarks/bench_markers.py [--queries 200] [--rounds 6]
     .venv/bin/python benchmarks/bench_markers.py --no-node     # only 1.
+    .venv/bin/python benchmarks/bench_markers.py --latency-calls 100
     .venv/bin/python benchmarks/bench_markers.py --quick       # the smoke test's form
 """
 
@@ -39,12 +45,17 @@ from grasp_fc_ros.objects import make_object, sample_grasps
 from timing import ratio_or_nan
 
 if TYPE_CHECKING:
+    from rclpy.node import Node
     from rclpy.parameter_client import AsyncParameterClient
+    from visualization_msgs.msg import MarkerArray
 
 CALLS, ROUNDS, FINGERS = 100, 7, 6
 # The issue's target: markers on add at most 10 % to the single-query latency.
 TARGET_RATIO = 1.10
 REPLY_TIMEOUT_S = 30.0
+# Issue 28's target: a service request's markers within 1 s of its answer.
+TARGET_LATENCY_S = 1.0
+LATENCY_CALLS = 50
 
 
 def per_call_s(f: Callable[[int], object]) -> float:
@@ -231,23 +242,124 @@ def bench_node(queries: int, rounds: int) -> None:
         rclpy.try_shutdown()
 
 
+class MarkerArrivals:
+    """When the markers of each query id arrived at a viewer in this process."""
+
+    def __init__(self, node: Node, topic: str):
+        from visualization_msgs.msg import MarkerArray
+
+        from grasp_fc_ros.markers.publisher import MARKER_QOS
+
+        self._lock = threading.Condition()
+        self.at: dict[str, float] = {}
+        self.subscription = node.create_subscription(MarkerArray, topic, self._on_array,
+                                                     MARKER_QOS)
+
+    def _on_array(self, msg: MarkerArray) -> None:
+        now = time.perf_counter()
+        with self._lock:
+            for marker in msg.markers:
+                self.at.setdefault(marker.ns, now)
+            self._lock.notify_all()
+
+    def wait(self, namespace: str, timeout_s: float) -> float | None:
+        with self._lock:
+            self._lock.wait_for(lambda: namespace in self.at, timeout_s)
+            return self.at.get(namespace)
+
+
+def markers_latency_s(env: dict[str, str], calls: int) -> list[float | None]:
+    """3., one environment: per service call, seconds from its answer to its markers
+    (None: none within REPLY_TIMEOUT_S)."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    from bench_ros import start_node, stop_node
+    from grasp_fc_ros.markers.build import marker_namespace
+
+    p, n = sample_grasps(make_object("box"), calls, FINGERS, np.random.default_rng(2))
+    node, client = start_node("markers_latency", ["-p", "publish_markers:=true"], env=env)
+    viewer = rclpy.create_node("bench_markers_viewer")
+    arrivals = MarkerArrivals(viewer, f"/grasp_fc_markers_latency_{os.getpid()}/markers")
+    executor = SingleThreadedExecutor()
+    executor.add_node(viewer)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    try:
+        deadline = time.monotonic() + REPLY_TIMEOUT_S
+        while arrivals.subscription.get_publisher_count() == 0:  # the marker process
+            if time.monotonic() > deadline:
+                raise RuntimeError("the marker process's publisher never matched")
+            time.sleep(0.05)
+        time.sleep(0.5)  # matching is not symmetric in time: let the publisher match too
+        latencies: list[float | None] = []
+        for i in range(calls):
+            client.call(p[i:i + 1], n[i:i + 1], ids=[i], timeout=REPLY_TIMEOUT_S)
+            answered = time.perf_counter()
+            arrived = arrivals.wait(marker_namespace(i), REPLY_TIMEOUT_S)
+            latencies.append(None if arrived is None else max(0.0, arrived - answered))
+        return latencies
+    finally:
+        executor.shutdown()
+        viewer.destroy_node()
+        stop_node(node, client)
+
+
+def bench_latency(calls: int) -> None:
+    """3.: markers after a service answer from grasp-fc-node started with them on."""
+    import tempfile
+
+    import rclpy
+
+    from grasp_fc_ros.node.dds_profile import READER_PROFILE
+
+    print(f"markers from grasp-fc-node started with publish_markers:=true, {calls} one-grasp "
+          "service calls, seconds from each answer to its markers at a viewer")
+    rclpy.init()
+    try:
+        with tempfile.TemporaryDirectory() as folder:
+            # A valid profiles file of the user's (the node's own profile as its text:
+            # what matters is that the user set it; the node then leaves it alone).
+            profiles = Path(folder) / "my_profiles.xml"
+            profiles.write_text(READER_PROFILE)
+            environments = {
+                "default environment": {},
+                "a user's profiles file": {"FASTRTPS_DEFAULT_PROFILES_FILE": str(profiles)}}
+            for setting, extra in environments.items():
+                env = {name: value for name, value in os.environ.items()
+                       if name not in ("FASTRTPS_DEFAULT_PROFILES_FILE",
+                                       "FASTDDS_DEFAULT_PROFILES_FILE")}
+                latencies = markers_latency_s({**env, **extra}, calls)
+                arrived = np.array([t for t in latencies if t is not None]) * 1e3
+                ok = len(arrived) == calls and arrived.max() <= TARGET_LATENCY_S * 1e3
+                print(f"  {setting + ':':24s} {len(arrived)} of {calls} arrived; p50 "
+                      f"{np.median(arrived) if len(arrived) else float('nan'):.1f} ms, max "
+                      f"{arrived.max() if len(arrived) else float('nan'):.1f} ms  [target "
+                      f"<= {TARGET_LATENCY_S:g} s: {'met' if ok else 'NOT met'}]")
+    finally:
+        rclpy.try_shutdown()
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--queries", type=int, default=200,
                         help="round trips per interface and round")
     parser.add_argument("--rounds", type=int, default=6, help="rounds, alternating off/on")
     parser.add_argument("--no-node", action="store_true", help="skip the node measurement")
+    parser.add_argument("--latency-calls", type=int, default=LATENCY_CALLS,
+                        help="service calls of 3. per environment")
     parser.add_argument("--listen", metavar="TOPIC", help=argparse.SUPPRESS)
     parser.add_argument("--quick", action="store_true",
-                        help="the smoke test's form: 2 rounds of 20 queries")
+                        help="the smoke test's form: 2 rounds of 20 queries, 10 calls in 3.")
     args = parser.parse_args(argv)
     if args.quick:
-        args.queries, args.rounds = 20, 2
+        args.queries, args.rounds, args.latency_calls = 20, 2, 10
     if args.listen:
         return listen(args.listen)
     bench_build()
     if not args.no_node:
         bench_node(args.queries, args.rounds)
+        bench_latency(args.latency_calls)
     return 0
 
 

@@ -288,12 +288,15 @@ def verdict(ok: bool) -> str:
     return "meets target" if ok else "BELOW target"
 
 
-def start_node(tag: str,
-               parameters: Sequence[str] = ()) -> tuple[subprocess.Popen[bytes], GraspClient]:
+def start_node(tag: str, parameters: Sequence[str] = (), wrapper: Sequence[str] = (),
+               env: dict[str, str] | None = None
+               ) -> tuple[subprocess.Popen[bytes], GraspClient]:
     """(node process, connected client) for a node in a namespace of its own, started
-    with extra ``--ros-args`` ``parameters`` (e.g. ``["-p", "certificates:=true"]``)."""
+    with extra ``--ros-args`` ``parameters`` (e.g. ``["-p", "certificates:=true"]``),
+    its command after ``wrapper`` (e.g. ``ip netns exec NAME``), which must exec it, in
+    ``env`` (default: this process's environment)."""
     namespace = f"/grasp_fc_{tag}_{os.getpid()}"
-    node = subprocess.Popen(node_command(namespace) + list(parameters))
+    node = subprocess.Popen([*wrapper, *node_command(namespace), *parameters], env=env)
     client = GraspClient(f"{namespace}/force_closure")
     if not client.wait_for_node(CONNECT_TIMEOUT_S):
         client.close()

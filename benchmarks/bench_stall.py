@@ -27,12 +27,21 @@ while a batch of --grasps grasps of --contacts contacts each (100,000 x 12 by de
 For each it prints the service round trips while the batch was on its way and being
 decided (p50, p99, max; targets p99 <= 50 ms, max <= 100 ms), the seconds from sending
 the batch to its answer, and whether every grasp of it was answered (with how many
-were refused, and why: the node refuses an oversized raw message).
+were refused, and why: the node refuses an oversized raw message); over UDP, also the
+datagrams each host dropped at a full socket receive buffer meanwhile (each one sent
+again later by DDS, after a negative acknowledgement).
+
+With ``--udp-hosts`` the node and this process (with the sending processes) are on two
+simulated hosts: network namespaces joined by a veth pair, DDS over UDP only, as
+between two machines on a LAN (:mod:`udp_hosts`; needs root: the run is skipped,
+saying why, where network namespaces cannot be made).
 
 Usage: python benchmarks/bench_stall.py [--grasps N] [--contacts C] [--period S]
        [--cases batch,goal,raw,raw-goal,call,this,this-goal,this-raw]
-       [--node-args "-p max_message_contacts:=0"] [--quick]
-       (--send NODE --how HOW is the child process's own form)
+       [--node-args "-p max_message_contacts:=0"] [--node-profile FILE] [--udp-hosts]
+       [--quick]
+       (--send NODE --how HOW is the child process's own form; --node-netns NAME the
+       form run in the client's namespace)
 """
 
 from __future__ import annotations
@@ -68,6 +77,7 @@ from grasp_fc_ros.interface.names import (
     resolve,
 )
 from grasp_fc_ros.objects import make_object, sample_grasps
+from udp_hosts import UdpHosts, in_namespace, udp_drops, unavailable
 
 GRASPS = 100_000
 QUICK_GRASPS = 20_000
@@ -327,13 +337,24 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"comma-separated, of {', '.join(CASES)} (default all)")
     parser.add_argument("--node-args", default="",
                         help="extra --ros-args for the node, e.g. '-p max_message_contacts:=0'")
+    parser.add_argument("--node-profile", metavar="FILE", type=os.path.abspath,
+                        help="a Fast DDS profiles file for the node (it then sets none of "
+                             "its own: e.g. one of reader times only, without its receive "
+                             "buffers, to compare)")
+    parser.add_argument("--udp-hosts", action="store_true",
+                        help="the node and the clients on two simulated hosts (network "
+                             "namespaces, DDS over UDP); needs root")
     parser.add_argument("--quick", action="store_true", help="the smoke test's short form")
     parser.add_argument("--send", metavar="NODE", help=argparse.SUPPRESS)
     parser.add_argument("--how", choices=SENT_AS, default="batch", help=argparse.SUPPRESS)
+    parser.add_argument("--node-netns", metavar="NAME", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     args.grasps = args.grasps or (QUICK_GRASPS if args.quick else GRASPS)
     if args.send:
         return send(args.send, args.how, args.grasps, args.contacts)
+    if args.udp_hosts:
+        return on_udp_hosts([arg for arg in (sys.argv[1:] if argv is None else argv)
+                             if arg != "--udp-hosts"])
     cases = args.cases.split(",")
     if unknown := set(cases) - set(CASES):
         parser.error(f"unknown cases {sorted(unknown)}; choose from {', '.join(CASES)}")
@@ -341,8 +362,11 @@ def main(argv: list[str] | None = None) -> int:
     rng = np.random.default_rng(0)
     grasp = sample_grasps(make_object("box"), 1, SERVICE_FINGERS, rng)
     rclpy.init()
+    wrapper = in_namespace(args.node_netns, []) if args.node_netns else []
+    if args.node_profile:
+        wrapper += ["env", f"FASTRTPS_DEFAULT_PROFILES_FILE={args.node_profile}"]
     node, client = start_node("stall", ["-p", f"max_batch:={args.grasps}",
-                                        *shlex.split(args.node_args)])
+                                        *shlex.split(args.node_args)], wrapper)
     node_name = f"/grasp_fc_stall_{os.getpid()}/force_closure"  # as start_node names it
     try:
         megabytes = args.grasps * args.contacts * 6 * 8 / 1e6  # positions, normals
@@ -353,13 +377,34 @@ def main(argv: list[str] | None = None) -> int:
         idle = time_calls(client, grasp, args.period, lambda: next(calls) == IDLE_CALLS)
         print(f"idle: {summary(idle)}")
         for case in cases:
+            dropped = (udp_drops(node.pid), udp_drops()) if args.node_netns else None
             print(from_this_process(client, node_name, args, grasp, case)
                   if case in SENT_FROM_HERE_AS else
                   from_another_process(client, node_name, args, grasp, case))
+            if dropped is not None:
+                print(f"    UDP datagrams dropped at a full receive buffer: "
+                      f"{udp_drops(node.pid) - dropped[0]} on the node's host, "
+                      f"{udp_drops() - dropped[1]} on the client's")
         return 0
     finally:
         stop_node(node, client)
         rclpy.try_shutdown()
+
+
+def on_udp_hosts(argv: list[str]) -> int:
+    """Run this benchmark (``argv``) in the client's namespace of two simulated hosts,
+    its node in the node's; skipped, saying why, where namespaces cannot be made."""
+    reason = unavailable()
+    if reason is not None:
+        print(f"two hosts over UDP: skipped: {reason}")
+        return 0
+    with UdpHosts(str(os.getpid() % 100_000)) as hosts:
+        print(f"two hosts over UDP: node in network namespace {hosts.namespaces['node']}, "
+              f"clients in {hosts.namespaces['client']}, joined by a veth pair; Fast DDS "
+              "on UDPv4 only", flush=True)
+        return subprocess.run(hosts.command("client", [
+            sys.executable, __file__, *argv, "--node-netns", hosts.namespaces["node"]])
+        ).returncode
 
 
 if __name__ == "__main__":

@@ -211,16 +211,65 @@ class Client:
         self.spinner.stop()
 
 
+def console_script(name: str) -> str:
+    """The path of console script ``name`` (grasp-fc-node, ...), installed next to this
+    interpreter (the venv's bin), else on PATH."""
+    script = Path(sys.executable).with_name(name)
+    if not script.exists():
+        found = shutil.which(name)
+        if found is None:
+            pytest.fail(f"console script {name} not installed (pip install -e . into this "
+                        "venv)")
+        script = Path(found)
+    return str(script)
+
+
 def node_command() -> list[str]:
     """The node's console script, installed next to this interpreter."""
-    script = Path(sys.executable).with_name("grasp-fc-node")
-    if not script.exists():
-        found = shutil.which("grasp-fc-node")
-        if found is None:
-            pytest.fail("console script grasp-fc-node not installed "
-                        "(pip install -e . into this venv)")
-        script = Path(found)
-    return [str(script)]
+    return [console_script("grasp-fc-node")]
+
+
+class DiagnosticsWatch:
+    """Every /diagnostics status of one node (``/NS/NAME``), with its level and message,
+    as it arrives (a node of its own, spun on a thread)."""
+
+    def __init__(self, node_name: str):
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        self._prefix = node_name + ":"
+        self._lock = threading.Condition()
+        self.statuses: list = []
+        node = Node("grasp_fc_diagnostics_watch")
+        node.create_subscription(DiagnosticArray, "/diagnostics", self._on_array, 10)
+        self._spinner = SpinThread(node)
+
+    def _on_array(self, msg) -> None:
+        with self._lock:
+            self.statuses += [s for s in msg.status if s.name.startswith(self._prefix)]
+            self._lock.notify_all()
+
+    def wait_for(self, condition, what: str, timeout: float = REPLY_TIMEOUT_S):
+        """The first status from now on for which ``condition(level, values)`` holds
+        (``values``: its key values as a dict)."""
+        with self._lock:
+            start = len(self.statuses)
+            found: list = []
+
+            def seen() -> bool:
+                found[:] = [s for s in self.statuses[start:]
+                            if condition(s.level, key_values(s))]
+                return bool(found)
+
+            assert self._lock.wait_for(seen, timeout), f"no diagnostics with {what}"
+            return found[0]
+
+    def close(self) -> None:
+        self._spinner.stop()
+
+
+def key_values(status) -> dict[str, str]:
+    """A DiagnosticStatus's key values as a dict."""
+    return {kv.key: kv.value for kv in status.values}
 
 
 class NodeProcess:

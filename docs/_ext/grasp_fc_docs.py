@@ -143,8 +143,14 @@ DIAGNOSTIC_KEYS = (
     ("markers_published", "grasps whose markers were published (with ``publish_markers``)"),
     ("markers_dropped", "grasps whose markers were dropped because marker work fell "
                         "behind (with ``publish_markers``)"),
-    ("worker_restarts", "worker processes replaced since start: died, or silent for longer "
-                        "than ``worker_timeout_s`` plus a time per contact and killed"),
+    ("workers_configured", "worker processes the node runs (``workers``)"),
+    ("workers_alive", "worker processes running and ready for chunks now; below "
+                      "``workers_configured`` the status is WARN while the node starts "
+                      "others (retried with a growing delay, never given up)"),
+    ("worker_restarts", "worker processes lost since start (died, killed, silent for "
+                        "longer than ``worker_timeout_s`` plus a time per contact and "
+                        "killed, or a broken message channel) and starts that failed: "
+                        "each was followed by a new start"),
     ("action_goals_received", "goals received"),
     ("action_goals_succeeded", "goals that ended with all their verdicts"),
     ("action_goals_canceled", "goals canceled (their result holds the decided prefix)"),
@@ -157,6 +163,14 @@ DIAGNOSTIC_KEYS = (
     ("processing_time_mean_ms", "mean processing time of the answered messages of the "
                                 "last 2,000 (failures add none)"),
     ("processing_time_p99_ms", "their 99th percentile"),
+    ("incompatible_qos_publishers", "publishers now in the graph whose QoS the node's "
+                                    "subscriptions cannot match (e.g. BEST_EFFORT on "
+                                    "``contacts``): never matched, they get no answer; "
+                                    "with the policies DDS named, e.g. ``1 (RELIABILITY)``, "
+                                    "``0`` when none"),
+    ("incompatible_qos_subscribers", "subscribers now in the graph whose QoS the node's "
+                                     "answer publishers cannot offer (e.g. TRANSIENT_LOCAL "
+                                     "on ``verdicts``): they hear nothing; as above"),
 )
 # Keys present only while the node publishes markers.
 MARKER_DIAGNOSTIC_KEYS = ("markers_published", "markers_dropped")

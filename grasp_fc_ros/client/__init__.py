@@ -9,6 +9,8 @@ markers (test/client/test_client_imports.py checks).
 from grasp_fc_ros.packed import ContactForces, Verdicts
 
 from .grasp_client import GraspClient
+from .label_action import NodeGoneError
 from .label_job import request_on_spin_thread
 
-__all__ = ["ContactForces", "GraspClient", "Verdicts", "request_on_spin_thread"]
+__all__ = ["ContactForces", "GraspClient", "NodeGoneError", "Verdicts",
+           "request_on_spin_thread"]

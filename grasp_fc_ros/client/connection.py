@@ -5,6 +5,8 @@ and, when a node newly subscribes to them (a restarted node has not seen what wa
 to its predecessor), has every unanswered query published again; otherwise, while a
 node is there, the queries that are due (unanswered for their bound, or whose publish
 failed: :mod:`.pending`). A duplicate answer (both nodes saw it) is ignored by id.
+:class:`ActionServerWatch` tells a label_grasps job when a new action server appears (the
+node restarted) and since when none is there (it went away).
 :class:`DiagnosticsReader` keeps the node's latest /diagnostics key values.
 """
 
@@ -86,6 +88,52 @@ class NodeWatch:
             self.resubmitted += self._resend(True)
         elif matched:
             self.resubmitted += self._resend(False)
+
+
+class ActionServerWatch:
+    """The label_grasps action servers in the ROS graph: a new one, or none at all.
+
+    A server is known by the endpoint GID of its status publisher
+    (``<action>/_action/status``), which a restarted node gets anew. A SIGKILLed node's
+    server stays in the graph until its DDS participant's lease runs out (Fast DDS:
+    20 s), so a node restarted within that time shows as a new server beside the old
+    one, and one that is not shows as none at all.
+
+    Parameters
+    ----------
+    node : Node
+        The client's node (its graph is read from the calling thread).
+    action_name : str
+        The action's full name.
+    """
+
+    def __init__(self, node: Node, action_name: str):
+        self._node = node
+        self._topic = f"{action_name}/_action/status"
+        self._seen = self._servers()
+        self._polled = time.monotonic()
+        self.gone_since: float | None = None if self._seen else self._polled
+
+    def _servers(self) -> set[tuple[int, ...]]:
+        return {tuple(info.endpoint_gid)
+                for info in self._node.get_publishers_info_by_topic(self._topic)}
+
+    def poll(self) -> bool:
+        """Look at the graph (at most once a :data:`WATCH_PERIOD_S`); whether a server
+        not seen before has appeared. :attr:`gone_since` is then when the last server
+        left the graph (``time.monotonic()``), or None while one is there."""
+        now = time.monotonic()
+        if now - self._polled < WATCH_PERIOD_S:
+            return False
+        self._polled = now
+        servers = self._servers()
+        new = bool(servers - self._seen)
+        self._seen |= servers
+        if servers:
+            self.gone_since = None
+        elif self.gone_since is None:
+            self.gone_since = now
+        return new
 
 
 class DiagnosticsReader:

@@ -330,6 +330,12 @@ class GraspClient:
         are sent) and returns the verdicts decided so far, a prefix; a second Ctrl-C
         while waiting for them raises.
 
+        A node killed mid-job (SIGKILL, a crash) does not end the job: when a node is
+        back (a new action server in the graph), the goals not ended are sent again,
+        and every verdict still comes once, in order. If no action server is left in
+        the graph for ``NODE_RETURN_WAIT_S`` (60 s; a killed node leaves it when its DDS
+        lease ends, 20 s with Fast DDS), the job ends with :class:`NodeGoneError`.
+
         Parameters
         ----------
         positions, normals : (N, n, 3) float, or stacked (K, 3) with ``counts`` (N,)
@@ -358,6 +364,9 @@ class GraspClient:
             No action server, or the goal did not end within ``timeout``.
         RuntimeError
             The node rejected the job's first goal (it is shutting down).
+        NodeGoneError
+            The node went away and did not come back (a ConnectionError); its
+            ``verdicts`` are those decided before, a prefix.
         ValueError
             If the arrays' shapes do not match, naming them (nothing was sent).
         """

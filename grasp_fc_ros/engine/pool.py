@@ -124,8 +124,10 @@ class EvaluationPool:
     :func:`~.worker_crew.answer_bound_s`; it is then killed), is replaced, and the chunk
     is decided again by the next free worker. Only a chunk on which workers die twice
     is not: its grasps get SOLVER_FAILURE verdicts saying so, the rest of the request
-    its own. A worker that cannot be started leaves its chunks to the others; with no
-    worker left, chunks are decided in this process. See :mod:`.worker_crew`.
+    its own. A worker that cannot be started is tried again, after a delay that grows
+    with the failures in a row; meanwhile the running workers take its chunks, and
+    while none runs, chunks are decided in this process. See :mod:`.worker_crew`;
+    :meth:`worker_counts` tells how many run.
 
     Parameters
     ----------
@@ -251,8 +253,18 @@ class EvaluationPool:
 
     @property
     def worker_restarts(self) -> int:
-        """Worker processes that died or were killed as hung since the pool started."""
+        """Worker processes lost since the pool started (died, killed as hung, broke
+        their channel) and starts that failed: each was followed by a new start."""
         return 0 if self._crew is None else self._crew.restarts
+
+    def worker_counts(self) -> dict[str, int]:
+        """``workers_configured`` (:attr:`workers`), ``workers_alive`` (worker processes
+        running and ready for chunks now) and ``worker_restarts``
+        (:attr:`worker_restarts`), for monitoring."""
+        if self._crew is None:
+            return {"workers_configured": self.workers, "workers_alive": 0,
+                    "worker_restarts": 0}
+        return self._crew.counts()
 
     def close(self) -> None:
         """Stop the workers at once: chunks in progress are abandoned, and the requests

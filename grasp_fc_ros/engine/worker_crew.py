@@ -8,14 +8,16 @@ its slot starts a replacement and the chunk goes back to the queue, ahead of the
 queued after it, for whichever worker is free first. A chunk on which workers die
 twice is not tried again: its grasps get SOLVER_FAILURE verdicts that say why.
 
-A slot that cannot start a worker process (:data:`START_ATTEMPTS` tries) retires and
-leaves the queue to the others; the last slot to retire decides the chunks in this
-process. Everything that goes wrong is reported through the crew's ``log``.
+A slot never gives up its worker: a lost worker is started again at once, and a start
+that fails is tried again after a delay that doubles with each failure in a row, from
+:data:`START_BACKOFF_S` to :data:`START_BACKOFF_MAX_S`. Meanwhile the running workers
+take its chunks; while none runs, a waiting slot decides them in this process.
+:meth:`WorkerCrew.counts` tells how many workers run and how many were lost. Everything
+that goes wrong is reported through the crew's ``log``.
 """
 
 from __future__ import annotations
 
-import contextlib
 import itertools
 import logging
 import os
@@ -28,10 +30,15 @@ import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass, field
-from typing import IO
 
 from grasp_fc_ros.core import Status
-from grasp_fc_ros.engine.child_process import ONE_THREAD_ENV, read_message, write_message
+from grasp_fc_ros.engine.child_process import (
+    ONE_THREAD_ENV,
+    ChildProcess,
+    MessageTooLarge,
+    read_message,
+    write_message,
+)
 from grasp_fc_ros.engine.evaluation import evaluate
 from grasp_fc_ros.engine.shared_chunk import PICKLED, SHARED, SharedChunk, shared_bytes
 from grasp_fc_ros.packed import PackedGrasps, Settings, Verdicts
@@ -60,9 +67,17 @@ SLOW_CONTACT_S = 2e-2
 # kernel (the numba cache is empty), several workers at once on a loaded machine
 # (docs/performance.md#worker-pool); later starts load the cache.
 START_TIMEOUT_S = 300.0
-# Tries to start a worker before its slot retires: a second try covers a one-off
-# failure (a process killed while it imports); a broken install fails both at once.
-START_ATTEMPTS = 2
+# A lost worker is started again at once; a start that fails is tried again after
+# START_BACKOFF_S, doubled after each further failure in a row up to START_BACKOFF_MAX_S.
+# A broken install then costs a Python start every few seconds, not a core; a worker
+# killed while starting (an operator, the OOM killer) is back within the maximum delay
+# plus one start (the target: workers back within 10 s of the kills; measured:
+# docs/performance.md#worker-recovery).
+START_BACKOFF_S = 0.5
+START_BACKOFF_MAX_S = 4.0
+# How often a slot whose worker waits for a chunk looks whether it still runs (s): a
+# worker killed while idle is replaced without waiting for the next chunk.
+IDLE_CHECK_S = 0.25
 # A chunk on which this many workers die is answered with SOLVER_FAILURE verdicts
 # instead of being tried again: the chunk itself is killing them.
 DEATHS_PER_CHUNK = 2
@@ -71,7 +86,7 @@ WATCHDOG_PERIOD_S = 1.0
 # How long a worker whose stream ended may take to exit before it counts as alive (s).
 EXIT_GRACE_S = 1.0
 # How long close() waits for a slot's thread (s): a thread deciding a chunk in this
-# process (all workers retired) finishes its chunk first.
+# process (no worker running) finishes its chunk first.
 JOIN_TIMEOUT_S = 2.0
 
 
@@ -141,7 +156,8 @@ class WorkerCrew:
     ----------
     workers : int
         Number of worker processes (>= 1): the first, then the others side by side; the
-        constructor returns when each is ready or its slot has retired.
+        constructor returns once each has started or failed its first start (a slot
+        whose start failed keeps trying: see the module docstring).
     command : sequence of str
         Starts a worker (:data:`WORKER_COMMAND`); the descriptor of its memory file is
         appended.
@@ -171,9 +187,10 @@ class WorkerCrew:
         self._tasks: queue.PriorityQueue = queue.PriorityQueue()
         self._order = itertools.count()
         self._lock = threading.Lock()
-        self._active = workers  # slots not retired
         self._idle = 0  # slots waiting for a chunk
         self._restarts = 0
+        # Held by the one slot that decides chunks in this process while no worker runs.
+        self.stand_in = threading.Lock()
         self._slots: list[_Slot] = []
         self._watchdog = threading.Thread(target=self._watch, daemon=True,
                                           name="grasp_fc_watchdog")
@@ -207,12 +224,15 @@ class WorkerCrew:
         meanwhile)."""
         return self._tasks.qsize()
 
-    def next_task(self) -> Task | None:
-        """The most urgent queued chunk, once there is one; None when closing."""
+    def next_task(self, timeout_s: float) -> Task | None:
+        """The most urgent queued chunk, if one comes within ``timeout_s``; None if none
+        does or the crew is closing."""
         with self._lock:
             self._idle += 1
         try:
-            task = self._tasks.get()[2]
+            task = self._tasks.get(timeout=timeout_s)[2]
+        except queue.Empty:
+            return None
         finally:
             with self._lock:
                 self._idle -= 1
@@ -290,28 +310,26 @@ class WorkerCrew:
         self.say(message)
         settle_failed(task, message)
 
-    def retire(self, index: int, reason: str) -> bool:
-        """Slot ``index`` could not start a worker: log it. True if it was the last
-        slot with workers (it then decides the chunks in this process)."""
-        with self._lock:
-            self._active -= 1
-            left = self._active
-        if self.closing.is_set():
-            return False
-        self.say(f"worker {index}: no worker process could be started ({reason}); "
-                 + (f"its chunks go to the {left} other worker(s)" if left
-                    else "chunks are decided in this process from now on"))
-        return not left
-
     def count_restart(self) -> None:
         with self._lock:
             self._restarts += 1
 
     @property
     def restarts(self) -> int:
-        """Worker processes that died or were killed as hung so far."""
+        """Worker processes lost so far (died, killed as hung, broke their channel) and
+        starts that failed: each was followed by a new start."""
         with self._lock:
             return self._restarts
+
+    def alive(self) -> int:
+        """Worker processes running and ready for chunks now."""
+        return sum(slot.serving() for slot in self._slots)
+
+    def counts(self) -> dict[str, int]:
+        """``workers_configured``, ``workers_alive`` (:meth:`alive`) and
+        ``worker_restarts`` (:attr:`restarts`)."""
+        return {"workers_configured": len(self._slots), "workers_alive": self.alive(),
+                "worker_restarts": self.restarts}
 
     def pids(self) -> list[int]:
         """Process ids of the running worker processes."""
@@ -344,6 +362,13 @@ class WorkerCrew:
                 task.future.cancel()
 
 
+def start_delay_s(failed: int) -> float:
+    """Seconds to wait before the next start after ``failed`` (>= 1) failed starts in a
+    row: :data:`START_BACKOFF_S` doubled per further failure, at most
+    :data:`START_BACKOFF_MAX_S`."""
+    return min(START_BACKOFF_S * 2.0 ** min(failed - 1, 32), START_BACKOFF_MAX_S)
+
+
 class _WorkerLost(Exception):
     """A worker process died, was killed as hung, or could not be started."""
 
@@ -357,7 +382,8 @@ class _Slot:
         self.shared = SharedChunk.create()
         self.ready = threading.Event()  # set once the first start succeeded or failed
         self._lock = threading.Lock()  # the process and its deadline: the watchdog's too
-        self._process: subprocess.Popen[bytes] | None = None
+        self._child: ChildProcess | None = None
+        self._serving = False  # the child said it is ready and was not lost since
         self._deadline: float | None = None
         self._bound_s = 0.0
         self._killed_late = False
@@ -373,47 +399,96 @@ class _Slot:
     # --- the slot's thread ----------------------------------------------------------
 
     def _run(self) -> None:
-        try:
+        """Start a worker and feed it until the crew closes; start another whenever it
+        is lost, and try again after :func:`start_delay_s` when a start fails."""
+        failed = 0  # starts that failed in a row
+        while True:
             failure = self._start()
-            last = failure is not None and self.crew.retire(self.index, failure)
-        finally:
             self.ready.set()
-        if failure is None:
-            try:
-                failure = self._feed()
-            except Exception as exc:  # noqa: BLE001 - a bug: this slot stops, others go on
-                _logger.exception("worker slot %d failed", self.index)
-                self._drop_process()
-                failure = f"its thread failed: {exc!r}"
-            last = failure is not None and self.crew.retire(self.index, failure)
-        if last:
-            self._decide_here()
-
-    def _feed(self) -> str | None:
-        """Feed the worker chunks, replacing it whenever it dies; None once the crew
-        closes, else why no replacement could be started."""
-        while (task := self.crew.next_task()) is not None:
-            tasks = [t for t in [task, *self.crew.tasks_behind(task)] if not t.future.done()]
-            if not tasks or self._decide(tasks):
-                continue
+            if self.crew.closing.is_set():
+                return
+            if failure is None:
+                if failed:
+                    self.crew.say(f"worker {self.index}: worker process {self.pid()} "
+                                  f"started after {failed} failed start(s)")
+                failed = 0
+                try:
+                    if self._feed():
+                        return
+                    self.crew.count_restart()  # lost: _feed said why; start another
+                    continue
+                except Exception as exc:  # noqa: BLE001 - a bug: wait, then start again
+                    _logger.exception("worker slot %d failed", self.index)
+                    self._drop_process()
+                    failure = f"its thread failed: {exc!r}"
             self.crew.count_restart()
-            failure = self._start()
-            if failure is not None:
-                return failure
+            failed += 1
+            self._report_failure(failure, failed)
+            self._stand_by(start_delay_s(failed))
+
+    def _report_failure(self, failure: str, failed: int) -> None:
+        """Log a failed start: the 1st, 2nd, 4th, 8th, ... in a row (a broken install
+        would otherwise log every few seconds for good)."""
+        if failed & (failed - 1):
+            return
+        alive = self.crew.alive()
+        self.crew.say(
+            f"worker {self.index}: no worker process could be started ({failure}; "
+            f"{failed} failed start(s) in a row); trying again in "
+            f"{start_delay_s(failed):.3g} s, "
+            + (f"meanwhile its chunks go to the {alive} running worker(s)" if alive
+               else "meanwhile chunks are decided in this process"))
+
+    def _stand_by(self, delay_s: float) -> None:
+        """Wait ``delay_s`` (or until the crew closes); meanwhile, while no worker of the
+        crew runs, decide queued chunks in this process (one slot at a time)."""
+        deadline = time.monotonic() + delay_s
+        while not self.crew.closing.is_set():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return
+            wait_s = min(left, IDLE_CHECK_S)
+            if self.crew.alive() or not self.crew.stand_in.acquire(blocking=False):
+                self.crew.closing.wait(wait_s)
+                continue
+            try:
+                task = self.crew.next_task(wait_s)
+                if task is not None:
+                    self._decide_here(task)
+            finally:
+                self.crew.stand_in.release()
+
+    def _feed(self) -> bool:
+        """Feed the worker chunks; True once the crew closes, False when the worker was
+        lost (said why; its chunks are queued again or answered)."""
+        while (task := self._next_task()) is not None:
+            tasks = [t for t in [task, *self.crew.tasks_behind(task)] if not t.future.done()]
+            if tasks and not self._decide(tasks):
+                return False
+        return self.crew.closing.is_set()
+
+    def _next_task(self) -> Task | None:
+        """The next chunk for the worker; None when the crew closes or the worker died
+        while waiting (said so)."""
+        while not self.crew.closing.is_set():
+            task = self.crew.next_task(IDLE_CHECK_S)
+            if task is not None:
+                return task
+            child = self._child
+            if child is not None and child.poll() is not None:
+                self.crew.say(f"{self._lost(child, None, 'while idle')}; starting another")
+                return None
         return None
 
     def _start(self) -> str | None:
         """Start a worker and wait until it is ready; None, or why it could not."""
-        reasons = []
-        for _ in range(START_ATTEMPTS):
-            if self.crew.closing.is_set():
-                return "the pool is closing"
-            try:
-                self._spawn()
-                return None
-            except _WorkerLost as exc:
-                reasons.append(str(exc))
-        return "; ".join(reasons)
+        if self.crew.closing.is_set():
+            return "the pool is closing"
+        try:
+            self._spawn()
+            return None
+        except _WorkerLost as exc:
+            return str(exc)
 
     def _spawn(self) -> None:
         command = [*self.crew.command, str(self.shared.fd)]
@@ -421,30 +496,31 @@ class _Slot:
             if self.crew.closing.is_set():
                 raise _WorkerLost("the pool is closing")
             try:
-                process = subprocess.Popen(command, stdin=subprocess.PIPE,
-                                           stdout=subprocess.PIPE, pass_fds=(self.shared.fd,),
-                                           env={**os.environ, **ONE_THREAD_ENV})
+                child = ChildProcess.start(command, {**os.environ, **ONE_THREAD_ENV},
+                                           pass_fds=(self.shared.fd,))
             except OSError as exc:
                 raise _WorkerLost(f"cannot run {command[0]}: {exc}") from exc
-            self._process = process
+            self._child = child
             self._epsilon_warm = WARM_EPSILON_FLAG in self.crew.command
             self._arm(self.crew.start_timeout_s)
         try:
-            hello = read_message(_pipes(process)[1])
+            hello = read_message(child.from_child)
         except Exception as exc:  # noqa: BLE001 - anything on the stream: not started
-            raise _WorkerLost(self._lost(process, exc, "while starting")) from exc
+            raise _WorkerLost(self._lost(child, exc, "while starting")) from exc
         finally:
             late = self._disarm()
         if late or hello != "ready":
-            raise _WorkerLost(self._lost(process, f"said {hello!r}", "while starting"))
+            raise _WorkerLost(self._lost(child, f"said {hello!r}", "while starting"))
+        with self._lock:
+            self._serving = self._child is child
 
     def _decide(self, tasks: list[Task]) -> bool:
         """Have the worker decide ``tasks`` (one message) and settle them; False if the
         worker died (the tasks are then back in the queue, or answered as failed)."""
-        process = self._process
-        assert process is not None
-        if process.poll() is not None:  # died while idle: not these chunks' doing
-            self.crew.say(f"{self._lost(process, None, 'while idle')}; starting another")
+        child = self._child
+        assert child is not None
+        if child.poll() is not None:  # died while idle: not these chunks' doing
+            self.crew.say(f"{self._lost(child, None, 'while idle')}; starting another")
             for task in tasks:
                 self.crew.requeue(task)
             return False
@@ -460,13 +536,17 @@ class _Slot:
             self._arm(self.crew.worker_timeout_s
                       + sum(answer_bound_s(task.chunk, task.settings, 0.0) for task in tasks)
                       + (self.crew.start_timeout_s if compiles else 0.0))
-        to_worker, from_worker = _pipes(process)
         try:
-            write_message(to_worker, message)
-            answers = read_message(from_worker)
+            write_message(child.to_child, message)
+            answers = read_message(child.from_child)
+        except MessageTooLarge as exc:  # nothing was sent: these chunks only
+            self._disarm()
+            for task in tasks:
+                settle_failed(task, f"internal error: {exc}")
+            return True
         except Exception as exc:  # noqa: BLE001 - the worker is gone, whatever the error
             self._disarm()
-            self.crew.message_died(tasks, self._lost(process, exc, "deciding a chunk"))
+            self.crew.message_died(tasks, self._lost(child, exc, "deciding a chunk"))
             return False
         self._disarm()
         self._epsilon_warm |= any(uses_epsilon_kernels(task.settings) for task in tasks)
@@ -489,47 +569,44 @@ class _Slot:
             at += shared_bytes(task.chunk)
         return SHARED, layouts, tasks[0].settings
 
-    def _decide_here(self) -> None:
-        """Decide queued chunks in this process until the crew closes (no workers left)."""
-        while (task := self.crew.next_task()) is not None:
-            if task.future.done():
-                continue
-            try:
-                answer = evaluate(task.chunk, task.settings)
-            except Exception as exc:  # noqa: BLE001 - this chunk only
-                settle_failed(task, f"internal error: {exc}")
-                continue
-            settle(task, answer)
+    def _decide_here(self, task: Task) -> None:
+        """Decide ``task`` in this process (no worker runs)."""
+        if task.future.done():
+            return
+        try:
+            answer = evaluate(task.chunk, task.settings)
+        except Exception as exc:  # noqa: BLE001 - this chunk only
+            settle_failed(task, f"internal error: {exc}")
+            return
+        settle(task, answer)
 
-    def _lost(self, process: subprocess.Popen[bytes], error: object, doing: str) -> str:
-        """Reap ``process`` (killed if need be) and say what became of it."""
+    def _lost(self, child: ChildProcess, error: object, doing: str) -> str:
+        """Reap ``child`` (killed if need be) and say what became of it."""
         late = self._killed_late
         try:  # a dying process closes its stream a moment before it can be reaped
-            process.wait(EXIT_GRACE_S)
+            child.process.wait(EXIT_GRACE_S)
             alive = False
         except subprocess.TimeoutExpired:
             alive = True
-        self._discard(process)
-        code = process.returncode
+        self._discard(child)
+        code = child.process.returncode
         if late:
-            return (f"worker process {process.pid} did not answer within "
+            return (f"worker process {child.pid} did not answer within "
                     f"{self._bound_s:.3g} s {doing} and was killed")
         if alive:
-            return f"worker process {process.pid} broke its stream {doing} ({error!r})"
+            return f"worker process {child.pid} broke its stream {doing} ({error!r})"
         if code < 0:
-            return f"worker process {process.pid} was killed by {_signal_name(-code)} {doing}"
-        return f"worker process {process.pid} exited with code {code} {doing}"
+            return f"worker process {child.pid} was killed by {_signal_name(-code)} {doing}"
+        return f"worker process {child.pid} exited with code {code} {doing}"
 
-    def _discard(self, process: subprocess.Popen[bytes]) -> None:
+    def _discard(self, child: ChildProcess) -> None:
         with self._lock:
-            if self._process is process:
-                self._process = None
-        process.kill()  # nothing if it has already been reaped
-        process.wait()
-        for stream in (process.stdin, process.stdout):
-            with contextlib.suppress(OSError):
-                if stream is not None:
-                    stream.close()
+            if self._child is child:
+                self._child = None
+                self._serving = False
+        child.process.kill()  # nothing if it has already been reaped
+        child.process.wait()
+        child.close_channel()
 
     # --- the deadline, shared with the watchdog (under self._lock) ------------------
 
@@ -548,22 +625,28 @@ class _Slot:
         """Kill the worker if it has missed its deadline (the watchdog's thread)."""
         with self._lock:
             if (self._deadline is not None and now > self._deadline
-                    and self._process is not None):
+                    and self._child is not None):
                 self._killed_late = True
                 self._deadline = None
-                self._process.kill()
+                self._child.process.kill()
 
     # --- the owner's thread ---------------------------------------------------------
 
     def pid(self) -> int | None:
         with self._lock:
-            process = self._process
-        return process.pid if process is not None and process.poll() is None else None
+            child = self._child
+        return child.pid if child is not None and child.poll() is None else None
+
+    def serving(self) -> bool:
+        """Whether a worker process is running and ready for chunks."""
+        with self._lock:
+            child, serving = self._child, self._serving
+        return serving and child is not None and child.poll() is None
 
     def kill(self) -> None:
         with self._lock:
-            if self._process is not None:
-                self._process.kill()
+            if self._child is not None:
+                self._child.process.kill()
 
     def join(self, timeout_s: float) -> None:
         """Wait for the thread; then reap the worker and free the shared memory."""
@@ -576,15 +659,9 @@ class _Slot:
     def _drop_process(self) -> None:
         """Kill and reap the worker process, if there is one."""
         with self._lock:
-            process = self._process
-        if process is not None:
-            self._discard(process)
-
-
-def _pipes(process: subprocess.Popen[bytes]) -> tuple[IO[bytes], IO[bytes]]:
-    """The worker's stdin and stdout (both pipes: see _Slot._spawn)."""
-    assert process.stdin is not None and process.stdout is not None
-    return process.stdin, process.stdout
+            child = self._child
+        if child is not None:
+            self._discard(child)
 
 
 def _signal_name(number: int) -> str:

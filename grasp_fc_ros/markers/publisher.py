@@ -20,6 +20,7 @@ falls behind, the oldest queued marker work is dropped (and counted), never a ve
 from __future__ import annotations
 
 import os
+import select
 import signal
 import subprocess
 import sys
@@ -38,7 +39,14 @@ from std_msgs.msg import Header
 from visualization_msgs.msg import MarkerArray
 
 from grasp_fc_ros.core import Status, check_force_closure
-from grasp_fc_ros.engine.child_process import ONE_THREAD_ENV, read_message, write_message
+from grasp_fc_ros.engine.child_process import (
+    ONE_THREAD_ENV,
+    ChildProcess,
+    FramingError,
+    open_channel,
+    read_message,
+    write_message,
+)
 from grasp_fc_ros.interface.conversions import (
     MalformedBatch,
     batch_to_packed,
@@ -207,6 +215,10 @@ class MarkerSink(Protocol):
     def start(self) -> None:
         """Get ready to draw (idempotent)."""
 
+    def wait_ready(self, timeout_s: float) -> bool:
+        """Start if need be and wait, at most ``timeout_s``, until drawing can begin at
+        once; whether it can."""
+
     def draw(self, work: _Job | MarkerPayload) -> int:
         """Build and publish the markers of ``work`` (a job is converted first, see
         :func:`draw`); return how many grasps were drawn."""
@@ -295,6 +307,12 @@ class MarkerPublisher:
         """Start the sink now (the node does when publish_markers turns on), so that
         viewers have discovered the marker topic before the first markers go out."""
         self.sink.start()
+
+    def wait_ready(self, timeout_s: float) -> bool:
+        """Start the sink and wait, at most ``timeout_s``, until it can draw at once (the
+        node does before it says it is ready, so that its first answers' markers do not
+        wait for the marker process to start); whether it can."""
+        return self.sink.wait_ready(timeout_s)
 
     def clear(self) -> None:
         """Discard queued marker work and publish a DELETEALL (in that order)."""
@@ -401,15 +419,19 @@ def separating_wrenches(payload: MarkerPayload, starts: np.ndarray) -> dict[int,
 
 
 class MarkerProcess:
-    """The marker process: started by :meth:`start` or the first payload, restarted if
-    it died.
+    """The marker process: started by :meth:`start` or the first payload, started again
+    when it died or broke its channel.
 
     ``python -m grasp_fc_ros.markers.publisher NAMESPACE NODE_NAME`` runs a node
     ``NODE_NAME`` in ``NAMESPACE`` publishing on ``markers``; it reads pickled payloads
-    (None: DELETEALL) on stdin and answers each with the number of grasps drawn. It
-    ignores SIGINT (its owner decides) and ends when its stdin closes, so a killed node
-    leaves no marker process. ``draw`` and ``clear`` are called from one thread (the
-    marker thread) at a time.
+    (None: DELETEALL) on its channel (:class:`~grasp_fc_ros.engine.child_process.ChildProcess`:
+    pipes of its own, so that nothing its middleware prints can corrupt them) and
+    answers each with the number of grasps drawn. It ignores SIGINT (its owner decides)
+    and ends when its channel closes, so a killed node leaves no marker process. ``draw``
+    and ``clear`` are called from one thread (the marker thread) at a time, and
+    :meth:`wait_ready` may be called from another; an exchange that fails (the process
+    died, or a message was broken) raises, and the process is replaced at once, so that
+    the next payload finds a fresh one.
 
     Parameters
     ----------
@@ -421,18 +443,33 @@ class MarkerProcess:
 
     def __init__(self, namespace: str, node_name: str) -> None:
         self._args = [namespace, node_name]
-        self._process: subprocess.Popen | None = None
+        self._child: ChildProcess | None = None
         self._ready = False  # the running process said it is ready
         self._closed = False
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # the process
+        self._exchange = threading.Lock()  # the channel: one exchange at a time
 
     @property
     def process(self) -> subprocess.Popen | None:
         """The marker process, once started (None before, and after :meth:`close`)."""
-        return self._process
+        child = self._child
+        return None if child is None else child.process
 
     def start(self) -> None:
         self._running()
+
+    def wait_ready(self, timeout_s: float) -> bool:
+        with self._exchange:
+            child = self._running()
+            if self._ready:
+                return True
+            if not select.select([child.from_child], [], [], timeout_s)[0]:
+                return False
+            try:
+                self._await_ready(child)
+            except Exception as exc:
+                raise self._failed(child, exc) from exc
+            return True
 
     def draw(self, work: _Job | MarkerPayload) -> int:
         drawn = self._call(work)
@@ -442,44 +479,79 @@ class MarkerProcess:
     def clear(self) -> None:
         self._call(None)
 
-    def _running(self) -> subprocess.Popen:
+    def _running(self) -> ChildProcess:
         with self._lock:
             if self._closed:
                 raise RuntimeError("marker process closed")
-            if self._process is None or self._process.poll() is not None:
-                self._process = subprocess.Popen(
+            if self._child is None or self._child.poll() is not None:
+                if self._child is not None:
+                    _reap(self._child)
+                self._child = ChildProcess.start(
                     [sys.executable, "-m", "grasp_fc_ros.markers.publisher", *self._args],
-                    stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                    env={**os.environ, **ONE_THREAD_ENV})
+                    {**os.environ, **ONE_THREAD_ENV})
                 self._ready = False
-            return self._process
+            return self._child
 
     def _call(self, request: _Job | MarkerPayload | None) -> object:
         """Send one request and wait for its answer (and first for the process's
-        "ready", so that a request never waits in a pipe of a process still starting)."""
-        process = self._running()
-        assert process.stdin is not None and process.stdout is not None
-        if not self._ready:
-            read_message(process.stdout)
-            self._ready = True
-        write_message(process.stdin, request)
-        ok, answer = read_message(process.stdout)
+        "ready", so that a request never waits in a pipe of a process still starting).
+
+        Raises
+        ------
+        RuntimeError
+            If the process could not draw it (its exception, worded), or the exchange
+            failed: the process died or broke its channel (it is then replaced).
+        """
+        with self._exchange:
+            child = self._running()
+            try:
+                self._await_ready(child)
+                write_message(child.to_child, request)
+                ok, answer = read_message(child.from_child)
+            except Exception as exc:
+                raise self._failed(child, exc) from exc
         if not ok:
             raise RuntimeError(f"marker process: {answer}")
         return answer
 
+    def _await_ready(self, child: ChildProcess) -> None:
+        """Read the process's "ready", unless it was read already."""
+        if not self._ready:
+            hello = read_message(child.from_child)
+            if hello != (True, "ready"):
+                raise RuntimeError(f"said {hello!r} instead of ready")
+            self._ready = True
+
+    def _failed(self, child: ChildProcess, exc: Exception) -> RuntimeError:
+        """Replace ``child``, whose exchange failed with ``exc``: kill and reap it and
+        start its successor (unless closed meanwhile); the error to raise."""
+        with self._lock:
+            if self._child is child:
+                self._child = None
+        _reap(child)
+        try:
+            self._running()
+        except RuntimeError:
+            pass  # closed meanwhile
+        return RuntimeError(f"marker process {child.pid} failed ({exc!r}); started another")
+
     def close(self) -> None:
         with self._lock:
-            process, self._process, self._closed = self._process, None, True
-        if process is None:
+            child, self._child, self._closed = self._child, None, True
+        if child is None:
             return
-        assert process.stdin is not None
-        process.stdin.close()  # the process ends at EOF
+        child.close_channel()  # the process ends at EOF
         try:
-            process.wait(timeout=PROCESS_EXIT_TIMEOUT_S)
+            child.process.wait(timeout=PROCESS_EXIT_TIMEOUT_S)
         except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
+            _reap(child)
+
+
+def _reap(child: ChildProcess) -> None:
+    """Kill ``child`` (if it still runs), wait for it and close its channel."""
+    child.process.kill()
+    child.process.wait()
+    child.close_channel()
 
 
 def _run_when_idle() -> None:
@@ -494,7 +566,7 @@ def _run_when_idle() -> None:
 
 
 def _serve(namespace: str, node_name: str) -> None:
-    """Marker process main loop: payloads in on stdin, (ok, grasps drawn) out on stdout."""
+    """Marker process main loop: payloads in, (ok, grasps drawn) out, on its channel."""
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
@@ -502,20 +574,21 @@ def _serve(namespace: str, node_name: str) -> None:
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     _run_when_idle()
-    stdin, stdout = sys.stdin.buffer, sys.stdout.buffer
-    sys.stdout = sys.stderr  # anything else printed would corrupt the stream
+    requests, answers = open_channel()
     rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node(node_name, namespace=namespace, use_global_arguments=False,
                              start_parameter_services=False)
     publisher = node.create_publisher(MarkerArray, "markers", MARKER_QOS)
     warm_up()  # the compiled exact stage, for the separating wrenches
-    write_message(stdout, (True, "ready"))
+    write_message(answers, (True, "ready"))
     try:
         while True:
             try:
-                work = read_message(stdin)
+                work = read_message(requests)
             except EOFError:
-                return  # the owner closed the pipe or died
+                return  # the owner closed the channel or died
+            except FramingError as exc:
+                sys.exit(f"marker process {os.getpid()}: {exc}")  # the owner replaces it
             try:
                 if work is None:
                     publisher.publish(delete_all_markers())
@@ -529,7 +602,7 @@ def _serve(namespace: str, node_name: str) -> None:
                 answer = True, 0  # every grasp of it is INVALID_INPUT: none can be placed
             except Exception as exc:  # noqa: BLE001 - reported to the owner, process goes on
                 answer = False, f"{type(exc).__name__}: {exc}"
-            write_message(stdout, answer)
+            write_message(answers, answer)
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
@@ -541,3 +614,10 @@ if __name__ == "__main__":
     from grasp_fc_ros.markers.publisher import _serve as serve
 
     serve(*sys.argv[1:3])
+    # The channel closed, the node and rclpy are shut down: skip the interpreter's
+    # teardown (numba's and Fast DDS's objects), which took 0.5-1.5 s, beyond the
+    # PROCESS_EXIT_TIMEOUT_S the node waits on a loaded machine (this process runs at
+    # idle priority), after which it is killed.
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(0)

@@ -113,7 +113,7 @@ class BatchLane:
             self._on_serialized_batches if serialized else self._on_batches,
             lambda exc: context.internal_error("batches", exc),
             raw=serialized, gil_free=serialized, max_take=MAX_TAKE, name="contacts_batch",
-            event_callbacks=context.subscription_events(CONTACTS_BATCH_TOPIC))
+            event_callbacks=context.subscription_events(topic, qos))
         self._thread = start_thread("answer_batch", self._answer_oldest, self.stopping,
                                     context)
 

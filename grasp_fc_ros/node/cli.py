@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import gc
 import os
 import signal
@@ -157,15 +156,20 @@ def main(args: list[str] | None = None) -> int:
 
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, on_signal)
-    # Fast DDS reads its profiles while the context and the node are made.
-    dds_profile = contextlib.ExitStack()
-    dds_profile.enter_context(prompt_acks())
+    # Fast DDS reads its profiles while the context and the node are made, and so does
+    # a child process's (the marker process) whenever it starts: the profile stays until
+    # the node and its children are gone (see .dds_profile).
+    with prompt_acks():
+        return _spin(argv, stop)
+
+
+def _spin(argv: list[str], stop: threading.Event) -> int:
+    """Make the node, spin it until ``stop`` is set, destroy it; the exit code."""
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:
         executor = SingleThreadedExecutor()
         node = ForceClosureNode()
-        dds_profile.close()
         _warn_params_file_keys(argv, node)
         executor.add_node(node)
         # Out of the cyclic garbage collector's full scans: everything imported and set up
@@ -181,7 +185,6 @@ def main(args: list[str] | None = None) -> int:
         print(f"{NODE_NAME}: bad parameter: {exc}", file=sys.stderr)
         return 1
     finally:
-        dds_profile.close()
         if node is not None:
             node.destroy_node()
         shutdown_rclpy()

@@ -1,10 +1,13 @@
 """The node's /diagnostics: its statistics and its lanes' counts, once a second.
 
 One ``diagnostic_msgs/DiagnosticStatus`` named ``<node's full name>: force-closure
-queries``: WARN while any solver failure or internal error has been counted, else OK;
+queries``: WARN while any solver failure or internal error has been counted, while a
+peer with incompatible QoS is there, or while the node reports a warning (fewer worker
+processes running than configured), else OK;
 its key values are :meth:`~grasp_fc_ros.node.statistics.Statistics.key_values` plus
 every lane's :meth:`~grasp_fc_ros.node.lane.Lane.counts` and the node's own counts
-(worker processes replaced, messages lost at its subscriptions). The same timer warns once when
+(worker processes replaced, messages lost at its subscriptions), and the peers whose QoS
+cannot match the node's (:mod:`.incompatible_qos`). The same timer warns once when
 another node has this node's name.
 """
 
@@ -12,10 +15,11 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 
 from grasp_fc_ros.interface.names import DIAGNOSTICS_TOPIC
+from grasp_fc_ros.node.incompatible_qos import IncompatibleQoS
 from grasp_fc_ros.node.lane import Lane
 from grasp_fc_ros.node.statistics import Statistics
 
@@ -35,15 +39,24 @@ class Diagnostics:
         Told about a publication that failed (diagnostics never stop the node).
     node_counts : callable () -> dict of str to int, optional
         Counts of the node itself, beside the lanes' (read at each publication).
+    incompatible_qos : IncompatibleQoS, optional
+        The peers whose QoS cannot match the node's endpoints.
+    node_warnings : callable () -> list of str, optional
+        What is wrong with the node now, one phrase each (read at each publication):
+        the status is WARN and its message says them while any.
     """
 
     def __init__(self, node: Node, statistics: Statistics, lanes: Callable[[], Sequence[Lane]],
                  on_error: Callable[[str, Exception], None],
-                 node_counts: Callable[[], dict[str, int]] = dict):
+                 node_counts: Callable[[], dict[str, int]] = dict,
+                 incompatible_qos: IncompatibleQoS | None = None,
+                 node_warnings: Callable[[], list[str]] = list):
         self._node = node
+        self._incompatible_qos = incompatible_qos
         self._statistics = statistics
         self._lanes = lanes
         self._node_counts = node_counts
+        self._node_warnings = node_warnings
         self._on_error = on_error
         self._duplicate_warned = False
         self._publisher = node.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
@@ -60,12 +73,17 @@ class Diagnostics:
         for lane in self._lanes():
             counts.update(lane.counts())
         counts.update(self._node_counts())
+        values = self._statistics.key_values(counts)
+        problems = [f"{failures} solver failures or internal errors"] if failures else []
+        if self._incompatible_qos is not None:
+            values += [KeyValue(key=key, value=value)
+                       for key, value in self._incompatible_qos.key_values().items()]
+            problems += self._incompatible_qos.problems()
+        problems += self._node_warnings()
         return DiagnosticStatus(
-            level=DiagnosticStatus.WARN if failures else DiagnosticStatus.OK,
+            level=DiagnosticStatus.WARN if problems else DiagnosticStatus.OK,
             name=f"{self._node.get_fully_qualified_name()}: force-closure queries",
-            message=f"{failures} solver failures or internal errors" if failures else "ok",
-            hardware_id="none",
-            values=self._statistics.key_values(counts))
+            message="; ".join(problems) or "ok", hardware_id="none", values=values)
 
     def publish(self) -> None:
         try:

@@ -55,6 +55,7 @@ from grasp_fc_ros.interface import wire
 from grasp_fc_ros.interface.names import NODE_NAME
 from grasp_fc_ros.node.batches import BatchLane
 from grasp_fc_ros.node.diagnostics import Diagnostics
+from grasp_fc_ros.node.incompatible_qos import IncompatibleQoS
 from grasp_fc_ros.node.label_action import LabelAction
 from grasp_fc_ros.node.lane import Lane, LaneContext, Refusals
 from grasp_fc_ros.node.marker_lane import MarkerLane
@@ -67,6 +68,10 @@ from grasp_fc_ros.node.single_queries import SingleQueryLane
 from grasp_fc_ros.node.statistics import WARN_THROTTLE_S, Statistics, Throttle
 
 LaneT = TypeVar("LaneT", bound=Lane)
+# How long the node waits at start for its marker process (publish_markers on) before it
+# says it is ready: about a second usually (rclpy, the kernels from numba's cache); the
+# bound only keeps a broken one from holding the node back.
+MARKER_START_TIMEOUT_S = 30.0
 
 # The wire status codes are the core's Status values (UNKNOWN = 0 included): checked at
 # import, also under python -O.
@@ -123,14 +128,16 @@ class ForceClosureNode(Node):
         # arrive, so that none pays for it.
         warm_up()
         may_log = Throttle(WARN_THROTTLE_S)
+        incompatible_qos = IncompatibleQoS(self, may_log)
         context = LaneContext(
             pool=self.pool, statistics=self.statistics,
             refusals=Refusals(self.statistics, self.get_logger(), may_log),
             settings=lambda: self.parameters.settings, logger=self.get_logger(),
-            rclpy_context=self.context, may_log=may_log)
+            rclpy_context=self.context, may_log=may_log, incompatible_qos=incompatible_qos)
         # Serialized queries in, serialized verdicts and batch answers out, unless this
         # rmw's layout is not the one grasp_fc_ros.interface.wire reads and writes.
-        self.replies = Replies(self, serialized=wire.layout_matches())
+        self.replies = Replies(self, serialized=wire.layout_matches(),
+                               incompatible_qos=incompatible_qos)
         # In the order they are stopped in reverse: the markers, which the others offer
         # their answers to, last.
         self.markers = self._add(MarkerLane(self, self.parameters, context.internal_error))
@@ -144,7 +151,9 @@ class ForceClosureNode(Node):
         self.robustness = self._add(RobustnessLane(self, context))
         self.label_action = self._add(LabelAction(self, context, self.batch_participant))
         self.diagnostics = Diagnostics(self, self.statistics, lambda: self._lanes,
-                                       context.internal_error, self._node_counts)
+                                       context.internal_error, self._node_counts,
+                                       incompatible_qos, node_warnings=self._node_warnings)
+        self.markers.wait_ready(MARKER_START_TIMEOUT_S)
         self.get_logger().info(
             f"ready: topics contacts, contacts_batch; services check_force_closure, "
             f"compute_contact_forces, assess_robustness, clear_markers; action label_grasps; "
@@ -152,8 +161,18 @@ class ForceClosureNode(Node):
 
     def _node_counts(self) -> dict[str, int]:
         """What /diagnostics reports beside the lanes' counts: the worker processes
-        replaced since start (dead or hung)."""
-        return {"worker_restarts": self.pool.worker_restarts}
+        configured, running, and lost or failed to start since start."""
+        return self.pool.worker_counts()
+
+    def _node_warnings(self) -> list[str]:
+        """What makes /diagnostics WARN beside failures: fewer workers than configured
+        (the pool is starting others; meanwhile the running ones, or this process, take
+        their chunks)."""
+        counts = self.pool.worker_counts()
+        alive, configured = counts["workers_alive"], counts["workers_configured"]
+        if alive >= configured:
+            return []
+        return [f"{alive} of {configured} worker processes running (starting the others)"]
 
     def _add(self, lane: LaneT) -> LaneT:
         self._lanes.append(lane)

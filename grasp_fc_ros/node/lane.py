@@ -22,10 +22,12 @@ from rclpy.context import Context
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.impl.rcutils_logger import RcutilsLogger
 from rclpy.node import Node
+from rclpy.qos import QoSProfile
 
 from grasp_fc_ros.core import Status
 from grasp_fc_ros.engine.pool import PRIORITY_INTERACTIVE, Cancelled, EvaluationPool
 from grasp_fc_ros.interface.wait_sets import ServiceLoop
+from grasp_fc_ros.node.incompatible_qos import IncompatibleQoS
 from grasp_fc_ros.node.statistics import Statistics, Throttle
 from grasp_fc_ros.packed import PackedGrasps, Settings, Verdicts
 
@@ -128,6 +130,8 @@ class LaneContext:
         The node's context: once it is shut down nothing can be published.
     may_log : Throttle
         Decides whether a warning of a given key may be logged now.
+    incompatible_qos : IncompatibleQoS
+        Counts the peers whose QoS cannot match the node's endpoints.
     clock : callable () -> float
         Seconds, for processing times (``time.perf_counter``).
     """
@@ -139,6 +143,7 @@ class LaneContext:
     logger: RcutilsLogger
     rclpy_context: Context
     may_log: Throttle
+    incompatible_qos: IncompatibleQoS
     clock: Callable[[], float] = field(default=time.perf_counter)
 
     def internal_error(self, what: str, exc: BaseException) -> None:
@@ -147,12 +152,14 @@ class LaneContext:
         if self.may_log("internal error"):
             self.logger.error(f"internal error while answering {what}: {exc!r}")
 
-    def subscription_events(self, topic: str) -> SubscriptionEventCallbacks:
-        """QoS event callbacks for the subscription to ``topic``: messages the middleware
+    def subscription_events(self, topic: str, qos: QoSProfile) -> SubscriptionEventCallbacks:
+        """QoS event callbacks for the subscription to ``topic`` with ``qos`` (the
+        profile object it is created with): messages the middleware
         reports lost (where the rmw does: Fast DDS does, e.g. for a publisher whose
         KEEP_LAST history overwrote queries not yet delivered, though a run of them
         skipped at once may count as one) are counted for /diagnostics
-        (``messages_lost``) and logged (throttled)."""
+        (``messages_lost``) and logged (throttled), and so are publishers whose QoS it
+        cannot match (:mod:`.incompatible_qos`)."""
         def on_lost(info: object) -> None:
             lost = int(getattr(info, "total_count_change", 0))
             self.statistics.count_lost(lost)
@@ -162,7 +169,8 @@ class LaneContext:
                     "publisher's QoS history overwrote them; use RELIABLE KEEP_ALL, see "
                     "grasp_fc_ros.interface.names.QUERY_QOS); they get no answer")
 
-        return SubscriptionEventCallbacks(message_lost=on_lost)
+        return SubscriptionEventCallbacks(
+            message_lost=on_lost, incompatible_qos=self.incompatible_qos.on_publisher(topic, qos))
 
     def warn_invalid(self, verdicts: Verdicts) -> None:
         """Log (throttled) that some verdicts are INVALID_INPUT, with an example."""

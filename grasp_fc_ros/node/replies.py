@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from grasp_fc_msgs.msg import ContactArrayBatch, ForceClosureVerdict, ForceClosureVerdictArray
 from rclpy.duration import Duration
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos_overriding_options import QoSOverridingOptions
@@ -37,6 +38,7 @@ from grasp_fc_ros.interface.names import (
     VERDICTS_TOPIC,
     reply_topic,
 )
+from grasp_fc_ros.node.incompatible_qos import IncompatibleQoS
 from grasp_fc_ros.node.lane import Refusal
 from grasp_fc_ros.packed import Verdicts
 
@@ -74,26 +76,38 @@ class Replies:
         (rclpy spends much longer converting a large one, holding the GIL:
         docs/performance.md#wire-format), else as messages.
 
+    incompatible_qos : IncompatibleQoS, optional
+        Counts the subscriptions whose QoS the publishers cannot match.
+
     Users may set history, depth and reliability of the shared topics from parameters
     (``qos_overrides.<topic>.publisher.<policy>``); the reply topics take
     :data:`~grasp_fc_ros.interface.names.VERDICT_QOS`.
     """
 
-    def __init__(self, node: Node, serialized: bool):
+    def __init__(self, node: Node, serialized: bool,
+                 incompatible_qos: IncompatibleQoS | None = None):
         self.serialized = serialized
+        self._incompatible_qos = incompatible_qos
         # rclpy writes the overrides into the profile it is given: give it copies, or
         # one topic's override would change the module's profile for every later one.
         overridable = QoSOverridingOptions.with_default_policies()
-        self._verdicts = node.create_publisher(ForceClosureVerdict, VERDICTS_TOPIC,
-                                               copy.copy(VERDICT_QOS),
-                                               qos_overriding_options=overridable)
-        self._batches = node.create_publisher(ForceClosureVerdictArray, VERDICTS_BATCH_TOPIC,
-                                              copy.copy(VERDICT_QOS),
-                                              qos_overriding_options=overridable)
         self._node = node
+        self._verdicts = self._publisher(ForceClosureVerdict, VERDICTS_TOPIC, overridable)
+        self._batches = self._publisher(ForceClosureVerdictArray, VERDICTS_BATCH_TOPIC,
+                                        overridable)
         self._lock = threading.Lock()
         self._to_clients: dict[tuple[str, int], _ReplyPublisher] = {}
         self._sweeper = node.create_timer(REPLY_SWEEP_S, self.sweep)
+
+    def _publisher(self, msg_type: type, topic: str,
+                   overridable: QoSOverridingOptions | None = None) -> Publisher:
+        """A publisher of ``topic`` with VERDICT_QOS (and the users' overrides, if
+        ``overridable``); its incompatible subscriptions counted."""
+        qos = copy.copy(VERDICT_QOS)
+        events = (None if self._incompatible_qos is None else PublisherEventCallbacks(
+            incompatible_qos=self._incompatible_qos.on_subscription(topic, qos)))
+        return self._node.create_publisher(msg_type, topic, qos, event_callbacks=events,
+                                           qos_overriding_options=overridable)
 
     def publish_verdict(self, reply: ForceClosureVerdict | bytes) -> None:
         """Publish the verdict answering one single query, to its asker."""
@@ -121,8 +135,7 @@ class Replies:
             entry = self._to_clients.get(key)
             if entry is None:
                 entry = self._to_clients[key] = _ReplyPublisher(
-                    self._node.create_publisher(msg_type, reply_topic(topic, client_id),
-                                                copy.copy(VERDICT_QOS)), now)
+                    self._publisher(msg_type, reply_topic(topic, client_id)), now)
             entry.last_used = now
         if not entry.matched:
             # Only for the readers the graph knows: a query whose client_id nobody reads

@@ -111,12 +111,13 @@ class SingleQueryLane:
         self._queue: deque[Query] = deque()
         self._queued = threading.Condition()
         self._stopping = False
+        qos = copy.copy(QUERY_QOS)
         self._loop = SubscriptionLoop(
-            node, ContactArray, CONTACTS_TOPIC, copy.copy(QUERY_QOS), self._on_queries,
+            node, ContactArray, CONTACTS_TOPIC, qos, self._on_queries,
             lambda exc: context.internal_error("single-grasp queries", exc),
             raw=serialized, max_take=MAX_TAKE, name="contacts",
             qos_overriding_options=QoSOverridingOptions.with_default_policies(),
-            event_callbacks=context.subscription_events(CONTACTS_TOPIC))
+            event_callbacks=context.subscription_events(CONTACTS_TOPIC, qos))
         self._thread = start_thread("single_queries", self._answer_queued, self.stopping,
                                     context)
 

@@ -2,13 +2,15 @@
 reference, upper = h(direction), invariances, consistency with the verdicts on random
 and adversarial grasps, rtol 1e-6, soft fingers and the L-infinity budget, input errors."""
 
+import warnings
+
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from grasp_cases import MU_PAPER, adversarial_grasps, ellipsoid_grasps, random_rotation
-from grasp_fc_ros.core import check_force_closure, epsilon_quality
+from grasp_fc_ros.core import EpsilonNotConverged, check_force_closure, epsilon_quality
 from grasp_fc_ros.core.quality.epsilon import MIN_RTOL, ZERO_UPPER_TOL
 from reference_epsilon import pyramid_epsilon, support_value
 
@@ -173,18 +175,74 @@ def test_explicit_torque_scale_scales_the_torques():
 # -- properties on random grasps -------------------------------------------------------------
 
 
+def contract_grasps(seed, n_contacts):
+    """The draw of test_random_grasps_meet_the_contract: 8 grasps of ``n_contacts`` on a
+    random ellipsoid (positions, normals (8, n, 3)) and a centre (3,)."""
+    rng = np.random.default_rng(seed)
+    positions, normals = ellipsoid_grasps(rng, 8, n_contacts, axes=rng.uniform(0.5, 3.0, 3))
+    return positions, normals, rng.normal(scale=0.3, size=3)
+
+
 @settings(max_examples=25, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n_contacts=st.integers(3, 7),
        mu=st.sampled_from([MU_PAPER, 0.3, 0.5, 1.0]), budget=st.sampled_from(["l1", "linf"]))
+# Grasp 0: all 19 seed directions are worked best by contacts 1 and 2, whose discs span
+# five dimensions; the search gave up (DEGENERATE) on a force-closure grasp.
+@example(seed=4294967295, n_contacts=3, mu=1.0, budget="l1")
 def test_random_grasps_meet_the_contract(seed, n_contacts, mu, budget):
-    rng = np.random.default_rng(seed)
-    positions, normals = ellipsoid_grasps(rng, 8, n_contacts, axes=rng.uniform(0.5, 3.0, 3))
-    centre = rng.normal(scale=0.3, size=3)
+    positions, normals, centre = contract_grasps(seed, n_contacts)
     result = epsilon_quality(positions, normals, mu, center=centre, budget=budget)
     verdict = check_force_closure(positions, normals, mu)
     np.testing.assert_array_equal(result.force_closure, verdict.force_closure)
     assert_bounds_contract(result, 1e-3, positions, normals, mu, budget=budget)
     assert result.converged[verdict.force_closure].all()
+
+
+def test_seeds_that_miss_a_contact_are_widened():
+    """A 3-contact grasp whose 19 seed directions are all worked best by the same two
+    contacts (their discs span five dimensions): the search adds directions normal to
+    the points' span and converges, within the pyramids' bracket."""
+    positions, normals, centre = contract_grasps(4294967295, 3)
+    positions, normals = positions[0], normals[0]
+    result = epsilon_quality(positions, normals, 1.0, center=centre, rtol=1e-6)
+    assert result.force_closure and result.converged
+    assert_bounds_contract(result, 1e-6, positions, normals, 1.0)
+    inner = pyramid_epsilon(positions, normals, 1.0, centre, sides=64)
+    outer = pyramid_epsilon(positions, normals, 1.0, centre, sides=64, inscribed=False)
+    assert inner <= result.upper * (1 + HULL_SLACK)
+    assert result.lower <= outer * (1 + HULL_SLACK)
+
+
+class NotConverged(AssertionError):
+    """The search stopped short of rtol; its bounds were checked valid first."""
+
+
+@pytest.mark.xfail(raises=NotConverged, strict=True,
+                   reason="the surface folds on W's flat faces (docs/epsilon.md#robustness)")
+@pytest.mark.parametrize("seed,n_contacts,mu,index", [
+    (3248409098, 7, 1.0, 1), (705142726, 5, 0.5, 5), (3383563342, 5, 0.3, 6),
+    (4217340521, 6, 1.0, 6), (2308560404, 4, 1.0, 0), (3272120424, 4, MU_PAPER, 7),
+    (3554533735, 5, 1.0, 5)])
+def test_linf_grasps_on_which_the_search_stalls(seed, n_contacts, mu, index):
+    """A known limitation, found by running the contract test on 12,000 random draws:
+    on these L-infinity grasps the search stops 0.2-2 % short (rtol 1e-3 asked) with
+    valid bounds, where a facet's support point cannot be inserted (the surface has
+    folded, or filled its facet arrays). Expected to fail with NotConverged only (a
+    bound that breaks the contract fails the test); once the search converges on them,
+    strict=True fails it: drop the mark then."""
+    positions, normals, centre = contract_grasps(seed, n_contacts)
+    positions, normals = positions[index], normals[index]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = epsilon_quality(positions, normals, mu, center=centre, budget="linf")
+    assert result.force_closure
+    assert_bounds_contract(result, 1e-3, positions, normals, mu, budget="linf")
+    assert result.upper - result.lower <= 0.02 * result.upper
+    if not result.converged:
+        # ... and says so.
+        assert [w.category for w in caught] == [EpsilonNotConverged]
+        raise NotConverged(f"[{result.lower}, {result.upper}] after "
+                           f"{result.support_points} support points")
 
 
 def test_linf_budget_lies_between_one_and_n_times_l1():

@@ -2,6 +2,12 @@
 results as the general path and as a batch, same errors; its compiled torque filter
 decides as the numpy filter."""
 
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -69,6 +75,45 @@ def test_results_equal_the_general_path(monkeypatch):
     # most of what it was given.
     assert len(decided) > 2 * len(cases)
     assert sum(d is not None for d in decided) > 0.9 * len(decided)
+
+
+#: Prints the margins' upper bounds (hex) of one-grasp calls, and with "batch" also of
+#: the batch path, for grasps on which the two once differed in the last bit.
+MARGINS_SCRIPT = textwrap.dedent("""
+    import sys
+    import numpy as np
+    from grasp_cases import ellipsoid_grasps
+    from grasp_fc_ros.core import check_force_closure, pipeline
+    from grasp_fc_ros.core.model.grasp_input import prepare_grasps
+    positions, normals = ellipsoid_grasps(np.random.default_rng(5), 40, 8)
+    one = [float(check_force_closure(p, n, 0.5).margin_upper).hex()
+           for p, n in zip(positions, normals, strict=True)]
+    print(" ".join(one))
+    if sys.argv[1:] == ["batch"]:
+        batch = pipeline.run_pipeline(prepare_grasps(positions, normals, 0.5), "auto")
+        print(" ".join(float(b).hex() for b in batch.margin_upper))
+""")
+
+
+def test_margins_do_not_depend_on_which_process_compiled_the_kernels(tmp_path):
+    """One process compiles the one-grasp path into an empty numba cache; another loads
+    it from there and compiles the batch path itself: the same margins, bit for bit,
+    on both paths in both processes. (With fused multiply-adds allowed, each compiled
+    copy of the exact stage rounded its own way, and this run order, which the test
+    suite makes at random, gave margins an ulp apart.)"""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path),
+               PYTHONPATH=os.pathsep.join([str(Path(__file__).parents[1]),
+                                           os.environ.get("PYTHONPATH", "")]))
+
+    def margins(*args):
+        done = subprocess.run([sys.executable, "-c", MARGINS_SCRIPT, *args], env=env,
+                              capture_output=True, text=True, timeout=600)
+        assert done.returncode == 0, done.stderr
+        return [line.split() for line in done.stdout.splitlines()]
+
+    [compiled] = margins()
+    loaded, batch = margins("batch")
+    assert compiled == loaded == batch
 
 
 def test_bad_input_gets_the_general_paths_errors():

@@ -426,48 +426,135 @@ def test_the_pool_closes_cleanly_with_a_stopped_and_a_killed_worker(grasps, make
     assert not is_child(stopped) and not is_child(other)
 
 
-# --- workers that cannot start -----------------------------------------------------------
+# --- workers that cannot start ----------------------------------------------------------
+
+@pytest.fixture
+def quick_backoff(monkeypatch):
+    """Starts retried after 0.05 s, doubling up to 0.2 s (the defaults are for a node)."""
+    monkeypatch.setattr(worker_crew, "START_BACKOFF_S", 0.05)
+    monkeypatch.setattr(worker_crew, "START_BACKOFF_MAX_S", 0.2)
+
+
+def test_the_start_delay_doubles_from_the_first_to_the_largest():
+    delays = [worker_crew.start_delay_s(failed) for failed in range(1, 10)]
+    assert delays[0] == worker_crew.START_BACKOFF_S
+    assert all(b == min(2 * a, worker_crew.START_BACKOFF_MAX_S)
+               for a, b in zip(delays, delays[1:], strict=False))
+    assert delays[-1] == worker_crew.START_BACKOFF_MAX_S
+
 
 @pytest.mark.parametrize("command, reason", [
     ([sys.executable, "-c", "raise SystemExit(7)"], "exited with code 7 while starting"),
     (["/nonexistent/python3"], "cannot run /nonexistent/python3"),
 ])
-def test_workers_that_cannot_start_leave_their_chunks_to_this_process(grasps, make_pool,
-                                                                      command, reason):
+def test_workers_that_cannot_start_are_tried_again_and_chunks_decided_here_meanwhile(
+        grasps, make_pool, quick_backoff, command, reason):
     request, expected = grasps
     pool, log = make_pool(worker_command=command)
-    assert pool.worker_pids() == []
+    counts = pool.worker_counts()
+    assert (counts["workers_configured"], counts["workers_alive"]) == (2, 0)
     verdicts, _ = pool.decide(request, Settings())
     assert_as_core(verdicts, expected)
-    assert len(log) == 2 and all("no worker process could be started" in line
-                                 and reason in line for line in log)
-    # The first slot to retire leaves its chunks to the other, the last decides them here.
-    assert sorted(line.rsplit(";", 1)[1] for line in log) == [
-        " chunks are decided in this process from now on",
-        " its chunks go to the 1 other worker(s)"]
+    # Never given up: each slot keeps trying, logged at its 1st, 2nd, 4th... failure.
+    wait_until(lambda: pool.worker_restarts >= 10, "ten failed starts")
+    for index in (0, 1):
+        mine = [line for line in log if line.startswith(f"worker {index}: ")]
+        assert reason in mine[0] and mine[0].endswith(
+            "; 1 failed start(s) in a row); trying again in 0.05 s, meanwhile chunks are "
+            "decided in this process")
+        assert "; 2 failed start(s) in a row); trying again in 0.1 s" in mine[1]
+    assert all("no worker process could be started" in line and reason in line
+               for line in log)
+    assert len(log) < pool.worker_restarts  # not every failure is logged
+    assert pool.worker_counts()["workers_alive"] == 0
 
 
-def test_a_worker_that_cannot_be_replaced_leaves_its_chunks_to_the_others(grasps,
-                                                                           make_pool,
-                                                                           tmp_path):
+def test_a_worker_that_cannot_be_replaced_for_a_while_is_back_once_starts_work(
+        grasps, make_pool, tmp_path, quick_backoff):
     request, expected = grasps
     no_start = tmp_path / "no_start"
     pool, log = make_pool(worker_command=faulty("--no-start", no_start))
     first, second = pool.worker_pids()
     no_start.touch()  # from now on, worker processes exit as they start
     os.kill(first, signal.SIGKILL)
-    verdicts, _ = pool.decide(request, Settings())
-    assert_as_core(verdicts, expected)
     wait_until(lambda: any("no worker process could be started" in line for line in log),
-               "the slot to retire")
-    assert log[-1].endswith("exited with code 4 while starting); its chunks go to the 1 "
-                            "other worker(s)")
-    assert pool.worker_pids() == [second]
-    os.kill(second, signal.SIGKILL)
+               "a failed start")
+    assert log[-1].endswith("exited with code 4 while starting; 1 failed start(s) in a "
+                            "row); trying again in 0.05 s, meanwhile its chunks go to the "
+                            "1 running worker(s)")
+    assert pool.worker_counts()["workers_alive"] == 1
     verdicts, _ = pool.decide(request, Settings())
     assert_as_core(verdicts, expected)
-    assert log[-1].endswith("chunks are decided in this process from now on")
-    assert pool.worker_pids() == []
+    # The other slot keeps starting processes that exit at once: one may be seen.
+    assert second in pool.worker_pids() and pool.worker_counts()["workers_alive"] == 1
+    os.kill(second, signal.SIGKILL)  # none left: this process decides
+    wait_until(lambda: pool.worker_counts()["workers_alive"] == 0, "no worker running")
+    verdicts, _ = pool.decide(request, Settings())
+    assert_as_core(verdicts, expected)
+    no_start.unlink()  # starts work again: both slots are back
+    wait_until(lambda: pool.worker_counts()["workers_alive"] == 2, "both workers back")
+    assert any(line.endswith("failed start(s)") and "started after" in line for line in log)
+    verdicts, _ = pool.decide(request, Settings())
+    assert_as_core(verdicts, expected)
+    assert first not in pool.worker_pids() and second not in pool.worker_pids()
+
+
+def test_workers_killed_while_starting_are_all_counted_and_replaced(grasps, make_pool,
+                                                                    quick_backoff):
+    """An operator kills a worker, then every replacement as soon as it appears (while
+    it imports, before it is ready): each kill is a restart, the pool keeps starting
+    workers, decides every chunk meanwhile, and runs all its workers once the kills end."""
+    request, expected = grasps
+    pool, log = make_pool()
+    kills = 0
+    answer = pool.start(request, Settings())
+    seen = set(pool.worker_pids())
+    os.kill(next(iter(seen)), signal.SIGKILL)
+    kills += 1
+    deadline = time.monotonic() + WAIT_S
+    while kills < 6:
+        assert time.monotonic() < deadline, f"only {kills} kills within {WAIT_S} s"
+        for pid in set(pool.worker_pids()) - seen:
+            seen.add(pid)
+            os.kill(pid, signal.SIGKILL)  # a replacement, while it starts
+            kills += 1
+        time.sleep(0.005)
+    assert_as_core(answer.result()[0], expected)
+    wait_until(lambda: pool.worker_counts()["workers_alive"] == 2, "both workers back")
+    assert pool.worker_restarts == kills
+    assert sum("killed by SIGKILL while starting" in line for line in log) >= 1
+    verdicts, _ = pool.decide(request, Settings())
+    assert_as_core(verdicts, expected)
+
+
+# --- what a worker prints, and a broken channel -------------------------------------------
+
+def test_what_a_worker_prints_on_its_stdout_never_reaches_the_pool(grasps, make_pool,
+                                                                  capfd):
+    """Its library output (Fast DDS prints errors on file descriptor 1) goes to this
+    process's output; the messages travel on a channel of their own."""
+    request, expected = grasps
+    pool, log = make_pool(worker_command=faulty("--chatter"))
+    verdicts, _ = pool.decide(request, Settings())
+    assert_as_core(verdicts, expected)
+    assert log == [] and pool.worker_restarts == 0
+    assert "[XMLPARSER Error]" in capfd.readouterr().out
+
+
+def test_a_broken_channel_is_reported_with_its_bytes_and_the_worker_replaced(
+        grasps, make_pool, tmp_path):
+    request, expected = grasps
+    marker = tmp_path / "on_target"
+    pool, log = make_pool(worker_command=faulty("--garble-on", TARGET_ID, "--once", marker))
+    verdicts, _ = pool.decide(request, Settings())
+    assert_as_core(verdicts, expected)
+    garbled = int(marker.read_text())
+    assert len(log) == 1 and log[0].startswith(
+        f"worker process {garbled} broke its stream deciding a chunk (FramingError(")
+    assert "no message header where one should start: b'this is no message header" in log[0]
+    assert log[0].endswith("its chunk (grasps 500-599) is decided again")
+    assert pool.worker_restarts == 1 and not is_child(garbled)
+    wait_until(lambda: pool.worker_counts()["workers_alive"] == 2, "a replacement worker")
 
 
 # --- chunks in shared memory -------------------------------------------------------------

@@ -437,11 +437,14 @@ def test_diagnostics_report_exact_counter_changes(client, grasps):
             "pending_single_queries", "pending_batch_grasps", "conversion_time_total_s",
             "validation_time_total_s", "filter_time_total_s", "exact_time_total_s",
             "processing_time_mean_ms", "processing_time_p99_ms",
-            "markers_published", "markers_dropped", "worker_restarts", "messages_lost"}
+            "markers_published", "markers_dropped", "worker_restarts", "messages_lost",
+            "workers_configured", "workers_alive"}
     # The label_grasps action's goal counters (test_action.py checks their values).
     keys |= {"action_goals_received", "action_goals_succeeded", "action_goals_canceled",
              "action_goals_aborted", "action_goals_queued", "action_goals_running",
              "action_grasps_undecided"}
+    # Peers with incompatible QoS (test_incompatible_qos.py checks their values).
+    keys |= {"incompatible_qos_publishers", "incompatible_qos_subscribers"}
     assert set(after) == keys
     served = check_force_closure(positions[:3], normals[:3], DEFAULT_MU).status
     statuses = np.concatenate([expected, served])
@@ -463,7 +466,11 @@ def test_diagnostics_report_exact_counter_changes(client, grasps):
         "markers_published": 0,  # publish_markers is off by default
         "markers_dropped": 0,
         "worker_restarts": 0,
+        "workers_configured": 0,
+        "workers_alive": 0,
         "messages_lost": 0,
+        "incompatible_qos_publishers": 0,  # "0" while there is none
+        "incompatible_qos_subscribers": 0,
     }
     for key in ("conversion_time_total_s", "validation_time_total_s", "filter_time_total_s",
                 "exact_time_total_s"):

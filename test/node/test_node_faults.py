@@ -173,3 +173,49 @@ def test_a_worker_killed_mid_goal_costs_no_grasp(grasps, served):
 
     assert client.last_goal_status == GoalStatus.STATUS_SUCCEEDED
     replaced(served, killed)
+
+
+def test_workers_killed_while_starting_come_back_and_diagnostics_warn_meanwhile(
+        grasps, served):
+    """An operator kills a worker, then each replacement while it starts (6 kills): the
+    batch sent meanwhile is decided as by the core, /diagnostics is WARN with
+    workers_alive below workers_configured, counts every kill in worker_restarts, and
+    is OK with both workers again once the kills end (the pool never gives up)."""
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    from ros_fixtures import DiagnosticsWatch, key_values
+
+    client, workers = served
+    positions, normals, expected = grasps
+    watch = DiagnosticsWatch("/faults_test/force_closure")
+    try:
+        before = watch.wait_for(lambda level, v: v["workers_alive"] == "2", "2 workers")
+        assert before.level == DiagnosticStatus.OK
+        restarts = int(key_values(before)["worker_restarts"])
+        answer = client.submit_batch(positions, normals)
+        seen = set(workers)
+        os.kill(next(iter(workers)), signal.SIGKILL)
+        kills = 1
+        deadline = time.monotonic() + WAIT_S
+        while kills < 6:
+            assert time.monotonic() < deadline, f"only {kills} kills within {WAIT_S} s"
+            for pid in worker_pids() - seen:
+                seen.add(pid)
+                os.kill(pid, signal.SIGKILL)  # a replacement, while it starts
+                kills += 1
+            time.sleep(0.005)
+        short = watch.wait_for(lambda level, v: v["workers_alive"] == "1", "1 worker",
+                               WAIT_S)
+        assert short.level == DiagnosticStatus.WARN
+        assert "1 of 2 worker processes running" in short.message
+        assert_as_core(answer.result(timeout=WAIT_S), expected)
+        back = watch.wait_for(lambda level, v: level == DiagnosticStatus.OK
+                              and v["workers_alive"] == "2", "both workers back", WAIT_S)
+        values = key_values(back)
+        assert values["workers_configured"] == "2"
+        assert int(values["worker_restarts"]) == restarts + kills
+    finally:
+        watch.close()
+    workers.clear()
+    workers.update(worker_pids())
+    assert len(workers) == 2

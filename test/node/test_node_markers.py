@@ -8,6 +8,8 @@ MarkerPublisher with a recording publisher.
 
 from __future__ import annotations
 
+import os
+import signal
 import threading
 import time
 
@@ -17,6 +19,7 @@ from std_srvs.srv import Empty
 from visualization_msgs.msg import Marker, MarkerArray
 
 from grasp_fc_ros.core import Status, check_force_closure
+from grasp_fc_ros.engine.child_process import FramingError
 from grasp_fc_ros.interface.conversions import grasp_to_contact_array, grasps_to_batch_msg
 from grasp_fc_ros.interface.names import QUERY_QOS, VERDICT_QOS
 from grasp_fc_ros.markers import publisher as marker_publisher_module
@@ -31,6 +34,8 @@ from grasp_fc_ros.markers.build import (
 from grasp_fc_ros.markers.publisher import (
     MARKER_QOS,
     MARKER_QUEUE_LENGTH,
+    MarkerPayload,
+    MarkerProcess,
     MarkerPublisher,
     MarkerSettings,
     draw,
@@ -354,6 +359,9 @@ class RecordingSink:
     def start(self):
         pass
 
+    def wait_ready(self, timeout_s):
+        return True
+
     def draw(self, payload):
         markers = draw(payload)
         self.published.append(markers)
@@ -461,3 +469,40 @@ def test_the_marker_process_starts_with_publish_markers_and_ends_with_the_node(r
     finally:
         node.destroy_node()
     assert process.wait(timeout=REPLY_TIMEOUT_S) == 0
+
+
+def test_a_marker_process_that_dies_or_breaks_its_channel_is_replaced(ros, monkeypatch):
+    """A marker process that died while idle is replaced before the next payload; one
+    whose channel breaks during an exchange fails that exchange with the reason and is
+    replaced at once, and the next payload is drawn."""
+    payload = MarkerPayload(
+        frame_id="f", stamp=(0, 0), ids=np.array([5], np.uint64), counts=np.array([4]),
+        positions=AROUND, normals=-AROUND, mu=np.full(4, 0.5),
+        status=np.array([Status.FORCE_CLOSURE], np.uint8), margin=np.array([0.1]),
+        lifetime_s=1.0)
+    sink = MarkerProcess("/markers_replaced", "force_closure_markers")
+    try:
+        assert sink.draw(payload) == 1
+        first = sink.process
+        assert first is not None
+        os.kill(first.pid, signal.SIGKILL)
+        first.wait()
+        assert sink.draw(payload) == 1
+        second = sink.process
+        assert second is not None and second.pid != first.pid
+        read = marker_publisher_module.read_message
+
+        def broken_once(stream):
+            monkeypatch.setattr(marker_publisher_module, "read_message", read)
+            read(stream)
+            raise FramingError("no message header where one should start: b'[XMLPARSER'")
+
+        monkeypatch.setattr(marker_publisher_module, "read_message", broken_once)
+        with pytest.raises(RuntimeError, match=f"marker process {second.pid} failed "
+                                               r"\(FramingError.*XMLPARSER.*started another"):
+            sink.draw(payload)
+        assert second.poll() is not None  # killed and reaped
+        assert sink.process is not None and sink.process.pid != second.pid
+        assert sink.draw(payload) == 1
+    finally:
+        sink.close()

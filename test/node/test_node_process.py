@@ -103,22 +103,6 @@ def test_invalid_start_parameter_exits_with_error():
     assert "friction_coefficient" in err and "Traceback" not in err
 
 
-def test_demo_console_script_streams_grasps_and_prints_table():
-    demo = Path(sys.executable).with_name("grasp-fc-demo")
-    assert demo.exists(), "console script grasp-fc-demo not installed (pip install -e .)"
-    done = subprocess.run([str(demo), "--grasps", "300", "--object", "torus"],
-                          capture_output=True, text=True, timeout=60)
-    assert done.returncode == 0, done.stderr
-    rows = (re.match(r"^  (\S.*?)\s{2,}(\S.*)$", line) for line in done.stdout.splitlines())
-    table = dict(row.groups() for row in rows if row)
-    assert table["queries"] == "300"
-    assert table["invalid input"] == "0" and table["solver failures"] == "0"
-    decided = sum(int(table[key]) for key in ("rejected by the filter",
-                                              "decided by the exact test"))
-    assert decided == 300
-    assert table["throughput"].endswith("grasps/s")
-
-
 def run_node(*args, timeout=60.0) -> subprocess.CompletedProcess:
     return subprocess.run(node_command() + list(args), capture_output=True, text=True,
                           timeout=timeout)

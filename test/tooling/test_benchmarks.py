@@ -126,6 +126,15 @@ EXPECTED: dict[str, Run] = {
         Line(r"^engine,.*worker \d+ SIGKILLed .*; 0 failures, 0 verdicts differ from the "
              r"core's"),
         Line(r"no grasp lost to a worker's death: meets target"),
+        # Workers killed while starting: all back, every kill counted (no time asserted).
+        *(Line(rf"^{where}.*: (\d+) of \1 workers back {N} s after (\d+) kills .*; "
+               r"worker_restarts \+\3 ") for where in ("node", "engine")),
+    )),
+    # A label job whose node is SIGKILLed mid-job and restarted: complete and equal.
+    "bench_restart": Run(lines=(
+        Line(rf"^killed {N} s into the job and restarted: the job ended {N} s after the "
+             rf"restart, {N} goals sent again \({N} s after the restart\); (\d+) of \5 "
+             r"verdicts, 0 differ from the core's"),
     )),
     # Service calls beside a 12-contact batch from another process and this one, and
     # beside a big service call; the batch (or call) answered in full every time.
@@ -164,6 +173,9 @@ EXPECTED: dict[str, Run] = {
         Line(rf"^\s+service\s+off: {ROUND_TRIP} \| on: {ROUND_TRIP} \| on/off p50\s+{N}"),
         Line(r"^\s+marker arrays received by a listener process \d+ for 40 queries answered "
              r"with markers on; node: markers_published \d+, markers_dropped \d+$"),
+        # Markers from grasp-fc-node started with them on (issue 28: none ever came).
+        *(Line(rf"^\s+{setting}:\s+10 of 10 arrived; p50 {N} ms, max {N} ms")
+          for setting in ("default environment", "a user's profiles file")),
     )),
     "bench_pool": Run(lines=(
         Line(rf"^core +{N} grasps/s; core in 2 processes +{N} \({N}x\); pool +{N} \({N}x\); "
@@ -232,6 +244,15 @@ EXPECTED: dict[str, Run] = {
 
 #: Runs beyond the quick forms: options whose output the quick form does not show.
 OTHER_RUNS: dict[str, tuple[str, Run]] = {
+    # The node and the clients on two simulated hosts (network namespaces, UDP only).
+    "bench_stall --udp-hosts": ("bench_stall", Run(
+        args=("--quick", "--udp-hosts", "--cases", "batch,this"),
+        lines=(*(Line(rf"^batch from {source}: p50 {N} ms, p99 {N} ms, max {N} ms over "
+                      rf"{N} calls") for source in ("another process", "this process")),
+               Line(r"the batch answered in [\d.]+ s, (\d+) of \1 grasps$", count=2),
+               Line(r"^    UDP datagrams dropped at a full receive buffer: \d+ on the "
+                    r"node's host, \d+ on the client's$", count=2)),
+        skip_if=r"two hosts over UDP: skipped")),
     "bench_exact --against e89657b": ("bench_exact", Run(
         args=("--against", "e89657b", "--grasps", "60", "--repeats", "1"),
         lines=_rows(EXACT_CELLS, rf"[\d.]+\s+{N}\s+{N}\s+{N}x\s+{N}\s+{N}x\s+0"),

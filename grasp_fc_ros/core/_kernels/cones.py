@@ -17,7 +17,7 @@ from typing import TypeAlias
 
 import numpy as np
 
-from .jit import Vector3, jit_fused
+from .jit import Vector3, jit
 
 #: The symmetric 3 x 3 scaling W by its entries (w00, w01, w02, w11, w12, w22).
 Scaling: TypeAlias = tuple[float, float, float, float, float, float]
@@ -34,7 +34,7 @@ MIN_STEP = 1e-10
 NO_LIMIT = 1e30
 
 
-@jit_fused
+@jit
 def nt_scaling(z: Vector3, s: Vector3) -> tuple[float, Scaling, Vector3]:
     """Nesterov-Todd scaling of one 3-cone pair, for z, s interior.
 
@@ -59,7 +59,7 @@ def nt_scaling(z: Vector3, s: Vector3) -> tuple[float, Scaling, Vector3]:
                       eta * unit[4], eta * unit[5]), inverse_vector
 
 
-@jit_fused
+@jit
 def nt_unit_scaling(z: Vector3, s: Vector3) -> tuple[float, Scaling, Vector3]:
     """:func:`nt_scaling` without its factor eta: Wbar (det Wbar = 1) and 1/eta^2.
 
@@ -105,7 +105,7 @@ def nt_unit_scaling(z: Vector3, s: Vector3) -> tuple[float, Scaling, Vector3]:
     return z_root * s_inv, scaling, (v0, -v1, -v2)
 
 
-@jit_fused
+@jit
 def scaling_of(scalings: np.ndarray, i: int) -> Scaling:
     """Row ``i`` of an (n, 6) array of scalings, as :func:`nt_scaling` gives them.
 
@@ -122,7 +122,7 @@ def scaling_of(scalings: np.ndarray, i: int) -> Scaling:
             scalings[i, 5])
 
 
-@jit_fused
+@jit
 def scaled_apply(scaling: Scaling, x: Vector3) -> Vector3:
     """W x.
 
@@ -141,7 +141,7 @@ def scaled_apply(scaling: Scaling, x: Vector3) -> Vector3:
             w02 * x0 + w12 * x1 + w22 * x2)
 
 
-@jit_fused
+@jit
 def scaled_inverse_apply(scaling: Scaling, inv_eta2: float, x: Vector3) -> Vector3:
     """W^-1 x = J W J x / eta^2.
 
@@ -164,7 +164,7 @@ def scaled_inverse_apply(scaling: Scaling, inv_eta2: float, x: Vector3) -> Vecto
             -inv_eta2 * (w02 * jx0 + w12 * jx1 + w22 * jx2))
 
 
-@jit_fused
+@jit
 def inverse_apply(scaling: Scaling, x: Vector3) -> Vector3:
     """W^-1 x from W = eta Wbar alone (1/eta^2 = 1 / det W).
 
@@ -181,7 +181,7 @@ def inverse_apply(scaling: Scaling, x: Vector3) -> Vector3:
     return scaled_inverse_apply(scaling, inv_eta2, x)
 
 
-@jit_fused
+@jit
 def inverse_square_apply(inverse_vector: Vector3, inv_eta2: float, x: Vector3) -> Vector3:
     """W^-2 x = (2 Jv (Jv . x) - J x) / eta^2.
 
@@ -203,7 +203,7 @@ def inverse_square_apply(inverse_vector: Vector3, inv_eta2: float, x: Vector3) -
             inv_eta2 * (2.0 * v2 * proj + x2))
 
 
-@jit_fused
+@jit
 def jordan_product(x: Vector3, y: Vector3) -> Vector3:
     """x o y.
 
@@ -219,7 +219,7 @@ def jordan_product(x: Vector3, y: Vector3) -> Vector3:
             x[0] * y[2] + y[0] * x[2])
 
 
-@jit_fused
+@jit
 def jordan_divide(lam: Vector3, r: Vector3) -> Vector3:
     """The x with lam o x = r, for lam interior.
 
@@ -239,7 +239,7 @@ def jordan_divide(lam: Vector3, r: Vector3) -> Vector3:
     return out0, (r[1] - out0 * lam[1]) * inv_lam0, (r[2] - out0 * lam[2]) * inv_lam0
 
 
-@jit_fused
+@jit
 def max_step(x: Vector3, dx: Vector3) -> float:
     """Largest alpha with x + alpha dx in Q^3, for x interior.
 
@@ -268,7 +268,7 @@ def max_step(x: Vector3, dx: Vector3) -> float:
     return NO_LIMIT          # both roots negative (or none): dx lies in the cone
 
 
-@jit_fused
+@jit
 def step_within(x: Vector3, dx: Vector3, limit: float) -> float:
     """min(limit, :func:`max_step` (x, dx)), for x interior and limit > 0, with its square
     root and division only where x + limit dx is not inside the cone.
@@ -296,7 +296,7 @@ def step_within(x: Vector3, dx: Vector3, limit: float) -> float:
     return min(limit, max_step(x, dx))
 
 
-@jit_fused
+@jit
 def positive_step(x: float, dx: float) -> float:
     """Largest alpha with x + alpha dx >= 0, for x > 0 (the cone R_+).
 

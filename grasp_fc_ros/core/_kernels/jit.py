@@ -26,35 +26,25 @@ def jit(function: Function) -> Dispatcher[Function]:
     ``error_model="numpy"``: a division by zero gives inf or NaN, as in numpy, instead
     of raising.
 
+    No fastmath flag, not even ``contract`` (fused multiply-adds): without one, LLVM must
+    round every operation as written, so every compiled copy of a kernel gives the same
+    bits. With ``contract`` it may fuse or not in each copy, and does so differently
+    where a kernel is inlined into another caller or linked from the cache (numba links
+    a callee's code into each caller and keeps one definition of it per process): the
+    one-grasp and batch paths of the exact stage then returned margins one ulp apart,
+    and the same call different margins in a process that compiled it and one that
+    loaded it from the cache (docs/performance.md#exact-stage).
+
     numba stores the machine code next to the defining file (or in the user's cache
-    directory when the install is read-only) and keys it on that file's source alone:
-    a kernel that calls kernels of other files keeps its cached code after those files
-    change, until its own file changes or the ``__pycache__/*.nbi`` files are removed.
+    directory when the install is read-only) and keys it on that function's bytecode
+    and the CPU alone: a kernel that calls kernels of other files, or whose options
+    here change, keeps its cached code until its own file changes or the
+    ``__pycache__/*.nbi`` files are removed.
     """
-    return _compile(function, set())
-
-
-def jit_fused(function: Function) -> Dispatcher[Function]:
-    """:func:`jit` that also lets the compiler fuse a multiplication and an addition
-    into one fused multiply-add (LLVM's ``contract`` flag; nothing else of fastmath).
-
-    For the interior-point steps only (the Newton systems, scalings and step lengths),
-    where it saves a sizeable share of the run time (tuned:
-    docs/performance.md#exact-stage): a fused operation rounds once instead of twice, so
-    the steps change in their last bits, which no result depends on. Every certificate
-    (witness depths, wrench bounds, rank bounds) and the normalisation of positions are
-    computed by :func:`jit` kernels, whose operations stay unfused even where the
-    compiler inlines them into a fused kernel (the flag belongs to each operation).
-    """
-    return _compile(function, {"contract"})
-
-
-def _compile(function: Function, fastmath: set[str]) -> Dispatcher[Function]:
-    """``numba.njit`` with the options of :func:`jit` and these fastmath flags."""
     try:
-        return numba.njit(cache=True, error_model="numpy", fastmath=fastmath)(function)
+        return numba.njit(cache=True, error_model="numpy")(function)
     except RuntimeError:  # no writable cache location at all: compile per process
-        return numba.njit(cache=False, error_model="numpy", fastmath=fastmath)(function)
+        return numba.njit(cache=False, error_model="numpy")(function)
 
 
 def kernel_array(values: Any) -> np.ndarray:

@@ -129,9 +129,7 @@ def ldl(matrix: np.ndarray, factor: np.ndarray) -> bool:
     Each column costs one division and no root, where :func:`cholesky`'s costs a root
     and then a division: the columns form one chain of dependent operations, which this
     shortens (tuned: docs/performance.md#exact-stage). For the Newton systems only;
-    certificates use :func:`cholesky`. Unfused like the rest of this module: compiled with
-    fused multiply-adds, the one-grasp path and the batch path once disagreed in the last
-    bits of a margin bound in a test run (they must agree bit for bit).
+    certificates use :func:`cholesky`. Unfused, like every kernel (:func:`.jit.jit`).
 
     Parameters
     ----------

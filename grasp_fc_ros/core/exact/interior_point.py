@@ -60,7 +60,7 @@ from .._kernels.cones import (
 )
 from .._kernels.frames import normal_split, tangent_frames, work_at, wrench_rows
 from .._kernels.grasp_map import apply_grasp_map, certified_rank, normalise_grasp
-from .._kernels.jit import Vector3, jit, jit_fused, kernel_array, row
+from .._kernels.jit import Vector3, jit, kernel_array, row
 from .._kernels.linear_algebra import (
     Diagonal6,
     diagonal_reciprocals,
@@ -243,7 +243,7 @@ def _bound(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, w: np.ndarray,
 Vector6: TypeAlias = tuple[float, float, float, float, float, float]
 
 
-@jit_fused
+@jit
 def _block_times(a_mat: np.ndarray, i: int, x: Vector3) -> Vector6:
     """A_i x for contact i's 6 x 3 block ``a_mat[i]`` and a 3-vector x.
 
@@ -260,7 +260,7 @@ def _block_times(a_mat: np.ndarray, i: int, x: Vector3) -> Vector6:
             a_mat[i, 5, 0] * x0 + a_mat[i, 5, 1] * x1 + a_mat[i, 5, 2] * x2)
 
 
-@jit_fused
+@jit
 def _block_transposed_times(a_mat: np.ndarray, i: int, v: Vector6) -> Vector3:
     """A_i^T v for contact i's 6 x 3 block ``a_mat[i]`` and a 6-vector v (see
     :func:`_block_times`)."""
@@ -273,13 +273,13 @@ def _block_transposed_times(a_mat: np.ndarray, i: int, v: Vector6) -> Vector3:
             + a_mat[i, 3, 2] * v3 + a_mat[i, 4, 2] * v4 + a_mat[i, 5, 2] * v5)
 
 
-@jit_fused
+@jit
 def _vector6(values: np.ndarray) -> Vector6:
     """A (6,) array as a tuple (see :func:`_block_times`)."""
     return values[0], values[1], values[2], values[3], values[4], values[5]
 
 
-@jit_fused
+@jit
 def _solve_grasp(unit: np.ndarray, normals: np.ndarray, mu: np.ndarray, want_optimum: bool,
                  want_wrench: bool, signed_gap: float, signed_level: float,
                  forces_out: np.ndarray, wrench_out: np.ndarray, work3: np.ndarray,

@@ -32,9 +32,10 @@ support value seen. Nothing in the result rests on the surface being a convex hu
   may lie from the exact one).
 
 The surface starts as the simplex of support points in 7 fixed directions (those of a
-regular simplex; 19, then all the seeds given, where these span too little), built
-around an interior point of its own until the origin lies strictly inside every facet,
-and only then switches to facets oriented about the origin.
+regular simplex; 19, then all the seeds given, where these span too little, and then
+pairs of directions normal to the points' affine hull until they span six dimensions),
+built around an interior point of its own until the origin lies strictly inside every
+facet, and only then switches to facets oriented about the origin.
 
 The same search bounds the torque inradius of the position radius
 (:mod:`grasp_fc_ros.core.robustness.position_radius`, ``problem=TORQUE_INRADIUS``):
@@ -98,6 +99,12 @@ CONTAINMENT_TOL = 1e-10
 #: radius: :mod:`grasp_fc_ros.core.robustness.position_radius`).
 SEED_SIMPLEX = 7
 SEED_FALLBACK = 19
+
+#: Where all seed directions' support points span fewer than six dimensions, the pairs
+#: of support points in +-a normal to their affine hull added, at most: one of each pair
+#: leaves the hull by at least epsilon, so for a force-closure grasp (epsilon above
+#: ``CONTAINMENT_TOL``) each adds a dimension and six suffice.
+MAX_WIDENINGS = 6
 
 #: Status codes of a grasp.
 CONVERGED, BUDGET, STUCK, NOT_CONTAINED, DEGENERATE = 0, 1, 2, 3, 4
@@ -548,44 +555,70 @@ def certified_upper(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.nd
 
 
 @jit
-def _initial_simplex(points: np.ndarray, n_points: int, tol: float, chosen: np.ndarray) -> bool:
+def _initial_simplex(points: np.ndarray, n_points: int, tol: float, chosen: np.ndarray,
+                     basis: np.ndarray) -> int:
     """Seven affinely independent points among the first ``n_points`` (greedy: each
-    next point is the farthest from the affine hull of those chosen). False if the
-    points span less than 6 dimensions by ``tol``."""
-    basis = np.zeros((6, 6))
+    next point is the farthest from the affine hull of those chosen). Returns the
+    dimension d they span by ``tol`` (6: found); rows 0..d-1 of ``basis`` (6, 6) <- an
+    orthonormal basis of the chosen points' directions from ``chosen[0]``."""
     chosen[0] = 0
     residual = np.empty(6)
     for k in range(1, 7):
         best, best_p = -1.0, -1
         for p in range(n_points):
-            for c in range(6):
-                residual[c] = points[p, c] - points[chosen[0], c]
-            for b in range(k - 1):
-                dot = 0.0
-                for c in range(6):
-                    dot += basis[b, c] * residual[c]
-                for c in range(6):
-                    residual[c] -= dot * basis[b, c]
+            _off_span(points[p], points[chosen[0]], basis, k - 1, residual)
             size = 0.0
             for c in range(6):
                 size += residual[c] * residual[c]
             if size > best:
                 best, best_p = size, p
         if not sqrt(best) > tol:
-            return False
+            return k - 1
         chosen[k] = best_p
-        for c in range(6):
-            residual[c] = points[best_p, c] - points[chosen[0], c]
-        for b in range(k - 1):
-            dot = 0.0
-            for c in range(6):
-                dot += basis[b, c] * residual[c]
-            for c in range(6):
-                residual[c] -= dot * basis[b, c]
+        _off_span(points[best_p], points[chosen[0]], basis, k - 1, residual)
         size = sqrt(best)
         for c in range(6):
             basis[k - 1, c] = residual[c] / size
-    return True
+    return 6
+
+
+@jit
+def _off_span(point: np.ndarray, origin: np.ndarray, basis: np.ndarray, rank: int,
+              residual: np.ndarray) -> None:
+    """residual (6,) <- point - origin less its projection on rows 0..rank-1 of the
+    orthonormal ``basis`` (Gram-Schmidt)."""
+    for c in range(6):
+        residual[c] = point[c] - origin[c]
+    for b in range(rank):
+        dot = 0.0
+        for c in range(6):
+            dot += basis[b, c] * residual[c]
+        for c in range(6):
+            residual[c] -= dot * basis[b, c]
+
+
+@jit
+def _normal_to_span(basis: np.ndarray, rank: int, out: np.ndarray) -> None:
+    """out (6,) <- a unit vector orthogonal to rows 0..rank-1 (rank < 6) of the
+    orthonormal ``basis``: the coordinate axis farthest from their span, less its
+    projection (its length before normalising is at least sqrt(1/6), since the squared
+    lengths of the six axes' residuals sum to 6 - rank)."""
+    residual = np.empty(6)
+    best = -1.0
+    for j in range(6):
+        size = 0.0
+        for c in range(6):
+            residual[c] = 1.0 if c == j else 0.0
+            for r in range(rank):
+                residual[c] -= basis[r, j] * basis[r, c]
+            size += residual[c] * residual[c]
+        if size > best:
+            best = size
+            for c in range(6):
+                out[c] = residual[c]
+    best = sqrt(best)
+    for c in range(6):
+        out[c] /= best
 
 
 @jit
@@ -641,34 +674,32 @@ def _query(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray, pr
 
 
 @jit
-def _seed_surface(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray,
-                  problem: int, allowance: float, tol: float, contain_tol: float,
-                  seeds: np.ndarray, n_seeds: int, points: np.ndarray, vertices: np.ndarray,
-                  neighbours: np.ndarray, normals: np.ndarray, offsets: np.ndarray,
-                  certified: np.ndarray, alive: np.ndarray, stuck: np.ndarray,
-                  marks: np.ndarray, scratch_int: np.ndarray, scratch_new: np.ndarray,
-                  matrix: np.ndarray, normal: np.ndarray, direction: np.ndarray,
-                  reference: np.ndarray, upper: float) -> tuple[int, int, float]:
-    """The first surface: the hull of the support points in the first ``n_seeds``
-    directions of ``seeds``, oriented about their simplex's centroid (``reference``).
-    Returns (facets, insertions so far, upper), facets 0 if the points span less than
-    six dimensions."""
-    for k in range(n_seeds):
-        _, bound = _query(normal_rows, tangent_rows, mu, problem, allowance, seeds[k], points[k],
-                          upper, direction)
-        upper = min(upper, bound)
+def _seed_surface(n_points: int, tol: float, contain_tol: float, allowance: float,
+                  problem: int, points: np.ndarray, vertices: np.ndarray, neighbours: np.ndarray,
+                  normals: np.ndarray, offsets: np.ndarray, certified: np.ndarray,
+                  alive: np.ndarray, stuck: np.ndarray, marks: np.ndarray,
+                  scratch_int: np.ndarray, scratch_new: np.ndarray, matrix: np.ndarray,
+                  normal: np.ndarray, reference: np.ndarray,
+                  basis: np.ndarray) -> tuple[int, int, int]:
+    """The first surface: the hull of the first ``n_points`` support points, oriented
+    about the centroid of a simplex of seven of them (``reference``).
+
+    Returns (facets, insertions so far, d): facets 0 if the points span only d < 6
+    dimensions (rows 0..d-1 of ``basis`` then span their directions) or an orientation
+    is not certified."""
     chosen = np.empty(7, np.int64)
-    if not _initial_simplex(points, n_seeds, contain_tol, chosen):
-        return 0, 0, upper
+    rank = _initial_simplex(points, n_points, contain_tol, chosen, basis)
+    if rank < 6:
+        return 0, 0, rank
     for c in range(6):
         reference[c] = 0.0
         for k in range(7):
             reference[c] += points[chosen[k], c] / 7.0
     if not _simplex_surface(points, chosen, reference, allowance, problem, vertices, neighbours,
                             normals, offsets, certified, alive, stuck, marks, matrix, normal):
-        return 0, 0, upper
+        return 0, 0, rank
     n_facets, stamp = 7, 0
-    for p in range(n_seeds):
+    for p in range(n_points):
         start = -1
         for f in range(n_facets):
             if alive[f]:
@@ -685,7 +716,7 @@ def _seed_surface(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndar
                             marks, stamp, n_facets, scratch_int, scratch_new, matrix, normal)
             if grown > 0:
                 n_facets = grown
-    return n_facets, stamp, upper
+    return n_facets, stamp, rank
 
 
 @jit
@@ -702,21 +733,44 @@ def _epsilon_one(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarr
     The first surface uses the support points in the first ``SEED_SIMPLEX`` rows of
     ``seeds`` (a regular simplex of directions), or the first ``SEED_FALLBACK``, then
     all of them, where those do not span six dimensions (several directions with one
-    support point)."""
+    support point); where even these span fewer (all seeds worked best by the same few
+    contacts), it adds the support points in +-a direction normal to their affine hull,
+    up to ``MAX_WIDENINGS`` times."""
     allowance = SUPPORT_ROUNDING_ULPS * _EPS * scale
     tol = VISIBLE_TOL * scale
-    reference = np.zeros(6)
+    reference, basis, widen = np.zeros(6), np.empty((6, 6)), np.empty(6)
     upper = np.inf
-    n_points, n_facets, stamp = 0, 0, 0
-    tried = 0
-    for n_seeds in (SEED_SIMPLEX, min(SEED_FALLBACK, seeds.shape[0]), seeds.shape[0]):
-        if n_seeds == tried:
-            continue
-        tried = n_points = n_seeds
-        n_facets, stamp, upper = _seed_surface(
-            normal_rows, tangent_rows, mu, problem, allowance, tol, CONTAINMENT_TOL * scale,
-            seeds, n_seeds, points, vertices, neighbours, normals, offsets, certified, alive,
-            stuck, marks, scratch_int, scratch_new, matrix, normal, direction, reference, upper)
+    n_points, n_facets, stamp, rank = 0, 0, 0, 0
+    for stage in range(3 + MAX_WIDENINGS):
+        if stage < 3:
+            # The regular simplex, the first SEED_FALLBACK, then all the seeds given.
+            wanted = (SEED_SIMPLEX if stage == 0 else
+                      min(SEED_FALLBACK, seeds.shape[0]) if stage == 1 else seeds.shape[0])
+            if wanted == n_points:
+                continue
+            for k in range(n_points, wanted):
+                _, bound = _query(normal_rows, tangent_rows, mu, problem, allowance,
+                                  seeds[k], points[k], upper, direction)
+                upper = min(upper, bound)
+            n_points = wanted
+        elif rank < 6:
+            # The points lie in a hyperplane {x: <v, x> = d} of W's span (v normal to
+            # their affine hull): the support point in v or in -v leaves it by at least
+            # half W's width along v (for epsilon, at least epsilon).
+            _normal_to_span(basis, rank, widen)
+            for _ in range(2):
+                _, bound = _query(normal_rows, tangent_rows, mu, problem, allowance, widen,
+                                  points[n_points], upper, direction)
+                upper = min(upper, bound)
+                n_points += 1
+                for c in range(6):
+                    widen[c] = -widen[c]
+        else:
+            break
+        n_facets, stamp, rank = _seed_surface(
+            n_points, tol, CONTAINMENT_TOL * scale, allowance, problem, points, vertices,
+            neighbours, normals, offsets, certified, alive, stuck, marks, scratch_int,
+            scratch_new, matrix, normal, reference, basis)
         if n_facets > 0:
             break
     if n_facets == 0:
