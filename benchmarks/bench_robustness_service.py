@@ -48,12 +48,15 @@ SAMPLES = 1000
 def assess(client: GraspClient, positions: np.ndarray, normals: np.ndarray, seed: int,
            ids: np.ndarray, timeout: float) -> Any:
     """The service's answer for these grasps: issue 29's errors and noise, SAMPLES."""
-    return client.assess_robustness(
-        positions, normals, MU, position_error=ERROR["position_error"],
-        normal_error=ERROR["normal_error"], friction_error=ERROR["friction_error"],
-        position_sigma=NOISE["position_sigma"], normal_sigma=NOISE["normal_sigma"],
-        friction_sigma=NOISE["friction_sigma"], samples=SAMPLES, seed=seed, ids=ids,
-        timeout=timeout)
+    return client.assess_robustness(positions, normals, MU, query(seed), ids=ids,
+                                    timeout=timeout)
+
+
+def query(seed: int = 0) -> RobustnessQuery:
+    """Issue 29's errors and noise, SAMPLES, ``seed``."""
+    return RobustnessQuery(ERROR["position_error"], ERROR["normal_error"],
+                           ERROR["friction_error"], NOISE["position_sigma"],
+                           NOISE["normal_sigma"], NOISE["friction_sigma"], SAMPLES, 0.95, seed)
 
 
 def assess_times(client: GraspClient, positions: np.ndarray, normals: np.ndarray,
@@ -76,10 +79,7 @@ def engine_cpu_ms(positions: np.ndarray, normals: np.ndarray, calls: int) -> np.
     """CPU time (ms) of the engine's evaluate on one-grasp assessment requests, grasp
     k % N, as the service decides them (kernels warm)."""
     warm_up_epsilon()
-    query = RobustnessQuery(ERROR["position_error"], ERROR["normal_error"],
-                            ERROR["friction_error"], NOISE["position_sigma"],
-                            NOISE["normal_sigma"], NOISE["friction_sigma"], SAMPLES)
-    settings = Settings(robustness=query)
+    settings = Settings(robustness=query())
     times = []
     for k in range(calls + 1):
         g = k % len(positions)

@@ -1,19 +1,31 @@
 """assess_robustness requests from numpy arrays, with their shapes checked (client side).
 
 :meth:`grasp_fc_ros.client.GraspClient.assess_robustness` asks the node how well grasps
-hold when their contacts are off (docs/robustness.md). Its arguments: ``positions``,
-``normals`` (N, n, 3), or (n, 3) for one grasp; ``mu`` None (the node's
-``friction_coefficient``), a scalar, (N, 1) or (N, n); ``position_error``,
-``normal_error``, ``friction_error`` (m, rad, unitless) for the holds answer;
-``position_sigma``, ``normal_sigma``, ``friction_sigma`` for the probability;
-``samples`` per grasp (0: no probability), ``confidence``, ``seed``; ``ids`` (N,)
-(default 0..N-1): grasp ``ids[k]`` draws its samples from stream (``seed``, ``ids[k]``);
-``torsional_friction`` (m): soft fingers get a probability but no radii and no holds
-answer; ``frame_id``; ``timeout`` for the whole call. It returns the nominal
-:class:`~grasp_fc_ros.packed.Verdicts` (``margin`` NaN) with ``robustness``, an
-:class:`~grasp_fc_ros.packed.Assessments` of numpy arrays, one row per grasp (the
-witness one per contact). Bad grasps are INVALID_INPUT alone, a refused request
-INVALID_INPUT for every grasp, the message saying why.
+hold when their contacts are off (docs/robustness.md)::
+
+    from grasp_fc_ros.client import RobustnessQuery
+    answer = client.assess_robustness(positions, normals, 0.5, RobustnessQuery(
+        position_error=0.003, normal_error=np.radians(5), position_sigma=0.002,
+        normal_sigma=np.radians(3), samples=1000))
+
+Its arguments: ``positions``, ``normals`` (N, n, 3), or (n, 3) for one grasp; ``mu``
+None (the node's ``friction_coefficient``), a scalar, (N, 1) or (N, n); the question, a
+:class:`~grasp_fc_ros.packed.RobustnessQuery` (default :data:`ASK`: no errors, no
+noise, 1,000 samples): ``position_error``, ``normal_error``, ``friction_error`` (m, rad,
+unitless) for the holds answer, ``position_sigma``, ``normal_sigma``,
+``friction_sigma`` for the probability, ``samples`` per grasp (0: no probability),
+``confidence``, ``seed``; ``ids`` (N,) (default 0..N-1): grasp ``ids[k]`` draws its
+samples from stream (``seed``, ``ids[k]``), so the answers do not depend on how the call
+is split or ordered; ``torsional_friction`` (m): soft fingers get a probability but no
+radii and no holds answer; ``frame_id``; ``timeout`` for the whole call (many grasps go
+as several requests).
+
+It returns the nominal :class:`~grasp_fc_ros.packed.Verdicts` (``margin`` NaN) with
+``robustness``, an :class:`~grasp_fc_ros.packed.Assessments` of numpy arrays, one row
+per grasp (the witness one per contact). Bad grasps are INVALID_INPUT alone, a refused
+request INVALID_INPUT for every grasp, the message saying why. It raises ValueError on
+mis-shaped input (naming the argument) before anything is sent, and TimeoutError if not
+every response came within ``timeout``.
 
 :func:`assessment_requests` turns grasps (N, n, 3) and the question's errors, sigmas and
 samples into AssessRobustness requests of whole grasps: several where the grasps are
@@ -38,6 +50,8 @@ from grasp_fc_ros.interface.conversions import friction_or_default, grasp_to_con
 from grasp_fc_ros.interface.names import MAX_REQUEST_CONTACTS, MAX_REQUEST_SAMPLES
 from grasp_fc_ros.packed import RobustnessQuery
 
+#: The default question: the request's defaults (no errors, no noise, 1,000 samples).
+ASK = RobustnessQuery()
 #: Largest ``samples`` the request's field holds (uint32).
 MAX_SAMPLES = 2 ** 32 - 1
 

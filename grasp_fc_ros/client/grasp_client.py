@@ -40,6 +40,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from grasp_fc_ros.client import shapes
+from grasp_fc_ros.client.assessment import ASK
 from grasp_fc_ros.client.batches import BatchQueries
 from grasp_fc_ros.client.connection import DiagnosticsReader, NodeWatch
 from grasp_fc_ros.client.label_action import LabelActionClient
@@ -296,23 +297,14 @@ class GraspClient:
                                                      max_normal_forces, frame_id, timeout,
                                                      torsional_friction)
 
-    def assess_robustness(
-            self, positions: ArrayLike, normals: ArrayLike, mu: ArrayLike | None = None, *,
-            position_error: float = 0.0, normal_error: float = 0.0, friction_error: float = 0.0,
-            position_sigma: float = 0.0, normal_sigma: float = 0.0, friction_sigma: float = 0.0,
-            samples: int = 1000, confidence: float = 0.95, seed: int = 0,
-            ids: ArrayLike | None = None, torsional_friction: ArrayLike | None = None,
-            frame_id: str = "", timeout: float = DEFAULT_TIMEOUT_S) -> Verdicts:
-        """How well grasps (N, n, 3) (or one (n, 3)) hold when their contacts are off:
-        the node's ``assess_robustness`` service. Returns the nominal :class:`Verdicts`
-        with ``robustness`` (:class:`~grasp_fc_ros.packed.Assessments`); the arguments and
-        answers are described in :mod:`grasp_fc_ros.client.assessment`. Raises ValueError
-        on mis-shaped input, before anything is sent, and TimeoutError if not every
-        response came within ``timeout`` (for the whole call)."""
-        return self._services.assess_robustness(
-            positions, normals, mu, torsional_friction, ids, RobustnessQuery(
-                position_error, normal_error, friction_error, position_sigma, normal_sigma,
-                friction_sigma, samples, confidence, seed), frame_id, timeout)
+    def assess_robustness(self, positions: ArrayLike, normals: ArrayLike,
+                          mu: ArrayLike | None = None, question: RobustnessQuery = ASK, *,
+                          ids: ArrayLike | None = None, torsional_friction: ArrayLike | None = None,
+                          frame_id: str = "", timeout: float = DEFAULT_TIMEOUT_S) -> Verdicts:
+        """How well grasps hold when their contacts are off (the node's assess_robustness
+        service): arguments, answers and errors in :mod:`grasp_fc_ros.client.assessment`."""
+        return self._services.assess_robustness(positions, normals, mu, torsional_friction,
+                                                ids, question, frame_id, timeout)
 
     # --- the label_grasps action ------------------------------------------------------
 

@@ -213,19 +213,20 @@ def test_the_service_answers_as_the_core_with_bad_grasps_alone(own_node, grasps)
     own_node("/robust", workers=0)
     with GraspClient("/robust/force_closure") as client:
         assert client.wait_for_node(timeout=20.0)
-        answer = client.assess_robustness(positions, normals, MU, timeout=300.0,
-                                          ids=np.arange(len(positions)), **vars(QUERY))
+        answer = client.assess_robustness(positions, normals, MU, QUERY, timeout=300.0,
+                                          ids=np.arange(len(positions)))
         bad_normals = normals.copy()
         bad_normals[3, 0] = 0.0
-        mixed = client.assess_robustness(positions[:6], bad_normals[:6], MU, timeout=300.0,
-                                         **vars(QUERY))
-        one = client.assess_robustness(positions[0], normals[0], MU, samples=1000, seed=3)
+        mixed = client.assess_robustness(positions[:6], bad_normals[:6], MU, QUERY,
+                                         timeout=300.0)
+        one = client.assess_robustness(positions[0], normals[0], MU)    # no errors, no noise
     assert_matches_the_core(answer, positions, normals, np.arange(len(positions)))
     assert mixed.status[3] == Status.INVALID_INPUT and "contact 0" in mixed.messages[3]
     assert mixed.robustness.holds[3] == 0
     np.testing.assert_array_equal(mixed.robustness.probability[[0, 1, 2, 4, 5]],
                                   answer.robustness.probability[[0, 1, 2, 4, 5]])
-    assert len(one) == 1 and one.robustness.probability[0] in (0.0, 1.0)  # no noise
+    assert len(one) == 1 and one.robustness.probability[0] in (0.0, 1.0)
+    assert one.robustness.probability[0] == one.force_closure[0]
 
 
 def test_bad_requests_are_refused_whole_with_the_reason(own_node, grasps):
@@ -233,10 +234,11 @@ def test_bad_requests_are_refused_whole_with_the_reason(own_node, grasps):
     own_node("/robust_limits", workers=0, max_assessment_samples=1000)
     with GraspClient("/robust_limits/force_closure") as client:
         assert client.wait_for_node(timeout=20.0)
-        big = client.assess_robustness(positions, normals, MU, samples=300)
-        negative = client.assess_robustness(positions, normals, MU, normal_sigma=-0.1)
+        big = client.assess_robustness(positions, normals, MU, RobustnessQuery(samples=300))
+        negative = client.assess_robustness(positions, normals, MU,
+                                            RobustnessQuery(normal_sigma=-0.1))
         empty = client.assess_robustness(np.zeros((0, 4, 3)), np.zeros((0, 4, 3)), MU)
-        fine = client.assess_robustness(positions, normals, MU, samples=250)
+        fine = client.assess_robustness(positions, normals, MU, RobustnessQuery(samples=250))
     assert (big.status == Status.INVALID_INPUT).all()
     assert "4 grasps x 300 samples = 1200 samples exceed max_assessment_samples=1000" \
         in big.messages[0]
