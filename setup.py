@@ -4,7 +4,7 @@ package_name = "grasp_fc_ros"
 
 setup(
     name=package_name,
-    version="1.0.0",
+    version="1.1.0",
     packages=find_packages(exclude=["test", "test.*"]),
     # PEP 561: the package ships its type hints.
     package_data={package_name: ["py.typed"]},

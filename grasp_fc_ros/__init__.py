@@ -14,4 +14,4 @@ Importing this package does not import rclpy. Its subpackages:
 * :mod:`grasp_fc_ros.experiment` -- the seed paper's experiment.
 """
 
-__version__ = "1.0.0"
+__version__ = "1.1.0"

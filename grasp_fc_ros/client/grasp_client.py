@@ -40,6 +40,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from grasp_fc_ros.client import shapes
+from grasp_fc_ros.client.assessment import ASK
 from grasp_fc_ros.client.batches import BatchQueries
 from grasp_fc_ros.client.connection import DiagnosticsReader, NodeWatch
 from grasp_fc_ros.client.label_action import LabelActionClient
@@ -58,7 +59,7 @@ from grasp_fc_ros.interface.names import (
     VERDICTS_TOPIC,
     resolve,
 )
-from grasp_fc_ros.packed import ContactForces, Verdicts
+from grasp_fc_ros.packed import ContactForces, RobustnessQuery, Verdicts
 
 
 class GraspClient:
@@ -295,6 +296,15 @@ class GraspClient:
                                                      friction_or_default(mu),
                                                      max_normal_forces, frame_id, timeout,
                                                      torsional_friction)
+
+    def assess_robustness(self, positions: ArrayLike, normals: ArrayLike,
+                          mu: ArrayLike | None = None, question: RobustnessQuery = ASK, *,
+                          ids: ArrayLike | None = None, torsional_friction: ArrayLike | None = None,
+                          frame_id: str = "", timeout: float = DEFAULT_TIMEOUT_S) -> Verdicts:
+        """How well grasps hold when their contacts are off (the node's assess_robustness
+        service): arguments, answers and errors in :mod:`grasp_fc_ros.client.assessment`."""
+        return self._services.assess_robustness(positions, normals, mu, torsional_friction,
+                                                ids, question, frame_id, timeout)
 
     # --- the label_grasps action ------------------------------------------------------
 

@@ -45,6 +45,9 @@ HOLDS = {"status": ((0,), np.integer), "bound": ((0,), np.str_),
          "witness_mu": ((0, N_CONTACTS), np.floating),
          "separating_wrench": ((0, 6), np.floating)}
 PAIR = {"0": ((0,), np.bool_), "1": ((0,), np.bool_)}
+PROBABILITY = {"estimate": ((0,), np.floating), "lower": ((0,), np.floating),
+               "upper": ((0,), np.floating), "successes": ((0,), np.integer),
+               "normal_lower_bound": ((0,), np.floating), "undecided": ((0,), np.integer)}
 FILTER_PAIR = {"0": ((0,), np.bool_), "1": ((0, 6), np.floating)}
 
 
@@ -91,6 +94,10 @@ CASES: dict[str, list[tuple[dict[str, Any], Callable[[Any], None]]]] = {
                       ({"mu": 0.5, "origins": "all", "certificates": True},
                        lambda r: _fields(r, FILTER_PAIR))],
     "validate_grasps": [({"mu": 0.5}, _validation), ({"mu": 0.5, **SOFT}, _validation)],
+    "probability_of_force_closure": [
+        ({"mu": 0.5, "position_sigma": 0.01, "friction_sigma": 0.1},
+         lambda r: _fields(r, PROBABILITY)),
+        ({"mu": 0.5, "normal_sigma": 0.1, **SOFT}, lambda r: _fields(r, PROBABILITY))],
     "verify_certificates": [
         ({"mu": 0.5, "contact_forces": EMPTY, "separating_wrench": np.zeros((0, 6))},
          lambda r: _fields(r, PAIR)),
