@@ -16,6 +16,14 @@ from .sources import GraspChunk, InputError, Source
 if TYPE_CHECKING:
     import pyarrow as pa
 
+    from grasp_fc_ros.core.robustness import (
+        ForceClosureProbability,
+        HoldsUnder,
+        RobustnessRadii,
+    )
+
+    from .robustness import Robustness
+
 
 def validate_chunk(source: Source, start: int, stop: int) -> str | None:
     """The first problem of rows ``start:stop`` of ``source``, or None if all can be labelled.
@@ -53,9 +61,11 @@ def _torsional(chunk: GraspChunk) -> np.ndarray | float:
 
 
 def label_chunk(source: Source, start: int, stop: int, use_filter: bool | str, origins: str,
-                quality_rtol: float | None = None) -> pa.Table:
+                quality_rtol: float | None = None,
+                robustness: Robustness | None = None) -> pa.Table:
     """Labels of rows ``start:stop`` of ``source``, as a ``pyarrow.Table``; with
-    ``quality_rtol``, their certified epsilon to that accuracy too.
+    ``quality_rtol``, their certified epsilon to that accuracy too; with ``robustness``,
+    the robustness columns it asks for.
 
     See :mod:`grasp_fc_ros.labelling.schema` for the columns.
     """
@@ -71,4 +81,31 @@ def label_chunk(source: Source, start: int, stop: int, use_filter: bool | str, o
     epsilon = (None if quality_rtol is None else
                epsilon_quality(chunk.positions, chunk.normals, chunk.mu, rtol=quality_rtol,
                                torsional_friction=torsional))
-    return label_table(chunk, result, source.object_name, epsilon)
+    if robustness is None:
+        return label_table(chunk, result, source.object_name, epsilon)
+    return label_table(chunk, result, source.object_name, epsilon,
+                       *_robustness_results(chunk, robustness))
+
+
+def _robustness_results(chunk: GraspChunk, settings: Robustness) -> tuple[
+        RobustnessRadii, HoldsUnder | None, ForceClosureProbability | None]:
+    """The chunk's radii, and its holds_under and probability where asked for."""
+    from grasp_fc_ros.core.robustness import (
+        holds_under,
+        probability_of_force_closure,
+        robustness,
+    )
+
+    grasp = (chunk.positions, chunk.normals, chunk.mu)
+    radii = robustness(*grasp, torsional_friction=_torsional(chunk))
+    holds = (holds_under(*grasp, position_error=settings.position_error,
+                         normal_error=settings.normal_error,
+                         friction_error=settings.friction_error)
+             if settings.holds else None)
+    probability = (probability_of_force_closure(
+        *grasp, position_sigma=settings.position_sigma, normal_sigma=settings.normal_sigma,
+        friction_sigma=settings.friction_sigma, samples=settings.samples,
+        confidence=settings.confidence, seed=settings.seed,
+        torsional_friction=_torsional(chunk), grasp_ids=chunk.ids)
+        if settings.probability else None)
+    return radii, holds, probability

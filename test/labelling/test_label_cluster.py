@@ -1,6 +1,7 @@
 """grasp-fc-label on real Dask clusters: a LocalCluster of 2 worker processes, and a
 scheduler with workers started as separate processes on 127.0.0.1, one of them killed."""
 
+import contextlib
 import json
 import os
 import subprocess
@@ -15,7 +16,7 @@ import pytest
 
 from grasp_fc_ros.core import check_force_closure
 from grasp_fc_ros.core.grasp_input import show_value
-from grasp_fc_ros.labelling import InputError, Plan, cli, dask_client, object_sources, run
+from grasp_fc_ros.labelling import InputError, Plan, cli, dask_client, object_sources, run, runner
 from grasp_fc_ros.labelling.output import Output
 from grasp_fc_ros.objects import make_object, sample_grasps
 
@@ -152,7 +153,7 @@ def test_grasps_drawn_on_objects_and_relabelled(client, tmp_path):
     trimesh = pytest.importorskip("trimesh")
     trimesh.creation.box(extents=(0.08, 0.05, 0.03)).export(tmp_path / "brick.obj")
     sources = object_sources(["torus"], [tmp_path / "brick.obj"], grasps_per_object=900,
-                             fingers=4, mu=0.4, seed=3, points=800, chunk_size=400)
+                             fingers=4, mu=0.4, seed=3, points=800, draw_block=400)
     summary = run(Plan(sources, chunk_size=400), tmp_path / "ds", client, progress=False)
     assert summary.chunks_written == 6
     table = pq.read_table(tmp_path / "ds")
@@ -195,6 +196,22 @@ def test_quality_columns_on_the_cluster_equal_the_core(client, tmp_path):
         assert np.array_equal(lower[part], expected.lower)
         assert np.array_equal(upper[part], expected.upper)
     assert fc.any() and np.all((lower > 0) == fc)
+
+
+def test_cli_quality_on_an_existing_output_is_refused_naming_it(client, tmp_path, capsys,
+                                                               monkeypatch):
+    p, n = _box_grasps(40, 4, 8)
+    np.savez(tmp_path / "g.npz", positions=p, normals=n, mu=0.5)
+    # The CLI's own local cluster would start 2 more workers: lend it this module's.
+    monkeypatch.setattr(runner, "dask_client", lambda *args: contextlib.nullcontext(client))
+    command = [str(tmp_path / "g.npz"), "--out", str(tmp_path / "o"), "--no-progress"]
+    assert cli.main(command) == 0
+    capsys.readouterr()
+    assert cli.main([*command, "--quality"]) == 2
+    err = capsys.readouterr().err
+    assert "differs in: --quality/--quality-rtol" in err and "remove it" in err
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == [
+        "_grasp_fc_label.json", "part-00000-000000.parquet"]
 
 
 # --- a scheduler and workers as separate processes -------------------------------------
