@@ -20,6 +20,8 @@ Closure Grasp":
   bounds; its compiled search in :mod:`.epsilon_kernels`;
 * :mod:`.minimum_friction` -- the least friction coefficient that makes a grasp force
   closure (certified bounds);
+* :mod:`.robustness` -- how far contacts may be off with force closure kept: certified
+  radii, and holds-or-breaks with evidence;
 * :mod:`.grasp_forces` -- the least largest normal force that holds a given load;
 * :mod:`.force_interior_point` -- its fast stage for hard contacts: a compiled
   interior-point method, every answer checked in numpy;
@@ -48,6 +50,7 @@ from .grasp_input import GraspValidation, validate_grasps
 from .minimum_friction import MinimumFriction, minimum_friction, minimum_friction_bounds
 from .one_grasp import warm_up
 from .pipeline import ForceClosureResult, Status, check_force_closure, exact_force_closure
+from .robustness import Holds, HoldsUnder, RobustnessRadii, holds_under, robustness
 from .torque_space_filter import ORIGIN_CHOICES, torque_filter
 
 __all__ = [
@@ -56,14 +59,19 @@ __all__ = [
     "ForceClosureResult",
     "GraspForces",
     "GraspValidation",
+    "Holds",
+    "HoldsUnder",
     "MinimumFriction",
+    "RobustnessRadii",
     "Status",
     "check_force_closure",
     "epsilon_quality",
     "exact_force_closure",
+    "holds_under",
     "minimum_friction",
     "minimum_friction_bounds",
     "optimal_contact_forces",
+    "robustness",
     "torque_filter",
     "validate_grasps",
     "verify_certificates",

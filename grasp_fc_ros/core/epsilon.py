@@ -246,6 +246,11 @@ class _Rows:
         return _Rows(self.normal_rows[index], self.tangent_rows[index], self.mu[index],
                      self.linf)
 
+    @property
+    def problem(self) -> int:
+        """The kernels' code of this budget's epsilon."""
+        return epsilon_kernels.EPSILON_LINF if self.linf else epsilon_kernels.EPSILON_L1
+
 
 def wrench_rows(grasps: GraspBatch, centre: np.ndarray,
                 scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -294,9 +299,10 @@ def _wrench_scale(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndar
 _WORKSPACES = threading.local()
 
 
-def _workspace() -> epsilon_kernels.Workspace:
+def search_workspace() -> epsilon_kernels.Workspace:
     """This thread's search arrays (:func:`.epsilon_kernels.workspace`), made once:
-    allocated per call they cost as much as a grasp's search (docs/epsilon.md#cost)."""
+    allocated per call they cost as much as a grasp's search (docs/epsilon.md#cost).
+    Shared by every search of the thread (epsilon, the position radius)."""
     arrays = getattr(_WORKSPACES, "arrays", None)
     if arrays is None:
         arrays = _WORKSPACES.arrays = epsilon_kernels.workspace(MAX_SUPPORT_POINTS,
@@ -308,8 +314,8 @@ def _search(rows: _Rows,
             rtol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The compiled search on a batch: lower, upper, direction, points, status (N,)."""
     lower, upper, direction, points, status = epsilon_kernels.epsilon_batch(
-        rows.normal_rows, rows.tangent_rows, rows.mu, rows.wrench_scale, rows.linf, rtol,
-        SEED_DIRECTIONS, _workspace())
+        rows.normal_rows, rows.tangent_rows, rows.mu, rows.wrench_scale, rows.problem, rtol,
+        SEED_DIRECTIONS, search_workspace())
     stalled = status != epsilon_kernels.CONVERGED
     if stalled.any():
         # Marginal or rank-deficient grasps: a wrench no contact works on, if any.
@@ -337,7 +343,7 @@ def _least_worked_directions(normal_rows: np.ndarray, tangent_rows: np.ndarray) 
 def _certified_uppers(rows: _Rows, directions: np.ndarray) -> np.ndarray:
     """Upper bounds, valid despite rounding, on h(direction / |direction|) (N,)."""
     return epsilon_kernels.certified_upper_batch(
-        rows.normal_rows, rows.tangent_rows, rows.mu, rows.wrench_scale, rows.linf,
+        rows.normal_rows, rows.tangent_rows, rows.mu, rows.wrench_scale, rows.problem,
         kernel_array(directions))
 
 

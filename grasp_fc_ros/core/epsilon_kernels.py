@@ -35,6 +35,17 @@ The surface starts as the simplex of support points in 7 fixed directions (those
 regular simplex; 19 where these span too little), built around an interior point of
 its own until the origin lies strictly inside every facet, and only then switches to
 facets oriented about the origin.
+
+The same search bounds the torque inradius of the position radius
+(:mod:`.robustness.position_radius`, ``problem=TORQUE_INRADIUS``): W is then the hull
+of the origin and every contact's wrenches of forces of length at most 1 in its cone,
+and the bounded quantity is min over u of h(u) / |u_t|, the radius of the largest
+ball about the origin of the torque space {(0, tau)} inside W. A ray from the origin
+in that space, (0, s tau) with |tau| = 1, meets a facet of unit normal m and certified
+offset d no nearer than s = d / |m_t|: that facet's key, which the search refines
+instead of d, and the least key is the lower bound. A convex hull that holds a ball of
+radius r in that space has every key >= r (as every offset of a hull around a ball),
+so keys, like offsets, only grow.
 """
 
 from __future__ import annotations
@@ -87,6 +98,12 @@ SEED_SIMPLEX = 7
 #: Status codes of a grasp.
 CONVERGED, BUDGET, STUCK, NOT_CONTAINED, DEGENERATE = 0, 1, 2, 3, 4
 
+#: What a search bounds (the ``problem`` argument): epsilon with the L1 or the
+#: L-infinity budget (disc generators, the facets' offsets), or the torque inradius of
+#: :mod:`.robustness.position_radius` (unit-force generators; facets keyed by their
+#: distance from the origin along the torque space).
+EPSILON_L1, EPSILON_LINF, TORQUE_INRADIUS = 0, 1, 2
+
 #: Room of the per-insertion scratch: facets seen by one new point, ridges of the
 #: horizon. An insertion needing more is refused (the facet is marked stuck).
 _MAX_VISIBLE = 4096
@@ -107,8 +124,12 @@ DoubleDouble: TypeAlias = tuple[float, float]
 
 @jit
 def _contact_work(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray, i: int,
-                  u: np.ndarray, z: np.ndarray) -> tuple[float, float]:
-    """h_i(u) of contact i; z (3,) <- tangent_rows[i] u. Returns (h_i, |z|)."""
+                  u: np.ndarray, z: np.ndarray, problem: int) -> tuple[float, float, float]:
+    """h_i(u) of contact i; z (3,) <- tangent_rows[i] u. Returns (h_i, |z|, a_n).
+
+    Unit-force generators (``TORQUE_INRADIUS``): the largest work of a force of length
+    at most 1 in the cone, |v| where the work vector v = (a_n, z) lies in the cone
+    (|z| <= mu_i a_n), else its disc value scaled by cos(atan mu_i) (a rim force)."""
     a_n = 0.0
     for k in range(3):
         z[k] = 0.0
@@ -117,47 +138,64 @@ def _contact_work(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndar
         for k in range(3):
             z[k] += tangent_rows[i, k, c] * u[c]
     size = sqrt(z[0] * z[0] + z[1] * z[1] + z[2] * z[2])
-    return a_n + mu[i] * size, size
+    if problem == TORQUE_INRADIUS:
+        if size <= mu[i] * a_n:
+            return sqrt(a_n * a_n + size * size), size, a_n
+        return (a_n + mu[i] * size) / sqrt(1.0 + mu[i] * mu[i]), size, a_n
+    return a_n + mu[i] * size, size, a_n
 
 
 @jit
 def _add_disc_point(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray, i: int,
-                    z: np.ndarray, size: float, point: np.ndarray) -> None:
-    """point += contact i's support point for the tangential work z (3,) of length size."""
-    scale = mu[i] / size if size > 0.0 else 0.0
+                    z: np.ndarray, size: float, a_n: float, problem: int,
+                    point: np.ndarray) -> None:
+    """point += contact i's support point for the normal work a_n and the tangential
+    work z (3,) of length size: a point of its disc (rows w_i(n_i + t), |t| <= mu_i),
+    or for ``TORQUE_INRADIUS`` of its unit forces (w_i(v / |v|) inside the cone, the
+    disc point over sqrt(1 + mu_i^2) on its rim)."""
+    base, scale = 1.0, mu[i] / size if size > 0.0 else 0.0
+    if problem == TORQUE_INRADIUS:
+        if size <= mu[i] * a_n:
+            base = 1.0 / sqrt(a_n * a_n + size * size)
+            scale = base
+            base *= a_n
+        else:
+            base = 1.0 / sqrt(1.0 + mu[i] * mu[i])
+            scale *= base
     for c in range(6):
-        point[c] += normal_rows[i, c] + scale * (z[0] * tangent_rows[i, 0, c]
-                                                 + z[1] * tangent_rows[i, 1, c]
-                                                 + z[2] * tangent_rows[i, 2, c])
+        point[c] += base * normal_rows[i, c] + scale * (z[0] * tangent_rows[i, 0, c]
+                                                        + z[1] * tangent_rows[i, 1, c]
+                                                        + z[2] * tangent_rows[i, 2, c])
 
 
 @jit
-def support(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray, linf: bool,
+def support(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray, problem: int,
             u: np.ndarray, point: np.ndarray) -> float:
     """Support value h(u) of W and a maximiser, written to ``point`` (6,).
 
-    L1: the best contact's disc point, or the origin where no contact does positive
-    work. L-infinity: the sum of the disc points of the contacts doing positive work.
+    L1 (and ``TORQUE_INRADIUS``): the best contact's point, or the origin where no
+    contact does positive work. L-infinity: the sum of the points of the contacts doing
+    positive work.
     """
     z = np.empty(3)
     for c in range(6):
         point[c] = 0.0
-    if linf:
+    if problem == EPSILON_LINF:
         total = 0.0
         for i in range(normal_rows.shape[0]):
-            work, size = _contact_work(normal_rows, tangent_rows, mu, i, u, z)
+            work, size, a_n = _contact_work(normal_rows, tangent_rows, mu, i, u, z, problem)
             if work > 0.0:
                 total += work
-                _add_disc_point(normal_rows, tangent_rows, mu, i, z, size, point)
+                _add_disc_point(normal_rows, tangent_rows, mu, i, z, size, a_n, problem, point)
         return total
     best, best_i = 0.0, -1
     for i in range(normal_rows.shape[0]):
-        work, size = _contact_work(normal_rows, tangent_rows, mu, i, u, z)
+        work, size, a_n = _contact_work(normal_rows, tangent_rows, mu, i, u, z, problem)
         if work > best:
             best, best_i = work, i
     if best_i >= 0:
-        _, size = _contact_work(normal_rows, tangent_rows, mu, best_i, u, z)
-        _add_disc_point(normal_rows, tangent_rows, mu, best_i, z, size, point)
+        _, size, a_n = _contact_work(normal_rows, tangent_rows, mu, best_i, u, z, problem)
+        _add_disc_point(normal_rows, tangent_rows, mu, best_i, z, size, a_n, problem, point)
     return best
 
 
@@ -239,11 +277,12 @@ def _certified_offset(points: np.ndarray, vertices: np.ndarray, normal: np.ndarr
 
 @jit
 def _set_facet(points: np.ndarray, facet: int, reference: np.ndarray, origin_based: bool,
-               allowance: float, vertices: np.ndarray, normals: np.ndarray,
+               allowance: float, problem: int, vertices: np.ndarray, normals: np.ndarray,
                offsets: np.ndarray, certified: np.ndarray, matrix: np.ndarray,
                normal: np.ndarray) -> bool:
     """Compute facet ``facet``'s plane about ``reference``; False if its orientation
-    is not certified (a fold or a sliver)."""
+    is not certified (a fold or a sliver). About the origin, ``certified`` gets the
+    facet's key (:func:`_facet_key`)."""
     if not (_facet_plane(points, vertices[facet], reference, matrix, normal) > 0.0
             or _orientation_dd(points, vertices[facet], reference)):
         return False
@@ -256,14 +295,29 @@ def _set_facet(points: np.ndarray, facet: int, reference: np.ndarray, origin_bas
         normals[facet, c] = normal[c] / norm
         shift += normal[c] * reference[c]
     offsets[facet] = (1.0 + shift) / norm
-    certified[facet] = (_certified_offset(points, vertices[facet], normal, allowance)
+    certified[facet] = (_facet_key(normals[facet], problem,
+                                   _certified_offset(points, vertices[facet], normal,
+                                                     allowance))
                         if origin_based else -np.inf)
     return True
 
 
 @jit
+def _facet_key(unit_normal: np.ndarray, problem: int, offset: float) -> float:
+    """What a facet with certified ``offset`` and unit normal m proves: for epsilon the
+    offset itself; for ``TORQUE_INRADIUS`` the offset over |m_t| (rounded up), the
+    distance from the origin to the facet's plane along the torque space (inf for a
+    facet parallel to it)."""
+    if problem != TORQUE_INRADIUS or not offset > 0.0:
+        return offset
+    torque = sqrt(unit_normal[3] * unit_normal[3] + unit_normal[4] * unit_normal[4]
+                  + unit_normal[5] * unit_normal[5]) * (1.0 + 8.0 * _EPS)
+    return offset / torque * (1.0 - 2.0 * _EPS) if torque > 0.0 else np.inf
+
+
+@jit
 def _insert(points: np.ndarray, q: int, start: int, reference: np.ndarray,
-            origin_based: bool, allowance: float, tol: float, floor: float,
+            origin_based: bool, allowance: float, problem: int, tol: float, floor: float,
             vertices: np.ndarray, neighbours: np.ndarray, normals: np.ndarray,
             offsets: np.ndarray, certified: np.ndarray, alive: np.ndarray,
             stuck: np.ndarray, marks: np.ndarray, stamp: int, n_facets: int,
@@ -290,8 +344,8 @@ def _insert(points: np.ndarray, q: int, start: int, reference: np.ndarray,
                              scratch_int[2])
         if n_horizon < 0 or n_facets + n_horizon > vertices.shape[0]:
             return -1
-        failed = _new_facets(points, q, reference, origin_based, allowance, floor, vertices,
-                             normals, offsets, certified, n_facets, n_horizon,
+        failed = _new_facets(points, q, reference, origin_based, allowance, problem, floor,
+                             vertices, normals, offsets, certified, n_facets, n_horizon,
                              scratch_int[1], scratch_int[2], matrix, normal)
         if failed < 0:
             break
@@ -380,7 +434,8 @@ def _horizon(neighbours: np.ndarray, marks: np.ndarray, stamp: int, visible: np.
 
 @jit
 def _new_facets(points: np.ndarray, q: int, reference: np.ndarray, origin_based: bool,
-                allowance: float, floor: float, vertices: np.ndarray, normals: np.ndarray,
+                allowance: float, problem: int, floor: float, vertices: np.ndarray,
+                normals: np.ndarray,
                 offsets: np.ndarray, certified: np.ndarray, first: int, count: int,
                 horizon_facet: np.ndarray, horizon_slot: np.ndarray, matrix: np.ndarray,
                 normal: np.ndarray) -> int:
@@ -394,8 +449,8 @@ def _new_facets(points: np.ndarray, q: int, reference: np.ndarray, origin_based:
         for c in range(6):
             vertices[f, c] = vertices[g, c]
         vertices[f, j] = q
-        if not _set_facet(points, f, reference, origin_based, allowance, vertices, normals,
-                          offsets, certified, matrix, normal):
+        if not _set_facet(points, f, reference, origin_based, allowance, problem, vertices,
+                          normals, offsets, certified, matrix, normal):
             return h
         if origin_based and certified[f] < floor:
             return h
@@ -466,22 +521,25 @@ def _ridge_key(vertices: np.ndarray, skip_a: int, skip_b: int) -> int:
 
 @jit
 def certified_upper(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray,
-                    linf: bool, u: np.ndarray, allowance: float) -> float:
+                    problem: int, u: np.ndarray, allowance: float) -> float:
     """An upper bound, valid despite rounding, on h(u / |u|), where ``allowance`` bounds
     the rounding of every contact's work (and, L-infinity, of their sum): 0 where every
-    contact's work plus it is <= 0. Divided by a lower bound on |u|."""
+    contact's work plus it is <= 0. Divided by a lower bound on |u|; for
+    ``TORQUE_INRADIUS`` on |u_t| instead (h(u) / |u_t|, inf where u_t = 0)."""
     z = np.empty(3)
     total, most = 0.0, -np.inf
     for i in range(normal_rows.shape[0]):
-        work, _ = _contact_work(normal_rows, tangent_rows, mu, i, u, z)
+        work, _, _ = _contact_work(normal_rows, tangent_rows, mu, i, u, z, problem)
         total += max(work, 0.0)
         most = max(most, work)
     if most + allowance <= 0.0:
         return 0.0
-    bound = (total if linf else most) + allowance
+    bound = (total if problem == EPSILON_LINF else most) + allowance
     norm = 0.0
-    for c in range(6):
+    for c in range(3 if problem == TORQUE_INRADIUS else 0, 6):
         norm += u[c] * u[c]
+    if not norm > 0.0:
+        return np.inf
     return bound / (sqrt(norm) * (1.0 - 8.0 * _EPS))
 
 
@@ -528,7 +586,8 @@ def _initial_simplex(points: np.ndarray, n_points: int, tol: float, chosen: np.n
 
 @jit
 def _simplex_surface(points: np.ndarray, chosen: np.ndarray, reference: np.ndarray,
-                     allowance: float, vertices: np.ndarray, neighbours: np.ndarray,
+                     allowance: float, problem: int, vertices: np.ndarray,
+                     neighbours: np.ndarray,
                      normals: np.ndarray, offsets: np.ndarray, certified: np.ndarray,
                      alive: np.ndarray, stuck: np.ndarray, marks: np.ndarray,
                      matrix: np.ndarray, normal: np.ndarray) -> bool:
@@ -544,7 +603,7 @@ def _simplex_surface(points: np.ndarray, chosen: np.ndarray, reference: np.ndarr
         if _facet_plane(points, vertices[k], reference, matrix, normal) < 0.0:
             vertices[k, 0], vertices[k, 1] = vertices[k, 1], vertices[k, 0]
             neighbours[k, 0], neighbours[k, 1] = neighbours[k, 1], neighbours[k, 0]
-        if not _set_facet(points, k, reference, False, allowance, vertices, normals,
+        if not _set_facet(points, k, reference, False, allowance, problem, vertices, normals,
                           offsets, certified, matrix, normal):
             return False
         alive[k] = True
@@ -564,13 +623,13 @@ def _least_facet(n_facets: int, alive: np.ndarray, keys: np.ndarray) -> int:
 
 
 @jit
-def _query(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray, linf: bool,
+def _query(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray, problem: int,
            allowance: float, direction: np.ndarray, point: np.ndarray, best: float,
            best_dir: np.ndarray) -> tuple[float, float]:
     """Support point in ``direction`` (to ``point``); returns (h, certified upper bound),
     and keeps the direction in ``best_dir`` if it improves on ``best``."""
-    h = support(normal_rows, tangent_rows, mu, linf, direction, point)
-    bound = certified_upper(normal_rows, tangent_rows, mu, linf, direction, allowance)
+    h = support(normal_rows, tangent_rows, mu, problem, direction, point)
+    bound = certified_upper(normal_rows, tangent_rows, mu, problem, direction, allowance)
     if bound < best:
         for c in range(6):
             best_dir[c] = direction[c]
@@ -579,7 +638,7 @@ def _query(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray, li
 
 @jit
 def _seed_surface(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray,
-                  linf: bool, allowance: float, tol: float, contain_tol: float,
+                  problem: int, allowance: float, tol: float, contain_tol: float,
                   seeds: np.ndarray, n_seeds: int, points: np.ndarray, vertices: np.ndarray,
                   neighbours: np.ndarray, normals: np.ndarray, offsets: np.ndarray,
                   certified: np.ndarray, alive: np.ndarray, stuck: np.ndarray,
@@ -591,7 +650,7 @@ def _seed_surface(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndar
     Returns (facets, insertions so far, upper), facets 0 if the points span less than
     six dimensions."""
     for k in range(n_seeds):
-        _, bound = _query(normal_rows, tangent_rows, mu, linf, allowance, seeds[k], points[k],
+        _, bound = _query(normal_rows, tangent_rows, mu, problem, allowance, seeds[k], points[k],
                           upper, direction)
         upper = min(upper, bound)
     chosen = np.empty(7, np.int64)
@@ -601,7 +660,7 @@ def _seed_surface(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndar
         reference[c] = 0.0
         for k in range(7):
             reference[c] += points[chosen[k], c] / 7.0
-    if not _simplex_surface(points, chosen, reference, allowance, vertices, neighbours,
+    if not _simplex_surface(points, chosen, reference, allowance, problem, vertices, neighbours,
                             normals, offsets, certified, alive, stuck, marks, matrix, normal):
         return 0, 0, upper
     n_facets, stamp = 7, 0
@@ -617,7 +676,7 @@ def _seed_surface(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndar
                     break
         if start >= 0:
             stamp += 1
-            grown = _insert(points, p, start, reference, False, allowance, tol, -np.inf,
+            grown = _insert(points, p, start, reference, False, allowance, problem, tol, -np.inf,
                             vertices, neighbours, normals, offsets, certified, alive, stuck,
                             marks, stamp, n_facets, scratch_int, scratch_new, matrix, normal)
             if grown > 0:
@@ -627,7 +686,7 @@ def _seed_surface(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndar
 
 @jit
 def _epsilon_one(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray,
-                 scale: float, linf: bool, rtol: float, seeds: np.ndarray, max_points: int,
+                 scale: float, problem: int, rtol: float, seeds: np.ndarray, max_points: int,
                  points: np.ndarray, vertices: np.ndarray, neighbours: np.ndarray,
                  normals: np.ndarray, offsets: np.ndarray, certified: np.ndarray,
                  alive: np.ndarray, stuck: np.ndarray, marks: np.ndarray,
@@ -647,7 +706,7 @@ def _epsilon_one(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarr
     for n_seeds in (SEED_SIMPLEX, seeds.shape[0]):
         n_points = n_seeds
         n_facets, stamp, upper = _seed_surface(
-            normal_rows, tangent_rows, mu, linf, allowance, tol, CONTAINMENT_TOL * scale,
+            normal_rows, tangent_rows, mu, problem, allowance, tol, CONTAINMENT_TOL * scale,
             seeds, n_seeds, points, vertices, neighbours, normals, offsets, certified, alive,
             stuck, marks, scratch_int, scratch_new, matrix, normal, direction, reference, upper)
         if n_facets > 0:
@@ -668,7 +727,7 @@ def _epsilon_one(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarr
             if stuck[f]:
                 return (max(least, 0.0) if origin_based else 0.0), upper, n_points, \
                     (STUCK if origin_based else NOT_CONTAINED)
-            h, bound = _query(normal_rows, tangent_rows, mu, linf, allowance, normals[f],
+            h, bound = _query(normal_rows, tangent_rows, mu, problem, allowance, normals[f],
                               points[n_points], upper, direction)
             upper = min(upper, bound)
             if h - offsets[f] <= tol:
@@ -681,7 +740,8 @@ def _epsilon_one(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarr
                 stamp += 1
                 visible_tol = max(tol, fraction * (h - offsets[f]))
                 grown = _insert(points, n_points, f, origin if origin_based else reference,
-                                origin_based, allowance, visible_tol, least - visible_tol,
+                                origin_based, allowance, problem, visible_tol,
+                                least - visible_tol,
                                 vertices, neighbours, normals, offsets, certified, alive, stuck,
                                 marks, stamp, n_facets, scratch_int, scratch_new, matrix, normal)
                 if grown >= 0:
@@ -696,8 +756,8 @@ def _epsilon_one(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarr
             if alive[f]:
                 certified[f] = -np.inf
                 stuck[f] = False
-                _set_facet(points, f, origin, True, allowance, vertices, normals, offsets,
-                           certified, matrix, normal)
+                _set_facet(points, f, origin, True, allowance, problem, vertices, normals,
+                           offsets, certified, matrix, normal)
     return 0.0, upper, n_points, STUCK
 
 
@@ -719,7 +779,7 @@ def workspace(max_points: int, max_facets: int) -> Workspace:
 
 @jit
 def epsilon_batch(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray,
-                  scale: np.ndarray, linf: bool, rtol: float, seeds: np.ndarray,
+                  scale: np.ndarray, problem: int, rtol: float, seeds: np.ndarray,
                   arrays: Workspace
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`_epsilon_one` for every grasp of a batch.
@@ -731,8 +791,8 @@ def epsilon_batch(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndar
     mu : ndarray, shape (N, n)
     scale : ndarray, shape (N,)
         Wrench scale of each grasp (bounds |support point|).
-    linf : bool
-        L-infinity budget instead of L1.
+    problem : int
+        What is bounded: ``EPSILON_L1``, ``EPSILON_LINF`` or ``TORQUE_INRADIUS``.
     rtol : float
     seeds : ndarray, shape (S, 6)
         Unit directions of the first support points: a regular simplex (the first
@@ -755,7 +815,7 @@ def epsilon_batch(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndar
     n_points, status = np.empty(n_grasps, np.int64), np.empty(n_grasps, np.int64)
     for g in range(n_grasps):
         lower[g], upper[g], n_points[g], status[g] = _epsilon_one(
-            normal_rows[g], tangent_rows[g], mu[g], scale[g], linf, rtol, seeds,
+            normal_rows[g], tangent_rows[g], mu[g], scale[g], problem, rtol, seeds,
             points.shape[0] - 1, points, vertices, neighbours, normals, offsets, certified,
             alive, stuck, marks, scratch_int, scratch_new, matrix, normal, direction[g])
     return lower, upper, direction, n_points, status
@@ -896,11 +956,11 @@ def _determinant_drift(kappa: float) -> float:
 
 @jit
 def certified_upper_batch(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarray,
-                          scale: np.ndarray, linf: bool, directions: np.ndarray) -> np.ndarray:
+                          scale: np.ndarray, problem: int, directions: np.ndarray) -> np.ndarray:
     """:func:`certified_upper` of each grasp's direction (N, 6), with the rounding
     allowance of its wrench scale (N,)."""
     out = np.empty(directions.shape[0])
     for g in range(directions.shape[0]):
-        out[g] = certified_upper(normal_rows[g], tangent_rows[g], mu[g], linf, directions[g],
+        out[g] = certified_upper(normal_rows[g], tangent_rows[g], mu[g], problem, directions[g],
                                  SUPPORT_ROUNDING_ULPS * _EPS * scale[g])
     return out
