@@ -3,9 +3,10 @@ the scheduler and the client sustain, what a grasp costs on disk, and a lost hos
 
 Sections (``--sections``, default all):
 
-* ``overhead``: for each column set (verdicts; + epsilon; + robustness radii; + the
-  probability of force closure, 1,000 samples at issue 29's noise: 2 mm, 3 degrees,
-  friction 0.1) at its default chunk size, ``--chunks`` chunks labelled in this process
+* ``overhead``: for each column set (verdicts; + epsilon; + robustness radii; + radii and
+  holds_under at errors of 2 mm, 3 degrees, friction 0.1; + radii and the probability of
+  force closure, 1,000 samples at issue 29's noise: the same sigmas) at its default chunk
+  size, ``--chunks`` chunks labelled in this process
   (``label_chunk``, the compute) and by ``run`` on a LocalCluster of one worker: the
   overhead per chunk by wall time and by the worker's CPU time (everything the labeller
   adds: checking pass, task, transfer; the part written by the client overlaps the next
@@ -68,10 +69,13 @@ BIN = Path(sys.executable).parent
 # Issue 29's noise: 2 mm, 3 degrees, friction 0.1 (the objects are in metres).
 PROBABILITY = Robustness(position_sigma=0.002, normal_sigma=float(np.radians(3.0)),
                          friction_sigma=0.1)
+HOLDS = Robustness(position_error=0.002, normal_error=float(np.radians(3.0)),
+                   friction_error=0.1)
 COLUMN_SETS: dict[str, dict[str, Any]] = {
     "verdicts": {},
     "+ epsilon": {"quality_rtol": 1e-3},
     "+ radii": {"robustness": Robustness()},
+    "+ holds": {"robustness": HOLDS},
     "+ probability": {"robustness": PROBABILITY},
 }
 
@@ -326,7 +330,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         args.chunks, args.tasks, args.loss_grasps, args.loss_chunk = 2, 2000, 60_000, 5000
         args.repeats = 1
         args.hosts_grasps = 0
-        for name in ("+ epsilon", "+ radii", "+ probability"):
+        for name in ("+ epsilon", "+ radii", "+ holds", "+ probability"):
             COLUMN_SETS[name] = {**COLUMN_SETS[name], "chunk_size": 20}
     sections = args.sections.split(",")
     for name in set(COLUMN_SETS) - set(args.columns.split(",")):

@@ -54,9 +54,14 @@ CHUNK_WORK = 1_000_000
 EPSILON_COST = 100
 # One Monte-Carlo sample of the probability is one batched exact test (a verdict).
 PROBABILITY_SAMPLE_COST = 1
-# Verdicts' worth of the three certified radii, and of holds_under, per grasp.
+# Verdicts' worth of the three certified radii per grasp: robustness() ran at 1/35 (four
+# fingers) to 1/127 (six) of the exact test's rate, mu 0.5 (CPU time, one run).
 RADII_COST = 100
-HOLDS_COST = 100
+# Verdicts' worth of holds_under per grasp at errors of every kind (2 mm, 3 degrees,
+# friction 0.1: the position error's conic search dominates): 1/186 (four fingers) to
+# 1/477 (six) of the exact test's rate; about 2 with a normal error alone (taken as the
+# worst case: a smaller chunk costs little, a larger one may last minutes).
+HOLDS_COST = 500
 MANIFEST_FORMAT = 1
 
 
@@ -277,9 +282,10 @@ class Progress:
         left = (self.total_grasps - self.grasps) / rate if rate else float("inf")
         width = 30
         filled = int(width * self.grasps / max(self.total_grasps, 1))
+        digits = 0 if rate >= 10 else 2  # costly columns run at a few grasps/s a worker
         line = (f"[{'#' * filled}{'.' * (width - filled)}] {self.chunks}/{self.total_chunks} "
-                f"chunks, {self.grasps:,}/{self.total_grasps:,} grasps, {rate:,.{0 if rate >= 10 else 2}f} grasps/s, "
-                f"{duration(left)} left")
+                f"chunks, {self.grasps:,}/{self.total_grasps:,} grasps, "
+                f"{rate:,.{digits}f} grasps/s, {duration(left)} left")
         self.stream.write(("\r" + line) if self.tty else line + "\n")
         if self.tty and self.chunks == self.total_chunks:
             self.stream.write("\n")
@@ -326,8 +332,9 @@ def run(plan: Plan, out: str | os.PathLike[str], client: Client,
     sources = [client.submit(_identity, source, key=f"grasp-fc-source-{run_id}-{s}")
                for s, source in enumerate(plan.sources)]
 
-    problems = _map_chunks(client, validate_chunk, sources, check_ranges(todo), (),
-                           f"check-{run_id}", stop_on=lambda problem: problem is not None)
+    problems = _map_chunks(client, validate_chunk, sources, check_ranges(todo),
+                           (plan.robustness is not None,), f"check-{run_id}",
+                           stop_on=lambda problem: problem is not None)
     if problems:
         raise InputError(problems[0][1])
 

@@ -25,8 +25,12 @@ if TYPE_CHECKING:
     from .robustness import Robustness
 
 
-def validate_chunk(source: Source, start: int, stop: int) -> str | None:
+def validate_chunk(source: Source, start: int, stop: int,
+                   hard_only: bool = False) -> str | None:
     """The first problem of rows ``start:stop`` of ``source``, or None if all can be labelled.
+
+    With ``hard_only`` (``--robustness``, whose radii are for hard contacts), a soft finger
+    (torsional friction > 0) is a problem too.
 
     Returns
     -------
@@ -42,12 +46,20 @@ def validate_chunk(source: Source, start: int, stop: int) -> str | None:
     where = _grasp_names(source.path, chunk)
     validation = validate_grasps(chunk.positions, chunk.normals, chunk.mu,
                                  _torsional(chunk))
-    if validation.valid.all():
-        return None
-    g = int(np.argmin(validation.valid))
-    # The core names the grasp by its index in this chunk; name it by its file row and id.
-    detail = validation.reasons[g].removeprefix(f"grasp {g}")
-    return f"{where(g)}{detail}"
+    if not validation.valid.all():
+        g = int(np.argmin(validation.valid))
+        # The core names the grasp by its index in this chunk; name it by its file row
+        # and id.
+        detail = validation.reasons[g].removeprefix(f"grasp {g}")
+        return f"{where(g)}{detail}"
+    if hard_only and chunk.torsional is not None:
+        soft = np.broadcast_to(chunk.torsional, chunk.positions.shape[:2]) > 0.0
+        if soft.any():
+            g, c = (int(i) for i in np.argwhere(soft)[0])
+            return (f"{where(g)}, contact {c}: a soft finger (torsional friction "
+                    f"{np.broadcast_to(chunk.torsional, soft.shape)[g, c]:g}): the "
+                    "robustness columns are for hard contacts (docs/robustness.md#limits)")
+    return None
 
 
 def _grasp_names(path: str, chunk: GraspChunk) -> Callable[[int], str]:

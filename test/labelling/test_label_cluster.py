@@ -214,6 +214,44 @@ def test_cli_quality_on_an_existing_output_is_refused_naming_it(client, tmp_path
         "_grasp_fc_label.json", "part-00000-000000.parquet"]
 
 
+def test_cli_robustness_on_drawn_grasps_keeps_the_grasps_and_resumes(client, tmp_path,
+                                                                     capsys, monkeypatch):
+    from grasp_fc_ros.labelling.robustness import Robustness
+    from grasp_fc_ros.labelling.runner import default_chunk_size
+    from grasp_fc_ros.labelling.tasks import label_chunk
+
+    monkeypatch.setattr(runner, "dask_client", lambda *args: contextlib.nullcontext(client))
+    drawn = ["--objects", "box", "--grasps-per-object", "2000", "--fingers", "4", "--mu",
+             "0.6", "--seed", "5", "--no-progress"]
+    robust = ["--robustness", "--normal-error", "0.02", "--normal-sigma", "0.03",
+              "--samples", "20"]
+    assert cli.main([*drawn, "--out", str(tmp_path / "plain")]) == 0
+    assert cli.main([*drawn, *robust, "--out", str(tmp_path / "robust")]) == 0
+    capsys.readouterr()
+    settings = Robustness(normal_error=0.02, normal_sigma=0.03, samples=20, seed=5)
+    size = default_chunk_size(None, settings)
+    assert size < 2000  # chunks by cost, smaller than the blocks the grasps are drawn in
+    assert len(list((tmp_path / "robust").glob("part-*"))) == -(-2000 // size)
+    plain, robust_table = pq.read_table(tmp_path / "plain"), pq.read_table(tmp_path / "robust")
+    for key in ("id", "positions", "normals", "status"):
+        assert robust_table[key].equals(plain[key]), key  # the same grasps, the same labels
+    # The robustness columns are those of one chunk of all 2,000 grasps in one process.
+    source = object_sources(["box"], [], 2000, 4, 0.6, 5, 5000, draw_block=50_000)[0]
+    expected = label_chunk(source, 0, 2000, "auto", "seed", robustness=settings)
+    for key in ("holds", "holds_name", "holds_bound", "probability_successes"):
+        assert robust_table[key].equals(expected[key]), key
+    for key in ("normal_angle", "position_radius", "friction_drop", "probability_estimate",
+                "probability_lower", "probability_upper", "probability_normal_lower_bound"):
+        assert np.array_equal(robust_table[key].to_numpy(), expected[key].to_numpy(),
+                              equal_nan=True), key
+    # The same command resumes (nothing to do); other samples are refused, naming them.
+    assert cli.main([*drawn, *robust, "--out", str(tmp_path / "robust")]) == 0
+    assert f"({-(-2000 // size)} already written)" in capsys.readouterr().err
+    robust[-1] = "25"
+    assert cli.main([*drawn, *robust, "--out", str(tmp_path / "robust")]) == 2
+    assert "(differs in: --samples" in capsys.readouterr().err
+
+
 # --- a scheduler and workers as separate processes -------------------------------------
 
 

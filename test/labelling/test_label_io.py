@@ -173,6 +173,21 @@ def test_soft_grasps_are_labelled_with_their_torsional_friction(tmp_path):
                                rtol=1e-9, atol=1e-6)
 
 
+def test_soft_fingers_are_refused_for_robustness_naming_grasp_and_contact(tmp_path):
+    positions, normals = _grasps(8)
+    torsional = np.zeros((8, 4))
+    torsional[6, 2] = 0.004
+    np.savez(tmp_path / "t.npz", positions=positions, normals=normals, mu=0.5,
+             torsional_friction=torsional)
+    source = open_input(tmp_path / "t.npz")
+    assert validate_chunk(source, 0, 8) is None  # labelled as soft fingers
+    assert validate_chunk(source, 0, 8, hard_only=True) == (
+        f"{tmp_path / 't.npz'}: grasp 6 (id 6), contact 2: a soft finger (torsional "
+        "friction 0.004): the robustness columns are for hard contacts "
+        "(docs/robustness.md#limits)")
+    assert validate_chunk(source, 0, 6, hard_only=True) is None  # hard (gamma 0) rows
+
+
 def test_bad_torsional_friction_is_refused_naming_the_value(tmp_path):
     positions, normals = _grasps(8)
     torsional = np.zeros((8, 4))
@@ -221,6 +236,59 @@ def test_label_chunk_with_quality_adds_the_certified_epsilon(tmp_path):
     # without --quality the table is as before
     plain = label_chunk(open_input(tmp_path / "a.npz"), 0, 30, "auto", "seed")
     assert plain.column_names == table.column_names[:5]
+
+
+def test_label_chunk_with_robustness_adds_the_cores_columns(tmp_path):
+    from grasp_fc_ros.core.robustness import (
+        Holds,
+        holds_under,
+        probability_of_force_closure,
+        robustness,
+    )
+    from grasp_fc_ros.labelling.robustness import Robustness
+
+    positions, normals = _grasps(24, n_fingers=5, seed=6)
+    mu = np.random.default_rng(2).uniform(0.4, 0.9, (24, 5))  # per contact
+    ids = np.arange(24, dtype=np.uint64) * 7 + 1000
+    np.savez(tmp_path / "a.npz", positions=positions, normals=normals, mu=mu, ids=ids)
+    settings = Robustness(normal_error=0.03, friction_error=0.05, position_sigma=0.003,
+                          normal_sigma=0.04, samples=40, confidence=0.9, seed=11)
+    source = open_input(tmp_path / "a.npz")
+    table = label_chunk(source, 0, 24, "auto", "seed", robustness=settings)
+    assert table.schema.equals(Plan.from_files([tmp_path / "a.npz"],
+                                               robustness=settings).schema)
+    assert table.column_names[5:] == [
+        "normal_angle", "position_radius", "friction_drop", "holds", "holds_name",
+        "holds_bound", "probability_estimate", "probability_lower", "probability_upper",
+        "probability_successes", "probability_undecided", "probability_normal_lower_bound"]
+    radii = robustness(positions, normals, mu)
+    for key in ("normal_angle", "position_radius", "friction_drop"):
+        assert np.array_equal(table[key].to_numpy(), getattr(radii, key)), key
+    holds = holds_under(positions, normals, mu, normal_error=0.03, friction_error=0.05)
+    assert np.array_equal(table["holds"].to_numpy(), holds.status)
+    assert table["holds_name"].to_pylist() == [Holds(h).name for h in holds.status]
+    assert table["holds_bound"].to_pylist() == [str(b) for b in holds.bound]
+    assert {"HOLDS", "BREAKS"} <= set(table["holds_name"].to_pylist())
+    # Each grasp's noise comes from the run's seed and its id.
+    probability = probability_of_force_closure(
+        positions, normals, mu, position_sigma=0.003, normal_sigma=0.04, samples=40,
+        confidence=0.9, seed=11, grasp_ids=ids)
+    for key in ("estimate", "lower", "upper", "successes", "undecided"):
+        assert np.array_equal(table[f"probability_{key}"].to_numpy(),
+                              getattr(probability, key)), key
+    estimate = table["probability_estimate"].to_numpy()
+    assert 0 < estimate.mean() < 1 and len(np.unique(estimate)) > 3
+    # Another chunking of the same grasps: the same columns, probability included.
+    parts = [label_chunk(source, a, b, "auto", "seed", robustness=settings)
+             for a, b in ((0, 5), (5, 6), (6, 24))]
+    again = pa.concat_tables(parts)
+    for key in table.column_names[5:]:
+        if key != "probability_normal_lower_bound":
+            assert again[key].equals(table[key]), key
+    # Without holds or probability settings, the radii alone.
+    radii_only = label_chunk(source, 0, 24, "auto", "seed", robustness=Robustness(seed=3))
+    assert radii_only.column_names[5:] == ["normal_angle", "position_radius",
+                                           "friction_drop"]
 
 
 def test_quality_setting_in_schema_and_manifest(tmp_path):
