@@ -16,11 +16,12 @@ Sections (``--sections``, default all):
   second through ``run`` at 10 grasps a chunk (the client's ceiling, parts included);
 * ``hosts``: three hosts as network namespaces (test/net_hosts.py; skipped where they
   cannot be made): a scheduler and the client on one, a worker on each of two others;
-  runs of ``--loss-grasps`` grasps uncut and with a worker host cut after a third of the
-  chunks, under Dask's defaults and under ``net_hosts.FAST_LOSS_CONFIG``: seconds from the
-  cut to the scheduler removing the worker, and what the cut added to the run; then the
-  long form: ``--hosts-grasps`` (default 10^7) verdicts in one run with a cut, every row
-  checked once and equal to a one-process run.
+  runs of ``--loss-grasps`` grasps without incident, with a worker host cut after a third
+  of the chunks (under Dask's defaults, each setting of ``net_hosts.FAST_LOSS_CONFIG``
+  alone, and all of them), and with it frozen instead (defaults, all): seconds from the
+  incident to the scheduler removing the worker, what it added to the run, and every row
+  checked once and equal to a one-process run; then the long form: ``--hosts-grasps``
+  (default 10^7) verdicts in one run with a cut.
 
 The machine may be shared: wall-time figures then include other work; CPU times less so.
 
@@ -219,9 +220,11 @@ def _removed_at(log: str, address: str) -> float | None:
 
 
 def hosts_run(folder: Path, path: Path, chunk: int, config: dict[str, str],
-              cut_after: float | None) -> dict[str, float]:
-    """One grasp-fc-label run across three hosts; with ``cut_after``, worker host 2 is
-    cut once that share of the parts is written (while it holds chunks)."""
+              incident: str | None = None, cap: float = 120.0) -> dict[str, float]:
+    """One grasp-fc-label run across three hosts. ``incident`` ("cut" or "freeze") hits
+    worker host 2 once a third of the parts are written (while it holds chunks); a frozen
+    host not removed by the scheduler within ``cap`` seconds is resumed so the run ends.
+    Returns seconds, parts at the incident, seconds from it to the worker's removal."""
     out = folder / "hosts-out"
     shutil.rmtree(out, ignore_errors=True)
     n_chunks = len(Plan([open_input(path)], chunk_size=chunk).chunks)
@@ -235,23 +238,32 @@ def hosts_run(folder: Path, path: Path, chunk: int, config: dict[str, str],
         labeller = hosts.popen(0, [str(BIN / "grasp-fc-label"), str(path), "--out", str(out),
                                    "--chunk-size", str(chunk), "--scheduler", address,
                                    "--no-progress"], env=env)
-        if cut_after is not None:
+        if incident is not None:
             lost = f"tcp://{hosts.address(2)}:"
             while labeller.poll() is None and not (
-                    len(list(out.glob("part-*"))) >= cut_after * n_chunks
+                    len(list(out.glob("part-*"))) >= n_chunks / 3
                     and any(w.startswith(lost) and k
                             for w, k in watcher.processing().items())):
                 time.sleep(0.02)
-            cut_at = time.time()
-            hosts.cut(2)
-            result["parts_at_cut"] = len(list(out.glob("part-*")))
+            hit_at = time.time()
+            if incident == "cut":
+                hosts.cut(2)
+            else:
+                hosts.freeze(2)
+            result["parts_at_incident"] = len(list(out.glob("part-*")))
+            while (incident == "freeze" and labeller.poll() is None
+                   and _removed_at(hosts.log(scheduler), hosts.address(2)) is None):
+                if time.time() - hit_at > cap:
+                    hosts.freeze(2, resume=True)
+                    break
+                time.sleep(0.1)
         labeller.wait()
         result["seconds"] = time.perf_counter() - start
         if labeller.returncode:
             raise RuntimeError(f"grasp-fc-label failed:\n{hosts.log(labeller)}")
-        if cut_after is not None:
+        if incident is not None:
             removed = _removed_at(hosts.log(scheduler), hosts.address(2))
-            result["cut_to_removal"] = float("nan") if removed is None else removed - cut_at
+            result["to_removal"] = float("nan") if removed is None else removed - hit_at
     return result
 
 
@@ -275,34 +287,50 @@ def _check_one_process(folder: Path, path: Path, chunk: int) -> str:
     return "every row once, equal to a one-process run"
 
 
-def hosts(folder: Path, loss_grasps: int, long_grasps: int, chunk: int) -> None:
+#: Dask settings tried against a lost host: each of FAST_LOSS_CONFIG's alone, and all.
+LOSS_CONFIGS: dict[str, dict[str, str]] = {
+    "Dask defaults": {},
+    **{f"{key.split('.')[-1]} {value}": {key: value}
+       for key, value in net_hosts.FAST_LOSS_CONFIG.items()},
+    "FAST_LOSS_CONFIG": net_hosts.FAST_LOSS_CONFIG,
+}
+
+
+def hosts(folder: Path, loss_grasps: int, long_grasps: int, chunk: int, cap: float) -> None:
     reason = net_hosts.unavailable()
     print("\n== three hosts (network namespaces): a scheduler and the client, 2 worker hosts "
-          "with a worker each")
+          "with a worker (and its nanny) each")
     if reason is not None:
         print(f"skipped: {reason}")
         return
     path = write_npz(folder / "loss.npz", loss_grasps, 6, seed=5)
-    print(f"{loss_grasps:,} six-finger grasps, chunks of {chunk:,}; worker host 2 cut after "
-          "a third of the chunks (link down, processes killed)")
-    for name, config in (("Dask defaults", {}),
-                         ("FAST_LOSS_CONFIG", net_hosts.FAST_LOSS_CONFIG)):
-        whole = hosts_run(folder, path, chunk, config, None)
-        cut = hosts_run(folder, path, chunk, config, 1 / 3)
-        print(f"{name:17}: uncut {whole['seconds']:6.1f} s, cut {cut['seconds']:6.1f} s "
-              f"(+{cut['seconds'] - whole['seconds']:5.1f} s); cut -> worker removed "
-              f"{cut['cut_to_removal']:5.1f} s; parts at the cut {cut['parts_at_cut']:.0f}; "
+    print(f"{loss_grasps:,} six-finger grasps, chunks of {chunk:,}; worker host 2 hit after "
+          "a third of the chunks: cut (link down, processes killed) or frozen (SIGSTOP, "
+          f"link up; resumed after {cap:.0f} s if still there)")
+    whole = hosts_run(folder, path, chunk, net_hosts.FAST_LOSS_CONFIG)
+    print(f"{'no incident':22}: {whole['seconds']:6.1f} s")
+    runs = [(name, config, "cut") for name, config in LOSS_CONFIGS.items()]
+    runs += [(name, LOSS_CONFIGS[name], "freeze") for name in ("Dask defaults",
+                                                                "FAST_LOSS_CONFIG")]
+    for name, config, incident in runs:
+        hit = hosts_run(folder, path, chunk, config, incident, cap)
+        removal = hit["to_removal"]
+        removed = (f"{removal:5.1f} s" if removal == removal
+                   else f"not within {cap:.0f} s")
+        print(f"{incident + ', ' + name:22}: {hit['seconds']:6.1f} s "
+              f"(+{hit['seconds'] - whole['seconds']:5.1f} s); to the worker's removal "
+              f"{removed}; parts at the incident {hit['parts_at_incident']:.0f}; "
               f"{_check_one_process(folder, path, chunk)}")
     path.unlink()
     if not long_grasps:
         return
     long_chunk = 100_000
     path = write_npz(folder / "long.npz", long_grasps, 3, seed=6)
-    long = hosts_run(folder, path, long_chunk, net_hosts.FAST_LOSS_CONFIG, 1 / 3)
+    long = hosts_run(folder, path, long_chunk, net_hosts.FAST_LOSS_CONFIG, "cut")
     print(f"long form: {long_grasps:,} three-finger grasps (verdicts), chunks of "
           f"{long_chunk:,}, FAST_LOSS_CONFIG, a worker host cut after a third: "
           f"{long['seconds']:.1f} s ({long_grasps / long['seconds']:,.0f} grasps/s); cut -> "
-          f"removed {long['cut_to_removal']:.1f} s; "
+          f"removed {long['to_removal']:.1f} s; "
           f"{_check_one_process(folder, path, long_chunk)}")
 
 
@@ -322,13 +350,15 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--loss-grasps", type=int, default=600_000,
                         help="grasps of the lost-host runs (default 600,000)")
     parser.add_argument("--loss-chunk", type=int, default=20_000)
+    parser.add_argument("--cap", type=float, default=120.0,
+                        help="seconds a frozen host may stay before it is resumed (120)")
     parser.add_argument("--hosts-grasps", type=int, default=10_000_000,
                         help="verdicts of the long three-host run (default 10^7; 0 skips)")
     parser.add_argument("--quick", action="store_true", help="tiny sizes (smoke test)")
     args = parser.parse_args(argv)
     if args.quick:
         args.chunks, args.tasks, args.loss_grasps, args.loss_chunk = 2, 2000, 60_000, 5000
-        args.repeats = 1
+        args.repeats, args.cap = 1, 20.0
         args.hosts_grasps = 0
         for name in ("+ epsilon", "+ radii", "+ holds", "+ probability"):
             COLUMN_SETS[name] = {**COLUMN_SETS[name], "chunk_size": 20}
@@ -342,7 +372,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         if "tasks" in sections:
             tasks(folder, args.tasks, 2000 if args.quick else 20_000)
         if "hosts" in sections:
-            hosts(folder, args.loss_grasps, args.hosts_grasps, args.loss_chunk)
+            hosts(folder, args.loss_grasps, args.hosts_grasps, args.loss_chunk, args.cap)
     finally:
         shutil.rmtree(folder)
 

@@ -10,6 +10,8 @@ filesystem, as clusters have) but only that host's network.
 
 :meth:`Hosts.cut` pulls a host's cable (its switch port goes down) and then kills every
 process on it: the others get no FIN or RST, exactly as when a machine loses power.
+:meth:`Hosts.freeze` stops its processes instead, link up: a hung machine, whose kernel
+still acknowledges TCP.
 
 Namespaces are named ``gfcnet-<pid>-<token>-...`` and deleted on exit, also when the test
 fails; those left by a killed run (whose pid no longer exists) are swept on the next start.
@@ -188,6 +190,16 @@ class Hosts:
             if owner == host:
                 proc.wait()
         return down
+
+    def freeze(self, host: int, resume: bool = False) -> float:
+        """Stop (SIGSTOP) every process on ``host``, its link up: a hung machine that
+        still answers TCP in its kernel; ``resume`` continues them (SIGCONT). Returns the
+        time (``time.monotonic()``) of the signal."""
+        signum = signal.SIGCONT if resume else signal.SIGSTOP
+        for pid in _ip("netns", "pids", self.namespaces[host], check=False).stdout.split():
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(int(pid), signum)
+        return time.monotonic()
 
     def close(self) -> None:
         """Kill every process on every host and delete the namespaces."""
