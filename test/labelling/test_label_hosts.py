@@ -3,6 +3,7 @@ scheduler and the labeller on one, a worker on each of the two others; one worke
 loses its link and its processes mid-run. Skipped where network namespaces cannot be made
 (not root, no ``ip``). Its long form: ``benchmarks/bench_label.py --hosts``."""
 
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -19,7 +20,8 @@ from grasp_fc_ros.objects import make_object, sample_grasps
 
 BIN = Path(sys.executable).parent
 REASON = net_hosts.unavailable()
-pytestmark = pytest.mark.skipif(REASON is not None, reason=f"no network namespaces: {REASON}")
+needs_namespaces = pytest.mark.skipif(REASON is not None,
+                                      reason=f"no network namespaces: {REASON}")
 
 # 40 chunks of six-finger grasps: a few seconds of work per worker here, long enough
 # for the cut to come with chunks still queued on the lost host.
@@ -27,6 +29,53 @@ N_GRASPS = 120_000
 CHUNK = 3_000
 WORKER_HOSTS = (1, 2)
 LOST = 2
+
+
+def test_the_reason_namespaces_cannot_be_made_is_given(monkeypatch):
+    monkeypatch.setattr(net_hosts.os, "geteuid", lambda: 1000)
+    assert net_hosts.unavailable().startswith("not root")
+    monkeypatch.setattr(net_hosts.shutil, "which", lambda name: None)
+    assert net_hosts.unavailable() == "no `ip` command (iproute2) on PATH"
+
+
+def _namespaces():
+    listing = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True,
+                             check=True).stdout
+    return {line.split()[0] for line in listing.splitlines()}
+
+
+@needs_namespaces
+def test_hosts_are_separate_and_removed_even_on_failure(tmp_path):
+    with pytest.raises(RuntimeError, match="inside"):  # noqa: PT012
+        with net_hosts.Hosts(2, tmp_path) as hosts:
+            made = {*hosts.namespaces, hosts.switch}
+            assert made <= _namespaces()
+            listen = ("import socket, time\ns = socket.create_server(('', 7000))\n"
+                      "print('up', flush=True)\nc, (peer, _) = s.accept()\n"
+                      "print(peer, flush=True)\ntime.sleep(60)\n")
+            server = hosts.popen(1, [sys.executable, "-c", listen], stdout=subprocess.PIPE)
+            assert server.stdout.readline() == b"up\n"
+            connect = [sys.executable, "-c", "import socket; socket.create_connection("
+                       f"('{hosts.address(1)}', 7000), timeout=5)"]
+            assert hosts.popen(0, connect).wait(timeout=30) == 0
+            # host 1 saw host 0's address: they are joined by the bridge, not the root
+            assert server.stdout.readline().decode().strip() == hosts.address(0)
+            raise RuntimeError("a failure inside")
+    assert not made & _namespaces()
+    assert server.poll() is not None
+
+
+@needs_namespaces
+def test_namespaces_of_a_killed_run_are_swept(tmp_path):
+    gone = subprocess.Popen(["true"])
+    gone.wait()
+    stale = f"{net_hosts.PREFIX}{gone.pid}-dead00-h0"
+    subprocess.run(["ip", "netns", "add", stale], check=True)
+    try:
+        assert stale in net_hosts.sweep_stale()
+        assert stale not in _namespaces()
+    finally:
+        subprocess.run(["ip", "netns", "del", stale], capture_output=True)
 
 
 def _wait_for(condition, timeout, what):
@@ -45,6 +94,7 @@ def _one_process_labels(path, chunk):
                             for start in range(0, source.n_grasps, chunk))
 
 
+@needs_namespaces
 def test_worker_host_cut_mid_run_loses_nothing(tmp_path):
     p, n = sample_grasps(make_object("box", n_points=2000), N_GRASPS, 6,
                          np.random.default_rng(5))
