@@ -65,6 +65,14 @@ HOLDS_COST = 500
 MANIFEST_FORMAT = 1
 
 
+#: Dask settings of the local cluster's workers (docs/labelling.md says how to set them on
+#: a cluster's): Dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536, which also
+#: stops glibc from raising its mmap threshold, so every large temporary array of the core
+#: is a fresh mmap with its page faults: the probability's chunks took 8-17 % more CPU on
+#: a worker than in-process with it and 0-2 % without (docs/performance.md#labelling). A
+#: chunk's memory is bounded, so trimming gains little here.
+WORKER_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
+
 #: How grasp-fc-label sets each entry of the manifest, to name it when a re-run's differs;
 #: the chunk size last, as its default follows the columns asked for.
 SETTING_NAMES = {
@@ -246,15 +254,17 @@ def dask_client(scheduler: str | None = None, workers: int | None = None,
     The local cluster has ``workers`` processes (default: this machine's cores), one
     thread each (the core is single-threaded numpy and Clarabel), on 127.0.0.1 only.
     """
+    import dask
     from distributed import Client, LocalCluster
 
     if scheduler or scheduler_file:
         with Client(scheduler, scheduler_file=scheduler_file, timeout="30s") as client:
             yield client
         return
-    with LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
-                      processes=True, host="127.0.0.1", dashboard_address=None,
-                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+    with dask.config.set(WORKER_CONFIG), LocalCluster(
+            n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+            host="127.0.0.1", dashboard_address=None,
+            silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
         yield client
 
 
