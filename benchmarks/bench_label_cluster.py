@@ -20,8 +20,9 @@ Sections (``--sections``, default all):
   of the chunks (under Dask's defaults, each setting of ``net_hosts.FAST_LOSS_CONFIG``
   alone, and all of them), and with it frozen instead (defaults, all): seconds from the
   incident to the scheduler removing the worker, what it added to the run, and every row
-  checked once and equal to a one-process run; then the long form: ``--hosts-grasps``
-  (default 10^7) verdicts in one run with a cut.
+  checked once and equal to a one-process run; then the long forms, each in one run with
+  a cut: ``--hosts-grasps`` (default 10^7) verdicts, and as many verdicts as samples of
+  the probability (10^4 grasps x 1,000 samples, with ``--robustness``).
 
 The machine may be shared: wall-time figures then include other work; CPU times less so.
 
@@ -51,6 +52,7 @@ from pathlib import Path  # noqa: E402
 from typing import TYPE_CHECKING, Any  # noqa: E402
 
 import numpy as np  # noqa: E402
+import pyarrow as pa  # noqa: E402
 import pyarrow.parquet as pq  # noqa: E402
 
 from grasp_fc_ros.labelling import Plan, dask_client, open_input, run  # noqa: E402
@@ -95,6 +97,13 @@ def _worker_cpu(client: Client) -> float:
     return float(sum(client.run(_cpu_seconds).values()))
 
 
+def _idle_share(client: Client, seconds: float = 5.0) -> float:
+    """The share of a core the workers use while idle (heartbeats, monitors, profiler)."""
+    cpu, start = _worker_cpu(client), time.perf_counter()
+    time.sleep(seconds)
+    return (_worker_cpu(client) - cpu) / (time.perf_counter() - start)
+
+
 def _in_process(path: Path, plan: Plan) -> tuple[list[float], list[float]]:
     """Wall and CPU seconds of label_chunk on each of the plan's chunks, here."""
     source = open_input(path)
@@ -134,9 +143,12 @@ def overhead(folder: Path, chunks: int, fingers: int, repeats: int) -> None:
           f"{fingers}-finger box grasps, mu = {MU}); medians of {repeats} rounds of: the "
           "chunks in this process, then a run on 1 worker less a run of 2 grasps (the "
           "run's fixed cost)")
-    print(f"{'columns':15} {'chunk':>7} {'compute/chunk':>14} {'overhead wall':>20} "
-          f"{'overhead worker CPU':>20} {'client CPU':>11} {'fixed':>7} {'B/grasp':>8} "
-          f"{'grasps/s 1 w':>13} {'2 w':>9}")
+    print("the worker's CPU includes its threads' background work, which grows with wall "
+          "time, not chunks: 'less idle' takes off its idle share of a core over the "
+          "chunk's wall time (the same on a quiet machine, less under load)")
+    print(f"{'columns':15} {'chunk':>7} {'compute/chunk wall, CPU':>24} {'overhead wall':>20} "
+          f"{'overhead worker CPU':>20} {'less idle':>18} {'client CPU':>11} {'fixed':>7} "
+          f"{'B/grasp':>8} {'grasps/s 1 w':>13} {'2 w':>9}")
     tiny = write_npz(folder / "tiny.npz", 2, fingers, seed=9)
     for name, settings in COLUMN_SETS.items():
         size = Plan([], **settings).chunk_size
@@ -147,9 +159,10 @@ def overhead(folder: Path, chunks: int, fingers: int, repeats: int) -> None:
         n, rows = len(plan.chunks), plan.n_grasps
         _warm(str(path), settings)
         rounds: dict[str, list[float]] = {key: [] for key in (
-            "compute", "compute_cpu", "wall", "cpu", "client", "fixed", "rate")}
+            "compute", "compute_cpu", "wall", "cpu", "net", "client", "fixed", "rate")}
         with dask_client(workers=1) as client:
             client.run(_warm, str(path), settings)
+            idle = _idle_share(client)
             for _ in range(repeats):
                 walls, cpus = _in_process(path, plan)
                 fixed = timed_run(client, small, folder / "out")
@@ -160,6 +173,8 @@ def overhead(folder: Path, chunks: int, fingers: int, repeats: int) -> None:
                                       - statistics.median(walls))
                 rounds["cpu"].append((whole["worker_cpu"] - fixed["worker_cpu"]) / n
                                      - statistics.median(cpus))
+                rounds["net"].append(rounds["cpu"][-1] - idle * (
+                    whole["seconds"] - fixed["seconds"]) / n)
                 rounds["client"].append((whole["client_cpu"] - fixed["client_cpu"]) / n)
                 rounds["fixed"].append(fixed["seconds"])
                 rounds["rate"].append(rows / whole["seconds"])
@@ -167,9 +182,10 @@ def overhead(folder: Path, chunks: int, fingers: int, repeats: int) -> None:
             client.run(_warm, str(path), settings)
             two = timed_run(client, plan, folder / "out")
         m = {key: statistics.median(values) for key, values in rounds.items()}
-        print(f"{name:15} {size:7,} {m['compute']:12.3f} s "
+        print(f"{name:15} {size:7,} {m['compute']:10.3f} s, {m['compute_cpu']:8.3f} s "
               f"{1e3 * m['wall']:9.1f} ms ({m['wall'] / m['compute']:6.1%}) "
               f"{1e3 * m['cpu']:9.1f} ms ({m['cpu'] / m['compute_cpu']:6.1%}) "
+              f"{1e3 * m['net']:7.1f} ms ({m['net'] / m['compute_cpu']:6.1%}) "
               f"{1e3 * m['client']:8.1f} ms {m['fixed']:5.2f} s "
               f"{whole['bytes'] / rows:8.1f} {m['rate']:13,.1f} {rows / two['seconds']:9,.1f}")
         path.unlink()
@@ -220,11 +236,13 @@ def _removed_at(log: str, address: str) -> float | None:
 
 
 def hosts_run(folder: Path, path: Path, chunk: int, config: dict[str, str],
-              incident: str | None = None, cap: float = 120.0) -> dict[str, float]:
+              incident: str | None = None, cap: float = 120.0,
+              options: Sequence[str] = ()) -> dict[str, float]:
     """One grasp-fc-label run across three hosts. ``incident`` ("cut" or "freeze") hits
     worker host 2 once a third of the parts are written (while it holds chunks); a frozen
     host not removed by the scheduler within ``cap`` seconds is resumed so the run ends.
-    Returns seconds, parts at the incident, seconds from it to the worker's removal."""
+    ``options`` go to grasp-fc-label. Returns seconds, parts at the incident, seconds from
+    it to the worker's removal, and how many workers the scheduler removed."""
     out = folder / "hosts-out"
     shutil.rmtree(out, ignore_errors=True)
     n_chunks = len(Plan([open_input(path)], chunk_size=chunk).chunks)
@@ -237,7 +255,7 @@ def hosts_run(folder: Path, path: Path, chunk: int, config: dict[str, str],
         start = time.perf_counter()
         labeller = hosts.popen(0, [str(BIN / "grasp-fc-label"), str(path), "--out", str(out),
                                    "--chunk-size", str(chunk), "--scheduler", address,
-                                   "--no-progress"], env=env)
+                                   "--no-progress", *options], env=env)
         if incident is not None:
             lost = f"tcp://{hosts.address(2)}:"
             while labeller.poll() is None and not (
@@ -264,11 +282,14 @@ def hosts_run(folder: Path, path: Path, chunk: int, config: dict[str, str],
         if incident is not None:
             removed = _removed_at(hosts.log(scheduler), hosts.address(2))
             result["to_removal"] = float("nan") if removed is None else removed - hit_at
+        result["removed"] = len(_LOG_TIME.findall(hosts.log(scheduler)))
     return result
 
 
-def _check_one_process(folder: Path, path: Path, chunk: int) -> str:
-    """Every row once, in order, and equal to label_chunk in this process, chunk by chunk."""
+def _check_one_process(folder: Path, path: Path, chunk: int,
+                       robustness: Robustness | None = None) -> str:
+    """Every row once, in order, and equal to label_chunk in this process, chunk by chunk
+    (every column; NaN equal to NaN)."""
     source = open_input(path)
     parts = sorted((folder / "hosts-out").glob("part-*.parquet"))
     n_chunks = -(-source.n_grasps // chunk)
@@ -278,11 +299,12 @@ def _check_one_process(folder: Path, path: Path, chunk: int) -> str:
         table = pq.read_table(part)
         start = index * chunk
         expected = label_chunk(source, start, min(start + chunk, source.n_grasps), "auto",
-                               "seed")
-        same = all(table[key].equals(expected[key])
-                   for key in ("id", "force_closure", "status", "status_name"))
-        if not same or not np.array_equal(table["margin"].to_numpy(),
-                                          expected["margin"].to_numpy(), equal_nan=True):
+                               "seed", robustness=robustness)
+        if table.column_names != expected.column_names or not all(
+                np.array_equal(table[key].to_numpy(), expected[key].to_numpy(),
+                               equal_nan=True)
+                if pa.types.is_floating(table[key].type) else table[key].equals(expected[key])
+                for key in table.column_names):
             return f"WRONG: {part.name} differs from a one-process run"
     return "every row once, equal to a one-process run"
 
@@ -320,7 +342,7 @@ def hosts(folder: Path, loss_grasps: int, long_grasps: int, chunk: int, cap: flo
         print(f"{incident + ', ' + name:22}: {hit['seconds']:6.1f} s "
               f"(+{hit['seconds'] - whole['seconds']:5.1f} s); to the worker's removal "
               f"{removed}; parts at the incident {hit['parts_at_incident']:.0f}; "
-              f"{_check_one_process(folder, path, chunk)}")
+              f"workers removed {hit['removed']:.0f}; {_check_one_process(folder, path, chunk)}")
     path.unlink()
     if not long_grasps:
         return
@@ -330,8 +352,23 @@ def hosts(folder: Path, loss_grasps: int, long_grasps: int, chunk: int, cap: flo
     print(f"long form: {long_grasps:,} three-finger grasps (verdicts), chunks of "
           f"{long_chunk:,}, FAST_LOSS_CONFIG, a worker host cut after a third: "
           f"{long['seconds']:.1f} s ({long_grasps / long['seconds']:,.0f} grasps/s); cut -> "
-          f"removed {long['to_removal']:.1f} s; "
+          f"removed {long['to_removal']:.1f} s; workers removed {long['removed']:.0f}; "
           f"{_check_one_process(folder, path, long_chunk)}")
+    path.unlink()
+    # The same verdicts' worth as samples of the probability, in its default chunks.
+    grasps = long_grasps // PROBABILITY.samples
+    path = write_npz(folder / "long.npz", grasps, 6, seed=7)
+    chunk = Plan([], robustness=PROBABILITY).rows_per_chunk
+    options = ["--robustness", "--position-sigma", str(PROBABILITY.position_sigma),
+               "--normal-sigma", str(PROBABILITY.normal_sigma), "--friction-sigma",
+               str(PROBABILITY.friction_sigma)]
+    long = hosts_run(folder, path, chunk, net_hosts.FAST_LOSS_CONFIG, "cut", options=options)
+    print(f"long form: {grasps:,} six-finger grasps x {PROBABILITY.samples:,} samples "
+          f"(--robustness with the probability), chunks of {chunk:,}, FAST_LOSS_CONFIG, a "
+          f"worker host cut after a third: {long['seconds']:.1f} s "
+          f"({grasps * PROBABILITY.samples / long['seconds']:,.0f} samples/s); cut -> "
+          f"removed {long['to_removal']:.1f} s; workers removed {long['removed']:.0f}; "
+          f"{_check_one_process(folder, path, chunk, PROBABILITY)}")
 
 
 def main(argv: Sequence[str] | None = None) -> None:
