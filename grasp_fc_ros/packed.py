@@ -89,7 +89,7 @@ class PackedGrasps:
         batch names its grasps by their index in the whole batch).
     torsional : (K,) float64 or None
         Torsional friction coefficient gamma per contact (m; 0: a hard contact; soft
-        fingers, see ``grasp_fc_ros.core.contact_model``); None: every contact hard.
+        fingers, see ``grasp_fc_ros.core.model.contact_model``); None: every contact hard.
         Negative, NaN and inf are invalid.
     """
 

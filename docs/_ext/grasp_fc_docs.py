@@ -364,7 +364,7 @@ class ApiDirective(_GeneratedRst):
             title = sub.__name__
             lines += [title, "-" * len(title), "",
                       f".. automodule:: {sub.__name__}", "   :no-members:"]
-            # A module named like a public function (core.minimum_friction): the
+            # A module named like a public function (core.quality.minimum_friction): the
             # function keeps the index entry, the module its section.
             if sub.__name__.rpartition(".")[2] in documented:
                 lines.append("   :no-index:")

@@ -16,11 +16,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import force_interior_point, interior_point, positive_span
 from ._kernels.grasp_map import normalise_grasp
 from ._kernels.jit import jit
-from .interior_point import UNDECIDED, solve_one
-from .one_grasp_filter import passes_filter
+from .exact import interior_point
+from .exact.interior_point import UNDECIDED, solve_one
+from .filter import positive_span
+from .filter.one_grasp_filter import passes_filter
+from .forces import force_interior_point
 from .tolerances import MAX_ABS_COORDINATE, MAX_FRICTION_COEFFICIENT, MIN_NORMAL_COMPONENT
 
 #: Largest contact count the fast path takes: a one-grasp query of more contacts is

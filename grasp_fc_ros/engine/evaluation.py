@@ -392,7 +392,7 @@ def group_min_friction(positions: np.ndarray, normals: np.ndarray, mu: np.ndarra
     Returns
     -------
     (G,) float64
-        :func:`grasp_fc_ros.core.minimum_friction` with ``margin=MARGIN_TOL``: the
+        :func:`grasp_fc_ros.core.quality.minimum_friction` with ``margin=MARGIN_TOL``: the
         boundary of the node's own verdicts (FORCE_CLOSURE needs a margin of
         MARGIN_TOL), so a verdict at friction above mu* is FORCE_CLOSURE and below it
         is not. The force-closure boundary itself (margin 0) lies a little lower, where

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from grasp_cases import MU_PAPER, adversarial_grasps, ellipsoid_grasps, random_rotation
 from grasp_fc_ros.core import check_force_closure, epsilon_quality
-from grasp_fc_ros.core.epsilon import MIN_RTOL, ZERO_UPPER_TOL
+from grasp_fc_ros.core.quality.epsilon import MIN_RTOL, ZERO_UPPER_TOL
 from reference_epsilon import pyramid_epsilon, support_value
 
 CUBE = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]],

@@ -15,7 +15,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from grasp_fc_ros.core import check_force_closure
-from grasp_fc_ros.core.grasp_input import show_value
+from grasp_fc_ros.core.model.grasp_input import show_value
 from grasp_fc_ros.labelling import InputError, Plan, cli, dask_client, object_sources, run, runner
 from grasp_fc_ros.labelling.output import Output
 from grasp_fc_ros.objects import make_object, sample_grasps

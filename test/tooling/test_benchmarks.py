@@ -171,6 +171,19 @@ EXPECTED: dict[str, Run] = {
         Line(r"^n = 4: mu\* finite .*, unresolved 0;"),
         Line(rf"^six fingers: mu\* {N} grasps/s"),
     )),
+    "bench_robustness": Run(lines=(
+        Line(rf"^speed n = [46], mu 0\.5: {N} grasps/s over {N} grasps \({N}% force closure\), "
+             rf"{N} force-closure grasps/s$", count=2),
+        Line(rf"^soundness: {N} perturbations \(tilts \(random\) {N}, moves \(random\) {N}, "),
+        Line(r"^soundness: not force closure by the exact test \d+, of which certified by a "
+             r"separating wrench 0$"),
+        Line(rf"^tightness, normals: a searched tilt breaks within 1\.05x normal_angle on {N}% "),
+        Line(rf"^tightness, positions: least breaking move / position_radius: median {N}, "
+             rf"quartiles {N} {N}, max {N}, "),
+        Line(r"^holds_under UNDECIDED \(all n\): normal 0\.5x [\d.]+%, normal 3x [\d.]+%, "
+             r"position 0\.5x [\d.]+%, position 5x [\d.]+%, "),
+        Line(rf"^holds_under witnesses: {N} BREAKS checked, 0 failed$"),
+    )),
     "bench_ros": Run(lines=(
         Line(rf"^single-grasp topic:\s+{N} queries/s over 300 queries, no loss, in order"),
         Line(rf"^batches of 100: median of 3 rounds {N}x the core alone"),

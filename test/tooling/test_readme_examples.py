@@ -1,9 +1,10 @@
 """The README's examples work as written.
 
-Every ```python block of the README (and of the ROS-free guides docs/core.md and
-docs/soft_fingers.md) runs in a fresh interpreter, in README order in one folder (the
-labelling blocks share their files), with a node running for the client examples;
-a ``# -> text`` comment after a statement is output the block must print. The
+Every ```python block of the README (and of the ROS-free guides docs/core.md,
+docs/soft_fingers.md and docs/robustness.md) runs in a fresh interpreter, in README
+order in one folder (the labelling blocks share their files), with a node running for
+the client examples; a ``# -> text`` comment after a statement is output the block must
+print. The
 ``grasp-fc-label`` shell block runs too. The ros2 command lines cannot run here (the
 ``ros2`` CLI is not on PyPI): every name they use must exist (topics, services, action,
 types, executables, parameters, launch arguments, make targets), and the payloads of
@@ -30,7 +31,8 @@ import yaml
 ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
 # Guides whose Python blocks are ROS-free and self-contained.
-GUIDES_WITH_RUNNABLE_PYTHON = (ROOT / "docs" / "core.md", ROOT / "docs" / "soft_fingers.md")
+GUIDES_WITH_RUNNABLE_PYTHON = (ROOT / "docs" / "core.md", ROOT / "docs" / "soft_fingers.md",
+                               ROOT / "docs" / "robustness.md")
 # Documents whose shell blocks are checked for the names they use.
 SHELL_DOCUMENTS = (README, ROOT / "docs" / "install.md", ROOT / "docs" / "markers.md",
                    ROOT / "docs" / "params.md", ROOT / "docs" / "labelling.md")

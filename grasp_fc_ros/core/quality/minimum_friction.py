@@ -52,12 +52,12 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from .certificates import grasp_maps, normalise_positions
-from .contact_model import HARD, SOFT, ContactModel, model_of, torsion_scales, wrench_columns
-from .grasp_input import GraspBatch, prepare_grasps
-from .interior_point import CONVERGED, solve_fast
-from .stacked_socp import SOLVE_BATCH, BlockShape, solve_stacked, split_normal, tangent_bases
-from .tolerances import MAX_FRICTION_COEFFICIENT, RANK_TOL
+from ..exact.certificates import grasp_maps, normalise_positions
+from ..exact.interior_point import CONVERGED, solve_fast
+from ..exact.stacked_socp import SOLVE_BATCH, BlockShape, solve_stacked, split_normal, tangent_bases
+from ..model.contact_model import HARD, SOFT, ContactModel, model_of, torsion_scales, wrench_columns
+from ..model.grasp_input import GraspBatch, prepare_grasps
+from ..tolerances import MAX_FRICTION_COEFFICIENT, RANK_TOL
 
 #: Relative and absolute width of the certified interval [L, U] at which iteration stops
 #: (the issue's 1e-6 relative or 1e-9 absolute).

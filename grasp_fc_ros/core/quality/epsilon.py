@@ -55,11 +55,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from .._kernels.jit import kernel_array
+from ..model.grasp_input import GraspBatch, prepare_grasps, unit_vectors
+from ..pipeline import check_force_closure, run_pipeline
+from ..tolerances import MAX_ABS_COORDINATE
 from . import epsilon_kernels
-from ._kernels.jit import kernel_array
-from .grasp_input import GraspBatch, prepare_grasps, unit_vectors
-from .pipeline import check_force_closure, run_pipeline
-from .tolerances import MAX_ABS_COORDINATE
 
 BUDGETS = ("l1", "linf")
 
