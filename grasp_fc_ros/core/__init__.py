@@ -7,8 +7,9 @@ Closure Grasp". Each idea has one place, grouped by folder; a folder or module i
 only what stands below it in this list:
 
 * :mod:`.robustness` -- how far contacts may be off with force closure kept: certified
-  radii (:mod:`.robustness.radii`), and holds-or-breaks with evidence
-  (:mod:`.robustness.holds`);
+  radii (:mod:`.robustness.radii`), holds-or-breaks with evidence
+  (:mod:`.robustness.holds`), and the probability of force closure under random errors
+  (:mod:`.robustness.probability`);
 * :mod:`.quality` -- how good a grasp is:
 
   * :mod:`.quality.epsilon` -- the Ferrari-Canny epsilon (Q1) with circular cones,
@@ -69,13 +70,23 @@ from .forces.grasp_forces import GraspForces, optimal_contact_forces
 from .model.grasp_input import GraspValidation, validate_grasps
 from .one_grasp import warm_up
 from .pipeline import ForceClosureResult, Status, check_force_closure, exact_force_closure
-from .quality.epsilon import EpsilonResult, epsilon_quality
+from .quality.epsilon import EpsilonNotConverged, EpsilonResult, epsilon_quality
 from .quality.minimum_friction import MinimumFriction, minimum_friction, minimum_friction_bounds
-from .robustness import Holds, HoldsUnder, RobustnessRadii, holds_under, robustness
+from .robustness import (
+    ForceClosureProbability,
+    Holds,
+    HoldsUnder,
+    RobustnessRadii,
+    holds_under,
+    probability_of_force_closure,
+    robustness,
+)
 
 __all__ = [
     "ORIGIN_CHOICES",
+    "EpsilonNotConverged",
     "EpsilonResult",
+    "ForceClosureProbability",
     "ForceClosureResult",
     "GraspForces",
     "GraspValidation",
@@ -91,6 +102,7 @@ __all__ = [
     "minimum_friction",
     "minimum_friction_bounds",
     "optimal_contact_forces",
+    "probability_of_force_closure",
     "robustness",
     "torque_filter",
     "validate_grasps",

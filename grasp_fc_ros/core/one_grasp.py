@@ -153,8 +153,12 @@ def check_one(positions: np.ndarray, normals: np.ndarray, mu: float,
 
 def warm_up() -> None:
     """Compile (or load from the cache) every numba kernel of the core (the fast exact
-    stage, the filter's pair test, this path, the fast s* stage): a ROS node calls this
-    before it reports ready, so no query pays the compile."""
+    stage, the filter's pair test, this path, the fast s* stage, the epsilon search): the
+    install (``make setup``) calls this to fill numba's cache, and a ROS node before it
+    reports ready, so no query or first call pays the compile (loading the cache then
+    takes well under a second)."""
+    from .quality import epsilon  # (which imports this module through the pipeline)
+
     interior_point.warm_up()
     positive_span.warm_up()
     force_interior_point.warm_up()
@@ -162,3 +166,4 @@ def warm_up() -> None:
     for optimum in (False, True):
         for origins in (NO_FILTER, SEED_ORIGINS, ALL_ORIGINS):
             decide_one(corners, -corners, 0.5, origins, optimum)
+    epsilon.warm_up()

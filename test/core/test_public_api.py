@@ -10,7 +10,9 @@ import grasp_fc_ros.core as core
 
 PUBLIC_NAMES = [
     "ORIGIN_CHOICES",
+    "EpsilonNotConverged",
     "EpsilonResult",
+    "ForceClosureProbability",
     "ForceClosureResult",
     "GraspForces",
     "GraspValidation",
@@ -26,6 +28,7 @@ PUBLIC_NAMES = [
     "minimum_friction",
     "minimum_friction_bounds",
     "optimal_contact_forces",
+    "probability_of_force_closure",
     "robustness",
     "torque_filter",
     "validate_grasps",

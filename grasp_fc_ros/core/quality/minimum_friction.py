@@ -236,6 +236,8 @@ def solve_minimum_friction(grasps: GraspBatch, margin: float = 0.0
     solves : ndarray of int, shape (N,)
     """
     n_grasps = grasps.mu.shape[0]
+    if n_grasps == 0:  # (an empty batch's (0, 0) reshapes below cannot infer their width)
+        return np.empty(0), np.empty(0), np.zeros(0, dtype=np.int64)
     model = model_of(grasps.torsional)
     unit, _, size = normalise_positions(grasps.positions)
     torsional_unit = None if grasps.torsional is None else grasps.torsional / size[:, None]
