@@ -37,6 +37,13 @@ BOUNDS = {name: ((0,), np.number) for name in ("value", "lower", "upper", "solve
 FORCES = {"max_normal_force": ((0,), np.floating),
           "forces": ((0, N_CONTACTS, 3), np.floating),
           "torques": ((0, N_CONTACTS), np.floating)}
+RADII = {"normal_angle": ((0,), np.floating), "position_radius": ((0,), np.floating),
+         "friction_drop": ((0,), np.floating), "force_closure": ((0,), np.bool_)}
+HOLDS = {"status": ((0,), np.integer), "bound": ((0,), np.str_),
+         "witness_positions": ((0, N_CONTACTS, 3), np.floating),
+         "witness_normals": ((0, N_CONTACTS, 3), np.floating),
+         "witness_mu": ((0, N_CONTACTS), np.floating),
+         "separating_wrench": ((0, 6), np.floating)}
 PAIR = {"0": ((0,), np.bool_), "1": ((0,), np.bool_)}
 FILTER_PAIR = {"0": ((0,), np.bool_), "1": ((0, 6), np.floating)}
 
@@ -77,6 +84,9 @@ CASES: dict[str, list[tuple[dict[str, Any], Callable[[Any], None]]]] = {
         ({"mu": 0.5, "wrench": np.zeros(6)}, lambda r: _fields(r, FORCES)),
         ({"mu": 0.5, "wrench": np.zeros((0, 6)), "max_normal_force": 1.0, **SOFT},
          lambda r: _fields(r, FORCES))],
+    "robustness": [({"mu": 0.5}, lambda r: _fields(r, RADII))],
+    "holds_under": [({"mu": 0.5, "position_error": 0.1, "normal_error": 0.1,
+                      "friction_error": 0.1}, lambda r: _fields(r, HOLDS))],
     "torque_filter": [({"mu": 0.5}, _array((0,), np.bool_)),
                       ({"mu": 0.5, "origins": "all", "certificates": True},
                        lambda r: _fields(r, FILTER_PAIR))],

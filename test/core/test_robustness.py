@@ -3,6 +3,9 @@ perturbations inside each radius (judged by the exact test and by independent ch
 circumscribed pyramids with an LP, a separating wrench recomputed from its definition,
 Clarabel on the torque set), tightness, invariances, per-contact friction, input."""
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -281,3 +284,24 @@ def test_rho_is_never_below_the_weaker_epsilon_form():
         assert np.all(weaker <= bounds.upper)
         best = np.maximum(best, weaker)
     assert np.all(bounds.upper / best < 1.5)
+
+
+def test_warm_up_compiles_the_search_of_the_position_radius():
+    """In a fresh process, after the core's warm_up (the node's start, make setup),
+    robustness and epsilon_quality compile no new specialisation of the search: the
+    problem is a run-time code of one type for epsilon and the torque inradius."""
+    code = (
+        "import numpy as np\n"
+        "from grasp_fc_ros.core import epsilon_quality, robustness, warm_up\n"
+        "from grasp_fc_ros.core.quality import epsilon_kernels as k\n"
+        "warm_up()\n"
+        "before = len(k.epsilon_batch.signatures)\n"
+        "cube = np.vstack([np.eye(3), -np.eye(3)])\n"
+        "robustness(cube, -cube, 0.5)\n"
+        "epsilon_quality(cube, -cube, 0.5)\n"
+        "print(before, len(k.epsilon_batch.signatures))\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    before, after = done.stdout.split()
+    assert before == after and int(before) >= 1

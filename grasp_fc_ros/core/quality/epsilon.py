@@ -230,7 +230,9 @@ def epsilon_quality(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.Ar
 def warm_up() -> None:
     """Compile (or load from numba's cache) the search's kernels, both budgets, on a
     force-closure tetrahedron grasp, in a small workspace of its own, so that the calling
-    thread keeps no full one (:func:`_workspace` makes that at its first real search).
+    thread keeps no full one (:func:`search_workspace` makes that at its first real
+    search). The problem is a run-time code, so these also serve the position radius's
+    search (``TORQUE_INRADIUS``).
     """
     corners = np.array([[[1.0, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]]])
     grasps = prepare_grasps(corners, -corners, 0.5)
@@ -238,7 +240,7 @@ def warm_up() -> None:
     for linf in (False, True):
         rows = _Rows(*wrench_rows(grasps, np.zeros((1, 3)), np.ones(1)), grasps.mu, linf)
         direction = epsilon_kernels.epsilon_batch(
-            rows.normal_rows, rows.tangent_rows, rows.mu, rows.wrench_scale, rows.linf,
+            rows.normal_rows, rows.tangent_rows, rows.mu, rows.wrench_scale, rows.problem,
             1e-3, SEED_DIRECTIONS, arrays)[2]
         _certified_uppers(rows, kernel_array(direction))
 
