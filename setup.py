@@ -32,6 +32,7 @@ setup(
             "grasp-fc-demo = grasp_fc_ros.demo:main",
             "grasp-fc-experiment = grasp_fc_ros.experiment.cli:main",
             "grasp-fc-label = grasp_fc_ros.labelling.cli:main",
+            "grasp-fc-query = grasp_fc_ros.client.cli:main",
         ],
     },
 )

@@ -31,9 +31,9 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 
 from grasp_fc_ros.core import check_force_closure, warm_up  # noqa: E402
-from grasp_fc_ros.core.grasp_input import prepare_grasps  # noqa: E402
+from grasp_fc_ros.core.filter.torque_space_filter import passes_torque_filter  # noqa: E402
+from grasp_fc_ros.core.model.grasp_input import prepare_grasps  # noqa: E402
 from grasp_fc_ros.core.pipeline import run_pipeline  # noqa: E402
-from grasp_fc_ros.core.torque_space_filter import passes_torque_filter  # noqa: E402
 from grasp_fc_ros.experiment.linearized_peer import linearized_force_closure  # noqa: E402
 from grasp_fc_ros.objects import (  # noqa: E402
     OBJECT_NAMES,

@@ -44,10 +44,10 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 
 from grasp_fc_ros.core import check_force_closure, exact_force_closure, warm_up  # noqa: E402
-from grasp_fc_ros.core.certificates import normalise_positions  # noqa: E402
-from grasp_fc_ros.core.exact_test import solve_exact  # noqa: E402
-from grasp_fc_ros.core.grasp_input import prepare_grasps  # noqa: E402
-from grasp_fc_ros.core.interior_point import UNDECIDED, solve_fast  # noqa: E402
+from grasp_fc_ros.core.exact.certificates import normalise_positions  # noqa: E402
+from grasp_fc_ros.core.exact.exact_test import solve_exact  # noqa: E402
+from grasp_fc_ros.core.exact.interior_point import UNDECIDED, solve_fast  # noqa: E402
+from grasp_fc_ros.core.model.grasp_input import prepare_grasps  # noqa: E402
 from grasp_fc_ros.objects import ContactSurface, make_object, sample_grasps  # noqa: E402
 from timing import MU_PAPER, median_seconds  # noqa: E402
 

@@ -6,9 +6,9 @@ no filter), the filter's hit rate (the share of grasps it rejects, each of which
 one exact test), and the net saving per grasp, hit rate x exact cost - filter cost.
 The filter pays where the saving is positive. The last lines give the largest n at
 which it paid for every mu, the number that ``FILTER_PAYS_UP_TO_CONTACTS`` in
-``grasp_fc_ros.core.torque_space_filter`` holds. With ``--paths`` it also times the two
+``grasp_fc_ros.core.filter.torque_space_filter`` holds. With ``--paths`` it also times the two
 positive-span algorithms (pair test and convex hull) per grasp, for
-``HULL_MIN_VECTORS`` in ``grasp_fc_ros.core.positive_span``; with ``--large`` it times
+``HULL_MIN_VECTORS`` in ``grasp_fc_ros.core.filter.positive_span``; with ``--large`` it times
 one grasp of up to 10,000 contacts (the node's largest) through each stage.
 
 Figures are medians over ``--repeats`` runs in this one process, on one core.
@@ -30,10 +30,10 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from grasp_fc_ros.core import positive_span  # noqa: E402
-from grasp_fc_ros.core.grasp_input import prepare_grasps  # noqa: E402
+from grasp_fc_ros.core.filter import positive_span  # noqa: E402
+from grasp_fc_ros.core.filter.torque_space_filter import passes_torque_filter  # noqa: E402
+from grasp_fc_ros.core.model.grasp_input import prepare_grasps  # noqa: E402
 from grasp_fc_ros.core.pipeline import run_pipeline  # noqa: E402
-from grasp_fc_ros.core.torque_space_filter import passes_torque_filter  # noqa: E402
 from grasp_fc_ros.objects import (  # noqa: E402
     OBJECT_NAMES,
     ContactSurface,

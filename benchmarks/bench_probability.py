@@ -6,8 +6,9 @@ on the box at mu = 0.5 and the noise of issue 29 (2 mm, 3 degrees, friction 0.1;
 objects are in metres), ``--samples`` samples per grasp. It prints samples per second
 of ``probability_of_force_closure``, and as the unit of cost the batched exact test
 (``check_force_closure(..., margin="bound")``, verdicts only, default filter) on random
-box grasps and on the very samples the probability decided (materialised first); their
-ratios (target >= 0.5); and the latency of one grasp with 1,000 samples.
+box grasps and on the very samples the probability decided (materialised first), and on
+those samples without the filter, as the probability decides them; the ratios (target
+>= 0.5); and the latency of one grasp with 1,000 samples.
 
 Coverage (``--coverage``): for ``--grasps`` grasps (built-in objects in turn, 4 fingers,
 mu = 0.5, the same noise), the 95% interval from ``--interval-samples`` samples against
@@ -15,7 +16,7 @@ a reference from ``--reference-samples`` samples drawn from other streams; the s
 grasps whose interval contains the reference (target >= 0.94 for 2,000 against 100,000
 on 500 grasps), overall and among grasps whose reference is in (0.02, 0.98).
 
-``--blocks`` times the call for several SAMPLE_BLOCK sizes.
+``--blocks`` times the call for several BLOCK_CONTACTS sizes, and its peak memory.
 
     python benchmarks/bench_probability.py                 # speed
     python benchmarks/bench_probability.py --coverage      # 500 grasps x 102,000 samples
@@ -31,12 +32,13 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMB
 import argparse  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
-from collections.abc import Callable, Sequence  # noqa: E402
+import tracemalloc  # noqa: E402
+from collections.abc import Sequence  # noqa: E402
 
 import numpy as np  # noqa: E402
 
 from grasp_fc_ros.core import check_force_closure, warm_up  # noqa: E402
-from grasp_fc_ros.core.grasp_input import prepare_grasps  # noqa: E402
+from grasp_fc_ros.core.model.grasp_input import prepare_grasps  # noqa: E402
 from grasp_fc_ros.core.robustness import probability  # noqa: E402
 from grasp_fc_ros.core.robustness.probability import (  # noqa: E402
     _ErrorModel,
@@ -44,6 +46,7 @@ from grasp_fc_ros.core.robustness.probability import (  # noqa: E402
     probability_of_force_closure,
 )
 from grasp_fc_ros.objects import OBJECT_NAMES, make_object, sample_grasps  # noqa: E402
+from timing import median_cpu_seconds  # noqa: E402
 
 MU = 0.5
 #: Issue 29's noise: 2 mm (the objects are in metres), 3 degrees, 0.1 on mu.
@@ -51,17 +54,6 @@ NOISE = {"position_sigma": 0.002, "normal_sigma": float(np.radians(3.0)),
          "friction_sigma": 0.1}
 #: Streams of the reference samples start here, far from the interval's 0..N-1.
 REFERENCE_STREAMS = 1 << 40
-
-
-def cpu_seconds(function: Callable[[], object], repeats: int) -> float:
-    """Median CPU time of ``repeats`` calls after one untimed warm-up."""
-    function()
-    times = []
-    for _ in range(repeats):
-        start = time.process_time()
-        function()
-        times.append(time.process_time() - start)
-    return statistics.median(times)
 
 
 def materialised(positions: np.ndarray, normals: np.ndarray, samples: int,
@@ -80,14 +72,17 @@ def speed(n_grasps: int, samples: int, repeats: int, rng: np.random.Generator) -
     surface = make_object("box")
     positions, normals = sample_grasps(surface, n_grasps, 4, rng)
     total = n_grasps * samples
-    prob_s = cpu_seconds(lambda: probability_of_force_closure(
+    prob_s = median_cpu_seconds(lambda: probability_of_force_closure(
         positions, normals, MU, samples=samples, seed=1, **NOISE), repeats)
     random_p, random_n = sample_grasps(surface, total, 4, rng)
-    random_s = cpu_seconds(lambda: check_force_closure(random_p, random_n, MU, margin="bound"),
-                           repeats)
+    random_s = median_cpu_seconds(
+        lambda: check_force_closure(random_p, random_n, MU, margin="bound"), repeats)
     same_p, same_n, same_mu = materialised(positions, normals, samples, 1)
-    same_s = cpu_seconds(lambda: check_force_closure(same_p, same_n, same_mu, margin="bound"),
-                         repeats)
+    same_s = median_cpu_seconds(
+        lambda: check_force_closure(same_p, same_n, same_mu, margin="bound"), repeats)
+    bare_s = median_cpu_seconds(
+        lambda: check_force_closure(same_p, same_n, same_mu, margin="bound", use_filter=False),
+        repeats)
     result = probability_of_force_closure(positions, normals, MU, samples=samples, seed=1,
                                           **NOISE)
     print(f"speed: {n_grasps} box grasps, 4 fingers, mu = {MU}, {samples} samples each, "
@@ -99,6 +94,8 @@ def speed(n_grasps: int, samples: int, repeats: int, rng: np.random.Generator) -
           f"-> ratio {random_s / prob_s:.2f} (target >= 0.5)")
     print(f"  exact test, the same samples   {total / same_s:>10.0f} grasps/s  "
           f"-> ratio {same_s / prob_s:.2f}")
+    print(f"  ... without the filter         {total / bare_s:>10.0f} grasps/s  "
+          f"(what the probability runs)")
     one_p, one_n = positions[:1], normals[:1]
     latencies = []
     for k in range(max(20, repeats * 10)):
@@ -112,16 +109,22 @@ def speed(n_grasps: int, samples: int, repeats: int, rng: np.random.Generator) -
 def blocks(n_grasps: int, samples: int, sizes: Sequence[int], repeats: int,
            rng: np.random.Generator) -> None:
     positions, normals = sample_grasps(make_object("box"), n_grasps, 4, rng)
-    print(f"SAMPLE_BLOCK: {n_grasps} box grasps x {samples} samples, CPU time")
-    default = probability.SAMPLE_BLOCK
+    print(f"BLOCK_CONTACTS: {n_grasps} box grasps x {samples} samples, CPU time")
+    default = probability.BLOCK_CONTACTS
     try:
         for size in sizes:
-            probability.SAMPLE_BLOCK = size
-            seconds = cpu_seconds(lambda: probability_of_force_closure(
+            probability.BLOCK_CONTACTS = size
+            seconds = median_cpu_seconds(lambda: probability_of_force_closure(
                 positions, normals, MU, samples=samples, seed=1, **NOISE), repeats)
-            print(f"  {size:>8} {n_grasps * samples / seconds:>10.0f} samples/s")
+            tracemalloc.start()
+            probability_of_force_closure(positions, normals, MU, samples=samples, seed=1,
+                                         **NOISE)
+            peak = tracemalloc.get_traced_memory()[1]
+            tracemalloc.stop()
+            print(f"  {size:>8} {n_grasps * samples / seconds:>10.0f} samples/s, peak "
+                  f"{peak / 1e6:.1f} MB (tracemalloc)")
     finally:
-        probability.SAMPLE_BLOCK = default
+        probability.BLOCK_CONTACTS = default
 
 
 def coverage(n_grasps: int, interval_samples: int, reference_samples: int,
@@ -162,7 +165,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--interval-samples", type=int, default=2000)
     parser.add_argument("--reference-samples", type=int, default=100_000)
     parser.add_argument("--blocks", type=int, nargs="*", default=None,
-                        help="time these SAMPLE_BLOCK sizes")
+                        help="time these BLOCK_CONTACTS sizes")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--quick", action="store_true", help="small sizes, one repeat")
     args = parser.parse_args(argv)
@@ -175,7 +178,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         coverage(args.grasps or (40 if args.quick else 500), args.interval_samples,
                  args.reference_samples, rng)
     elif args.blocks is not None:
-        blocks(args.grasps or 100, args.samples, args.blocks or [4096, 16_384, 65_536],
+        blocks(args.grasps or 100, args.samples, args.blocks or [16_384, 65_536, 262_144],
                args.repeats, rng)
     else:
         speed(args.grasps or (20 if args.quick else 100), args.samples, args.repeats, rng)

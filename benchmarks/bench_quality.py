@@ -29,11 +29,11 @@ from typing import Any, TypeVar  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from grasp_fc_ros.core import grasp_forces  # noqa: E402
-from grasp_fc_ros.core.exact_test import solve_exact  # noqa: E402
-from grasp_fc_ros.core.grasp_forces import optimal_contact_forces  # noqa: E402
-from grasp_fc_ros.core.grasp_input import prepare_grasps  # noqa: E402
-from grasp_fc_ros.core.minimum_friction import minimum_friction_bounds  # noqa: E402
+from grasp_fc_ros.core.exact.exact_test import solve_exact  # noqa: E402
+from grasp_fc_ros.core.forces import grasp_forces  # noqa: E402
+from grasp_fc_ros.core.forces.grasp_forces import optimal_contact_forces  # noqa: E402
+from grasp_fc_ros.core.model.grasp_input import prepare_grasps  # noqa: E402
+from grasp_fc_ros.core.quality.minimum_friction import minimum_friction_bounds  # noqa: E402
 from grasp_fc_ros.core.tolerances import MARGIN_TOL  # noqa: E402
 from grasp_fc_ros.objects import (  # noqa: E402
     OBJECT_NAMES,

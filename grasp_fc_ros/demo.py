@@ -5,7 +5,8 @@ thread, with its ``publish_markers`` parameter on, and a client node that sends 
 6-finger grasps on a built-in object to it: a few single-grasp ``ContactArray``
 queries on ``contacts``, then the rest through the ``label_grasps`` action (jobs of
 :data:`GOAL_GRASPS` at most), with a progress bar fed by the action's feedback (Ctrl-C
-cancels the job and keeps the verdicts decided so far), and one service call. Every
+cancels the job and keeps the verdicts decided so far), and one service call. The
+table counts both parts (the bar only the second). Every
 message still goes through DDS (serialised, delivered, deserialised); only the process
 is shared, which keeps start-up fast and needs no discovery of a second process. Both
 nodes live in a namespace of their own (``/grasp_fc_demo_<pid>``) so a node started
@@ -75,10 +76,14 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     return args
 
 
-def _table(status: np.ndarray, elapsed_s: float, object_name: str) -> str:
+def _table(status: np.ndarray, elapsed_s: float, object_name: str, n_single: int) -> str:
+    """The verdicts' counts: ``n_single`` single queries first, then the label_grasps
+    job (the progress bar's total), adding up to the queries."""
     counts = np.bincount(status, minlength=len(Status))
     rows = [
         ("object", object_name),
+        ("single queries (contacts)", f"{n_single}"),
+        ("label_grasps (progress bar)", f"{len(status) - n_single}"),
         ("queries", f"{len(status)}"),
         ("force closure", f"{counts[Status.FORCE_CLOSURE]}"),
         ("rejected by the filter", f"{counts[Status.FILTERED_OUT]}"),
@@ -148,6 +153,11 @@ def _stream(client: GraspClient, args: argparse.Namespace, node_name: str) -> in
           f"{node_name}", flush=True)
     start = time.perf_counter()
     n_single = min(SINGLE_QUERIES, args.grasps)
+    if args.grasps > n_single:
+        jobs = ("a label_grasps job (its progress bar)" if args.grasps - n_single <= GOAL_GRASPS
+                else f"label_grasps jobs of {GOAL_GRASPS} (a progress bar each)")
+        print(f"the first {n_single} as single queries on contacts, the other "
+              f"{args.grasps - n_single} as {jobs}:", flush=True)
     futures = [client.submit(positions[i], normals[i], query_id=i) for i in range(n_single)]
     single = [f.result(REPLY_TIMEOUT_S) for f in futures]
     statuses = np.array([v.status for v in single], dtype=np.uint8)
@@ -170,7 +180,7 @@ def _stream(client: GraspClient, args: argparse.Namespace, node_name: str) -> in
     if served.status[0] != statuses[0]:
         print("the service and the topic disagree on grasp 0", file=sys.stderr)
         return 1
-    print(_table(statuses, elapsed, args.object))
+    print(_table(statuses, elapsed, args.object, n_single))
     _write_markers_png(args.markers_png, surface, positions[:len(statuses)],
                        normals[:len(statuses)], statuses, margins)
     if not complete:

@@ -50,6 +50,12 @@ class Settings:
     compute_epsilon : bool
         Also return each grasp's certified Ferrari-Canny epsilon bounds (the core's
         :func:`~grasp_fc_ros.core.epsilon_quality`; see :func:`evaluate`).
+    max_assessment_samples : int
+        Largest number of samples (grasps x samples per grasp) one assess_robustness
+        request may ask for; the node refuses a larger one whole.
+    robustness : RobustnessQuery or None
+        Not a parameter: set for an assess_robustness request, whose verdicts then carry
+        each grasp's :class:`Assessments` (see :func:`evaluate`).
     """
 
     friction_coefficient: float = 0.5
@@ -61,6 +67,124 @@ class Settings:
     certificates: bool = False
     compute_min_friction: bool = False
     compute_epsilon: bool = False
+    max_assessment_samples: int = 1_000_000
+    robustness: RobustnessQuery | None = None
+
+
+@dataclass(frozen=True)
+class RobustnessQuery:
+    """What an assess_robustness request asks of each of its grasps (the fields of
+    ``AssessRobustness.srv``'s request; docs/robustness.md).
+
+    Attributes
+    ----------
+    position_error, normal_error, friction_error : float
+        The errors of :func:`~grasp_fc_ros.core.holds_under` (m, rad, unitless), >= 0.
+    position_sigma, normal_sigma, friction_sigma : float
+        The random errors of :func:`~grasp_fc_ros.core.probability_of_force_closure`,
+        >= 0.
+    samples : int
+        Samples per grasp (0: no probability).
+    confidence : float
+        Confidence level of the probability's interval, in (0, 1).
+    seed : int
+        Root seed; grasp k of the request draws from stream k of it.
+    """
+
+    position_error: float = 0.0
+    normal_error: float = 0.0
+    friction_error: float = 0.0
+    position_sigma: float = 0.0
+    normal_sigma: float = 0.0
+    friction_sigma: float = 0.0
+    samples: int = 1000
+    confidence: float = 0.95
+    seed: int = 0
+
+    def problem(self) -> str:
+        """Why the query cannot be answered ('' if it can): which field, which value."""
+        for name in ("position_error", "normal_error", "friction_error", "position_sigma",
+                     "normal_sigma", "friction_sigma"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                return f"{name} must be finite and >= 0, got {value}"
+        if not np.pi >= self.normal_error:
+            return f"normal_error must be <= pi rad, got {self.normal_error}"
+        if self.samples and not 0.0 < self.confidence < 1.0:
+            return f"confidence must be in (0, 1), got {self.confidence}"
+        return ""
+
+
+@dataclass
+class Assessments:
+    """The robustness of each grasp of a message (an assess_robustness response's arrays
+    beside the verdicts): one row per grasp, NaN (0 for ``holds``) where not computed.
+
+    Attributes
+    ----------
+    normal_angle, position_radius, friction_drop : (N,) float64
+        The certified radii of :func:`~grasp_fc_ros.core.robustness` (rad, m, unitless).
+    holds : (N,) uint8
+        :class:`~grasp_fc_ros.core.Holds` values; 0: not assessed.
+    holds_bound : (N,) str
+        The sound bound behind HOLDS, '' elsewhere.
+    witness_positions, witness_normals : (K, 3) float64
+        BREAKS: the witness grasp, grasp after grasp in the query's contact order; NaN
+        rows for the contacts of other grasps.
+    witness_friction : (K,) float64
+        The witness's friction coefficients, laid out likewise.
+    separating_wrench : (N, 6) float64
+        The exact test's certificate on each witness; NaN rows elsewhere.
+    probability, probability_lower, probability_upper : (N,) float64
+        The probability of force closure and its Clopper-Pearson interval.
+    probability_normal_bound : (N,) float64
+        The sample-free lower bound where only normals are noisy; NaN elsewhere.
+    """
+
+    normal_angle: np.ndarray
+    position_radius: np.ndarray
+    friction_drop: np.ndarray
+    holds: np.ndarray
+    holds_bound: np.ndarray
+    witness_positions: np.ndarray
+    witness_normals: np.ndarray
+    witness_friction: np.ndarray
+    separating_wrench: np.ndarray
+    probability: np.ndarray
+    probability_lower: np.ndarray
+    probability_upper: np.ndarray
+    probability_normal_bound: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.holds)
+
+    @classmethod
+    def not_computed(cls, n_grasps: int, n_contacts: int) -> Assessments:
+        """Rows of ``n_grasps`` grasps (``n_contacts`` contacts in all), nothing computed."""
+        def nan(*shape: int) -> np.ndarray:
+            return np.full(shape, np.nan)
+
+        return cls(normal_angle=nan(n_grasps), position_radius=nan(n_grasps),
+                   friction_drop=nan(n_grasps), holds=np.zeros(n_grasps, np.uint8),
+                   holds_bound=np.full(n_grasps, "", dtype=object),
+                   witness_positions=nan(n_contacts, 3), witness_normals=nan(n_contacts, 3),
+                   witness_friction=nan(n_contacts),
+                   separating_wrench=nan(n_grasps, 6), probability=nan(n_grasps),
+                   probability_lower=nan(n_grasps), probability_upper=nan(n_grasps),
+                   probability_normal_bound=nan(n_grasps))
+
+    @classmethod
+    def concatenate(cls, parts: list[Assessments]) -> Assessments:
+        """The rows of ``parts``, one after the other."""
+        return cls(**{name: np.concatenate([getattr(part, name) for part in parts])
+                      for name in ASSESSMENT_FIELDS})
+
+
+#: The fields of :class:`Assessments`, in order.
+ASSESSMENT_FIELDS = ("normal_angle", "position_radius", "friction_drop", "holds",
+                     "holds_bound", "witness_positions", "witness_normals",
+                     "witness_friction", "separating_wrench", "probability",
+                     "probability_lower", "probability_upper", "probability_normal_bound")
 
 
 @dataclass
@@ -89,7 +213,7 @@ class PackedGrasps:
         batch names its grasps by their index in the whole batch).
     torsional : (K,) float64 or None
         Torsional friction coefficient gamma per contact (m; 0: a hard contact; soft
-        fingers, see ``grasp_fc_ros.core.contact_model``); None: every contact hard.
+        fingers, see ``grasp_fc_ros.core.model.contact_model``); None: every contact hard.
         Negative, NaN and inf are invalid.
     """
 
@@ -178,6 +302,9 @@ class Verdicts:
         the frame's origin over the grasp's largest contact distance from it; unitless);
         NaN where not computed (invalid input, a failure). None: not computed for any
         grasp.
+    robustness : Assessments or None
+        Each grasp's robustness, for an assess_robustness request (settings with a
+        ``robustness`` query); None otherwise.
     """
 
     ids: np.ndarray
@@ -191,6 +318,7 @@ class Verdicts:
     min_friction: np.ndarray | None = None
     epsilon_lower: np.ndarray | None = None
     epsilon_upper: np.ndarray | None = None
+    robustness: Assessments | None = None
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -222,6 +350,8 @@ class Verdicts:
         if settings.compute_epsilon:
             verdicts.epsilon_lower = np.full(n_grasps, np.nan)
             verdicts.epsilon_upper = np.full(n_grasps, np.nan)
+        if settings.robustness is not None:
+            verdicts.robustness = Assessments.not_computed(n_grasps, n_contacts)
         return verdicts
 
     @classmethod
@@ -234,6 +364,9 @@ class Verdicts:
                    status=np.concatenate([p.status for p in parts]),
                    margin=np.concatenate([p.margin for p in parts]),
                    messages=[m for p in parts for m in p.messages],
+                   robustness=(None if any(p.robustness is None for p in parts)
+                               else Assessments.concatenate([p.robustness for p in parts
+                                                             if p.robustness is not None])),
                    **{name: _concatenate_optional([getattr(p, name) for p in parts])
                       for name in OPTIONAL_FIELDS})
 

@@ -104,6 +104,13 @@ INTERFACES = (
              "{name}_service",
              "The contact forces that hold one grasp under a load with the least largest "
              "normal force (see :doc:`quality`)."),
+    Endpoint("assess_robustness", "service", "grasp_fc_msgs/srv/AssessRobustness",
+             "{name}_robustness",
+             "How well each grasp holds when its contacts are off: the certified radii, "
+             "whether it holds under given errors (with a witness where it breaks) and "
+             "its probability of force closure under random errors (see "
+             ":doc:`robustness`). Served on a thread of its own, so that an assessment "
+             "never holds up ``check_force_closure``."),
     Endpoint("clear_markers", "service", "std_srvs/srv/Empty", "{name}",
              "Publishes a DELETEALL on ``markers`` (queued marker work is dropped first)."),
     Endpoint("label_grasps", "action", "grasp_fc_msgs/action/LabelGrasps", "{name}_action",
@@ -364,7 +371,7 @@ class ApiDirective(_GeneratedRst):
             title = sub.__name__
             lines += [title, "-" * len(title), "",
                       f".. automodule:: {sub.__name__}", "   :no-members:"]
-            # A module named like a public function (core.minimum_friction): the
+            # A module named like a public function (core.quality.minimum_friction): the
             # function keeps the index entry, the module its section.
             if sub.__name__.rpartition(".")[2] in documented:
                 lines.append("   :no-index:")

@@ -39,7 +39,8 @@ from numpy.typing import ArrayLike
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
-from grasp_fc_ros.client.batches import BatchQueries, n_grasps_of
+from grasp_fc_ros.client import shapes
+from grasp_fc_ros.client.batches import BatchQueries
 from grasp_fc_ros.client.connection import DiagnosticsReader, NodeWatch
 from grasp_fc_ros.client.label_action import LabelActionClient
 from grasp_fc_ros.client.pending import RESEND_AFTER_S
@@ -57,7 +58,7 @@ from grasp_fc_ros.interface.names import (
     VERDICTS_TOPIC,
     resolve,
 )
-from grasp_fc_ros.packed import ContactForces, Verdicts
+from grasp_fc_ros.packed import ContactForces, RobustnessQuery, Verdicts
 
 
 class GraspClient:
@@ -164,8 +165,11 @@ class GraspClient:
         TimeoutError
             If no room was made within ``timeout`` (nothing was registered).
         ValueError
-            If ``query_id`` is already in flight (nothing was registered).
+            If the arrays' shapes do not match (naming them), or ``query_id`` is already
+            in flight (nothing was registered).
         """
+        positions, normals = shapes.one_grasp(positions, normals)
+        shapes.per_contact(mu, "mu", positions)
         return self._singles.submit(positions, normals, friction_or_default(mu), query_id,
                                     frame_id, timeout)
 
@@ -185,9 +189,11 @@ class GraspClient:
         value per contact (m).
 
         The batch is kept until answered, as for :meth:`submit` (its bound grows with
-        its size). Raises only the ValueError of a mis-shaped input, before anything is
-        registered or sent.
+        its size). Raises only the ValueError of a mis-shaped input, naming the arrays
+        and their shapes, before anything is registered or sent.
         """
+        positions, normals, _ = _checked_batch(positions, normals, mu, counts, ids,
+                                               torsional_friction)
         return self._batches.submit(positions, normals, mu, counts, ids, frame_id,
                                     torsional_friction)
 
@@ -227,7 +233,13 @@ class GraspClient:
         ------
         TimeoutError
             If not every response came within ``timeout``; it names the service.
+        ValueError
+            If the arrays' shapes do not match, naming them (nothing was sent).
         """
+        positions, normals, n_grasps = shapes.grasp_batch(positions, normals,
+                                                          stacked=False)
+        shapes.per_grasp(ids, "ids", n_grasps)
+        shapes.per_contact(mu, "mu", positions)
         return self._services.call(positions, normals, friction_or_default(mu), ids, timeout)
 
     def call_request(self, request: Any, timeout: float = DEFAULT_TIMEOUT_S) -> Verdicts:
@@ -271,11 +283,57 @@ class GraspClient:
         ------
         TimeoutError
             If no response came within ``timeout``.
+        ValueError
+            If the arrays' shapes do not match, naming them (nothing was sent).
         """
+        positions, normals = shapes.one_grasp(positions, normals)
+        wrench = shapes.wrench(wrench)
+        for values, name in ((mu, "mu"), (max_normal_forces, "max_normal_forces"),
+                             (torsional_friction, "torsional_friction")):
+            shapes.per_contact(values, name, positions)
         return self._services.compute_contact_forces(positions, normals, wrench,
                                                      friction_or_default(mu),
                                                      max_normal_forces, frame_id, timeout,
                                                      torsional_friction)
+
+    def assess_robustness(
+            self, positions: ArrayLike, normals: ArrayLike, mu: ArrayLike | None = None, *,
+            position_error: float = 0.0, normal_error: float = 0.0, friction_error: float = 0.0,
+            position_sigma: float = 0.0, normal_sigma: float = 0.0, friction_sigma: float = 0.0,
+            samples: int = 1000, confidence: float = 0.95, seed: int = 0,
+            ids: ArrayLike | None = None, torsional_friction: ArrayLike | None = None,
+            frame_id: str = "", timeout: float = DEFAULT_TIMEOUT_S) -> Verdicts:
+        """How well grasps hold when their contacts are off: the node's
+        ``assess_robustness`` service (docs/robustness.md, docs/client.md).
+
+        ``positions``, ``normals``: (N, n, 3), or (n, 3) for one grasp; ``mu``: None (the
+        node's ``friction_coefficient``), a scalar, (N, 1) or (N, n); the errors of the
+        holds answer (m, rad, unitless) and the sigmas of the probability; ``samples``
+        per grasp (0: no probability); grasp ``ids[k]`` (default k) draws its samples
+        from stream (``seed``, ``ids[k]``), so the answers do not depend on how the call
+        is split or ordered; ``torsional_friction`` (m): soft fingers get a probability
+        but no radii and no holds answer. ``timeout`` bounds the whole call (many
+        grasps go as several requests).
+
+        Returns
+        -------
+        Verdicts
+            The nominal verdicts (``margin`` NaN) and ``robustness``, an
+            :class:`~grasp_fc_ros.packed.Assessments` of numpy arrays, one row per grasp
+            (the witness one per contact). Bad grasps are INVALID_INPUT alone, a refused
+            request INVALID_INPUT for every grasp, the message saying why.
+
+        Raises
+        ------
+        ValueError
+            On mis-shaped input (naming the argument), before anything is sent.
+        TimeoutError
+            If not every response came within ``timeout``; it names the service.
+        """
+        question = RobustnessQuery(position_error, normal_error, friction_error, position_sigma,
+                            normal_sigma, friction_sigma, samples, confidence, seed)
+        return self._services.assess_robustness(positions, normals, mu, torsional_friction,
+                                                ids, question, frame_id, timeout)
 
     # --- the label_grasps action ------------------------------------------------------
 
@@ -321,8 +379,11 @@ class GraspClient:
             No action server, or the goal did not end within ``timeout``.
         RuntimeError
             The node rejected the job's first goal (it is shutting down).
+        ValueError
+            If the arrays' shapes do not match, naming them (nothing was sent).
         """
-        ids = np.arange(n_grasps_of(positions, counts)) if ids is None else ids
+        positions, normals, n_grasps = _checked_batch(positions, normals, mu, counts, ids)
+        ids = np.arange(n_grasps) if ids is None else ids
         return self.label_action.label(batch_arrays(ids, positions, normals, mu, counts),
                                        progress, timeout, self.client_id)
 
@@ -371,3 +432,17 @@ class GraspClient:
 
     def __exit__(self, *exc_info: object) -> None:
         self.close()
+
+
+def _checked_batch(positions: ArrayLike, normals: ArrayLike, mu: ArrayLike | None,
+                   counts: ArrayLike | None, ids: ArrayLike | None,
+                   torsional_friction: ArrayLike | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, int]:
+    """A batch's positions and normals as float64 arrays and its number of grasps, once
+    every shape was checked (:mod:`.shapes`; ValueError naming the arrays and their
+    shapes)."""
+    positions, normals, n_grasps = shapes.grasp_batch(positions, normals, counts)
+    shapes.per_grasp(ids, "ids", n_grasps)
+    shapes.per_contact(mu, "mu", positions, flat=True)
+    shapes.per_contact(torsional_friction, "torsional_friction", positions, flat=True)
+    return positions, normals, n_grasps

@@ -1,4 +1,5 @@
-"""The client's service calls: ``check_force_closure`` and ``compute_contact_forces``.
+"""The client's service calls: ``check_force_closure``, ``compute_contact_forces`` and
+``assess_robustness``.
 
 The service clients live on a small node of their own that no executor spins: each
 call waits for its response in the caller's thread
@@ -7,7 +8,8 @@ call faster than an executor thread that also serves the topics and the action
 (docs/performance.md#service-latency). A call of more than
 :data:`~grasp_fc_ros.interface.names.MAX_REQUEST_CONTACTS` contacts goes as several
 requests of whole grasps, one after the other, so that it stays under the node's
-``max_message_contacts`` and other clients' calls are served between its requests.
+``max_message_contacts`` and other clients' calls are served between its requests;
+likewise an assessment of many grasps (:mod:`.assessment`).
 """
 
 from __future__ import annotations
@@ -15,24 +17,30 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from grasp_fc_msgs.srv import CheckForceClosure, ComputeContactForces
+from grasp_fc_msgs.srv import AssessRobustness, CheckForceClosure, ComputeContactForces
 from numpy.typing import ArrayLike
 from rclpy.node import Node
 
+from grasp_fc_ros.client.assessment import assessment_requests
 from grasp_fc_ros.client.batches import grasp_ranges
-from grasp_fc_ros.interface.conversions import grasp_to_contact_array, verdict_msgs_to_numpy
+from grasp_fc_ros.interface.conversions import (
+    assessment_to_numpy,
+    grasp_to_contact_array,
+    verdict_msgs_to_numpy,
+)
 from grasp_fc_ros.interface.names import (
+    ASSESS_SERVICE,
     CHECK_SERVICE,
     CONTACT_FORCES_SERVICE,
     MAX_REQUEST_CONTACTS,
     resolve,
 )
 from grasp_fc_ros.interface.wait_sets import ServiceCaller
-from grasp_fc_ros.packed import ContactForces, Verdicts
+from grasp_fc_ros.packed import ContactForces, RobustnessQuery, Verdicts
 
 
 class ServiceCalls:
-    """Call the node's two services, each call waiting in the calling thread.
+    """Call the node's services, each call waiting in the calling thread.
 
     Parameters
     ----------
@@ -48,8 +56,11 @@ class ServiceCalls:
                                                     resolve(node_name, CHECK_SERVICE))
         self._forces_client = self.node.create_client(
             ComputeContactForces, resolve(node_name, CONTACT_FORCES_SERVICE))
+        self._assess_client = self.node.create_client(
+            AssessRobustness, resolve(node_name, ASSESS_SERVICE))
         self._check = ServiceCaller(self.check_client)
         self._forces = ServiceCaller(self._forces_client)
+        self._assess = ServiceCaller(self._assess_client)
 
     def call(self, positions: ArrayLike, normals: ArrayLike, mu: ArrayLike,
              ids: ArrayLike | None, timeout: float) -> Verdicts:
@@ -57,9 +68,6 @@ class ServiceCalls:
         positions = np.asarray(positions, dtype=np.float64)
         normals = np.asarray(normals, dtype=np.float64)
         ids = np.arange(len(positions)) if ids is None else np.asarray(ids)
-        if len(ids) != len(positions):
-            raise ValueError(f"{len(ids)} ids for {len(positions)} grasps: give one id per "
-                             "grasp, or none")
         mu = np.broadcast_to(np.asarray(mu, dtype=np.float64), positions.shape[:2])
         request = CheckForceClosure.Request(grasps=[
             grasp_to_contact_array(i, p, n, m)
@@ -96,8 +104,9 @@ class ServiceCalls:
         force, torque = request.wrench.force, request.wrench.torque
         force.x, force.y, force.z, torque.x, torque.y, torque.z = w
         if max_normal_forces is not None:
-            request.max_normal_forces = np.asarray(max_normal_forces,
-                                                   dtype=np.float64).reshape(-1).tolist()
+            request.max_normal_forces = np.broadcast_to(
+                np.asarray(max_normal_forces, dtype=np.float64),
+                (len(request.grasp.contacts),)).tolist()
         # wait_for_node waits for check_force_closure only; this service may be
         # discovered a moment later, and a request sent before would go unanswered.
         if not self._forces_client.wait_for_service(timeout_sec=timeout):
@@ -109,6 +118,20 @@ class ServiceCalls:
         return ContactForces(bool(response.feasible), float(response.max_normal_force),
                              forces, np.array(response.contact_torques, dtype=np.float64),
                              response.message)
+
+    def assess_robustness(self, positions: ArrayLike, normals: ArrayLike, mu: ArrayLike | None,
+                          torsional_friction: ArrayLike | None, ids: ArrayLike | None,
+                          question: RobustnessQuery, frame_id: str, timeout: float) -> Verdicts:
+        """See :meth:`grasp_fc_ros.client.GraspClient.assess_robustness`."""
+        requests = assessment_requests(positions, normals, mu, torsional_friction, ids,
+                                       question, frame_id)
+        # As for compute_contact_forces: wait_for_node waits for check_force_closure only.
+        if not self._assess_client.wait_for_service(timeout_sec=timeout):
+            raise TimeoutError(f"service {self._assess_client.srv_name} not found within "
+                               f"{timeout} s: its node may be down")
+        parts = [assessment_to_numpy(response)
+                 for response in self._assess.call_each(requests, timeout)]
+        return Verdicts.concatenate(parts)
 
     def close(self) -> None:
         self.node.destroy_node()

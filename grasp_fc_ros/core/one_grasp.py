@@ -16,11 +16,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import force_interior_point, interior_point, positive_span
 from ._kernels.grasp_map import normalise_grasp
 from ._kernels.jit import jit
-from .interior_point import UNDECIDED, solve_one
-from .one_grasp_filter import passes_filter
+from .exact import interior_point
+from .exact.interior_point import UNDECIDED, solve_one
+from .filter import positive_span
+from .filter.one_grasp_filter import passes_filter
+from .forces import force_interior_point
 from .tolerances import MAX_ABS_COORDINATE, MAX_FRICTION_COEFFICIENT, MIN_NORMAL_COMPONENT
 
 #: Largest contact count the fast path takes: a one-grasp query of more contacts is
@@ -151,8 +153,12 @@ def check_one(positions: np.ndarray, normals: np.ndarray, mu: float,
 
 def warm_up() -> None:
     """Compile (or load from the cache) every numba kernel of the core (the fast exact
-    stage, the filter's pair test, this path, the fast s* stage): a ROS node calls this
-    before it reports ready, so no query pays the compile."""
+    stage, the filter's pair test, this path, the fast s* stage, the epsilon search): the
+    install (``make setup``) calls this to fill numba's cache, and a ROS node before it
+    reports ready, so no query or first call pays the compile (loading the cache then
+    takes well under a second)."""
+    from .quality import epsilon  # (which imports this module through the pipeline)
+
     interior_point.warm_up()
     positive_span.warm_up()
     force_interior_point.warm_up()
@@ -160,3 +166,4 @@ def warm_up() -> None:
     for optimum in (False, True):
         for origins in (NO_FILTER, SEED_ORIGINS, ALL_ORIGINS):
             decide_one(corners, -corners, 0.5, origins, optimum)
+    epsilon.warm_up()

@@ -30,10 +30,17 @@ import numpy as np
 import numpy.typing as npt
 
 from ._kernels.jit import kernel_array
-from .certificates import normalise_positions, to_caller_wrench, verify_batch
-from .exact_test import MARGIN_CHOICES, ExactResult, solve_exact
-from .grasp_input import MIN_CONTACTS, GraspBatch, prepare_grasps
-from .interior_point import FORCE_CLOSURE, NOT_FORCE_CLOSURE
+from .exact.certificates import normalise_positions, to_caller_wrench, verify_batch
+from .exact.exact_test import MARGIN_CHOICES, ExactResult, solve_exact
+from .exact.interior_point import FORCE_CLOSURE, NOT_FORCE_CLOSURE
+from .filter.one_grasp_filter import MAX_FILTER_CONTACTS
+from .filter.torque_space_filter import (
+    FILTER_PAYS_UP_TO_CONTACTS,
+    ORIGIN_CHOICES,
+    passes_torque_filter,
+    resolve_use_filter,
+)
+from .model.grasp_input import MIN_CONTACTS, GraspBatch, prepare_grasps
 from .one_grasp import (
     ALL_ORIGINS,
     FILTERED_OUT,
@@ -42,13 +49,6 @@ from .one_grasp import (
     SEED_ORIGINS,
     check_one,
     decide_one,
-)
-from .one_grasp_filter import MAX_FILTER_CONTACTS
-from .torque_space_filter import (
-    FILTER_PAYS_UP_TO_CONTACTS,
-    ORIGIN_CHOICES,
-    passes_torque_filter,
-    resolve_use_filter,
 )
 
 

@@ -25,6 +25,33 @@ CHUNK_CONTACTS = 16384
 SOFT_CHUNK_DIVISOR = 64
 
 
+# An assess_robustness request (settings with a robustness query) is sized in samples:
+# each grasp costs its samples (one exact test each) plus RADII_SAMPLES for its radii and
+# holds answer, about their cost in exact tests (tuned: docs/performance.md#robustness-service).
+# A chunk holds ASSESSMENT_CHUNK_SAMPLES of that, about as long as a batch chunk; a
+# request of at most INLINE_ASSESSMENT_SAMPLES (one grasp with 1,000 samples) is decided
+# in the calling thread, as small check requests are.
+RADII_SAMPLES = 500
+ASSESSMENT_CHUNK_SAMPLES = 16_384
+INLINE_ASSESSMENT_SAMPLES = 2_048
+
+
+def assessment_samples(n_grasps: int, samples: int) -> int:
+    """What an assess_robustness request of ``n_grasps`` grasps costs, in samples."""
+    return n_grasps * (samples + RADII_SAMPLES)
+
+
+def assessment_chunk_contacts(n_grasps: int, max_contacts: int, samples: int,
+                              workers: int) -> int:
+    """Contacts per chunk of an assess_robustness request: whole grasps of up to
+    ``max_contacts`` contacts, ASSESSMENT_CHUNK_SAMPLES' worth at most, and spread over
+    ``workers`` (each grasp costs many exact tests, so even a few are worth sharing)."""
+    grasps = max(1, ASSESSMENT_CHUNK_SAMPLES // (samples + RADII_SAMPLES))
+    if workers > 1:
+        grasps = min(grasps, -(-n_grasps // workers))
+    return grasps * max_contacts
+
+
 # A request of fewer chunks than workers is split into one chunk per worker, as equal as
 # grasps allow, so that no worker idles while another decides a large chunk; down to
 # chunks of this many contacts, where the core's cost per grasp is still near its best

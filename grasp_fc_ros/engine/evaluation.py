@@ -26,7 +26,18 @@ from grasp_fc_ros.core import (
     validate_grasps,
 )
 from grasp_fc_ros.core.tolerances import MARGIN_TOL
-from grasp_fc_ros.packed import MIN_CONTACTS, PackedGrasps, Settings, Verdicts
+from grasp_fc_ros.engine.robustness import assess_group
+from grasp_fc_ros.packed import (
+    ASSESSMENT_FIELDS,
+    MIN_CONTACTS,
+    PackedGrasps,
+    RobustnessQuery,
+    Settings,
+    Verdicts,
+)
+
+#: The fields of Assessments with one row per contact (the others have one per grasp).
+_PER_CONTACT = ("witness_positions", "witness_normals", "witness_friction")
 
 
 @dataclass(frozen=True)
@@ -139,12 +150,15 @@ def evaluate(packed: PackedGrasps, settings: Settings) -> tuple[Verdicts, dict]:
         coefficient exceeds mu* (the others scaled along) and not below it; with
         ``settings.compute_epsilon`` ``epsilon_lower`` and ``epsilon_upper``: the
         core's :func:`epsilon_quality` at its default accuracy, torques about the
-        frame's origin (see :func:`group_epsilon`).
+        frame's origin (see :func:`group_epsilon`); with ``settings.robustness``
+        ``robustness``, the grasps' :class:`~grasp_fc_ros.packed.Assessments`
+        (:func:`.robustness.assess_group`; what could not be computed is said in the
+        messages).
     seconds : dict
         Time spent: ``validation_s`` (0 where the core validated the grasps inside its
         own call: one grasp, or grasps of one size), ``filter_s``, ``exact_s``
-        (certificates included) and, if computed, ``min_friction_s`` and
-        ``epsilon_s`` (s).
+        (certificates included) and, if computed, ``min_friction_s``, ``epsilon_s``
+        and ``robustness_s`` (s).
     """
     lone = _decide_lone_grasp(packed, settings)
     if lone is not None:
@@ -203,6 +217,8 @@ def _decide_groups(packed: PackedGrasps, mu: np.ndarray, settings: Settings,
         seconds["min_friction_s"] = 0.0
     if settings.compute_epsilon:
         seconds["epsilon_s"] = 0.0
+    if settings.robustness is not None:
+        seconds["robustness_s"] = 0.0
     starts = packed.starts
     min_friction = verdicts.min_friction  # an array when the settings ask for mu*
     for group in groups:
@@ -237,7 +253,35 @@ def _decide_groups(packed: PackedGrasps, mu: np.ndarray, settings: Settings,
             seconds["min_friction_s"] += time.perf_counter() - began
         if settings.compute_epsilon:
             seconds["epsilon_s"] += _store_epsilon(verdicts, packed, group, rows, mu)
+        if settings.robustness is not None:
+            seconds["robustness_s"] += _store_assessments(verdicts, packed, group, rows, mu,
+                                                          settings.robustness)
     return verdicts, seconds
+
+
+def _store_assessments(verdicts: Verdicts, packed: PackedGrasps, group: np.ndarray,
+                       rows: np.ndarray, mu: np.ndarray, query: RobustnessQuery) -> float:
+    """Put the robustness of the grasps ``group`` (contacts ``rows``) into ``verdicts``
+    (made with rows not computed by :meth:`Verdicts.failed_grasps`); what could not be
+    computed is said in the messages. Returns the seconds it took."""
+    assessments = verdicts.robustness
+    assert assessments is not None, "verdicts made without assessments"
+    began = time.perf_counter()
+    torsional = None if packed.torsional is None else packed.torsional[rows]
+    try:
+        found, problems = assess_group(
+            packed.positions[rows], packed.normals[rows], mu[rows],
+            torsional if torsional is not None and torsional.any() else None, query,
+            packed.ids[group])
+        for name in ASSESSMENT_FIELDS:
+            getattr(assessments, name)[rows.reshape(-1) if name in _PER_CONTACT
+                                       else group] = getattr(found, name)
+    except Exception as exc:  # noqa: BLE001 - the verdicts stand; the message says why
+        problems = [f"robustness not computed: {exc}"]
+    for problem in problems:
+        for i in group:
+            verdicts.messages[i] = "; ".join(m for m in (verdicts.messages[i], problem) if m)
+    return time.perf_counter() - began
 
 
 def _store_epsilon(verdicts: Verdicts, packed: PackedGrasps, group: np.ndarray,
@@ -321,6 +365,7 @@ def _decide_lone_grasp(packed: PackedGrasps, settings: Settings
     general path then decides the grasp again and says which contact is wrong.
     """
     if (len(packed) != 1 or settings.compute_min_friction or settings.compute_epsilon
+            or settings.robustness is not None
             or not MIN_CONTACTS <= packed.counts[0] <= settings.max_contacts):
         return None
     mu = effective_friction(packed.mu, settings.friction_coefficient)
@@ -392,7 +437,7 @@ def group_min_friction(positions: np.ndarray, normals: np.ndarray, mu: np.ndarra
     Returns
     -------
     (G,) float64
-        :func:`grasp_fc_ros.core.minimum_friction` with ``margin=MARGIN_TOL``: the
+        :func:`grasp_fc_ros.core.quality.minimum_friction` with ``margin=MARGIN_TOL``: the
         boundary of the node's own verdicts (FORCE_CLOSURE needs a margin of
         MARGIN_TOL), so a verdict at friction above mu* is FORCE_CLOSURE and below it
         is not. The force-closure boundary itself (margin 0) lies a little lower, where

@@ -19,7 +19,14 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import CancelledError, Future
 from concurrent.futures import TimeoutError as FutureTimeout
 
-from grasp_fc_ros.engine.chunking import CHUNK_CONTACTS, SOFT_CHUNK_DIVISOR, chunk_size
+from grasp_fc_ros.engine.chunking import (
+    CHUNK_CONTACTS,
+    INLINE_ASSESSMENT_SAMPLES,
+    SOFT_CHUNK_DIVISOR,
+    assessment_chunk_contacts,
+    assessment_samples,
+    chunk_size,
+)
 from grasp_fc_ros.engine.evaluation import evaluate
 from grasp_fc_ros.engine.worker_crew import (
     START_TIMEOUT_S,
@@ -184,11 +191,20 @@ class EvaluationPool:
 
         A caller can start the next request while this one's chunks are decided, so
         that the workers never wait for it between requests. Requests of at most
-        :data:`INLINE_GRASPS` grasps (or with no workers) are decided here, before
-        returning.
+        :data:`INLINE_GRASPS` grasps (assess_robustness requests: of at most
+        :data:`~.chunking.INLINE_ASSESSMENT_SAMPLES` samples), or with no workers, are
+        decided here, before returning.
         """
-        if self._crew is None or len(packed) <= INLINE_GRASPS:
+        query = settings.robustness
+        if self._crew is None or (
+                len(packed) <= INLINE_GRASPS if query is None
+                else assessment_samples(len(packed), query.samples) <= INLINE_ASSESSMENT_SAMPLES):
             return Decision([], evaluate(packed, settings))
+        if query is not None:
+            return Decision([self._crew.submit(chunk, settings, priority) for chunk in
+                             packed.chunks(assessment_chunk_contacts(
+                                 len(packed), int(packed.counts.max()), query.samples,
+                                 self.workers))])
         # Soft grasps take the exact test's Clarabel path, many times a hard grasp's cost
         # (tuned: docs/performance.md#worker-chunks): smaller chunks keep one chunk's delay
         # as short.

@@ -78,16 +78,26 @@ JOIN_TIMEOUT_S = 2.0
 def answer_bound_s(chunk: PackedGrasps, settings: Settings, floor_s: float) -> float:
     """Seconds a worker may take to answer ``chunk`` before it counts as hung:
     ``floor_s`` plus :data:`SLOW_CONTACT_S` per contact when the chunk has soft contacts
-    or asks for mu* or epsilon, else :data:`HARD_CONTACT_S`."""
-    return floor_s + len(chunk.mu) * (SLOW_CONTACT_S if is_slow(chunk, settings)
-                                      else HARD_CONTACT_S)
+    or asks for mu*, epsilon or robustness, else :data:`HARD_CONTACT_S`; and for
+    robustness as much again per contact of every sample (each an exact test)."""
+    per_contact = SLOW_CONTACT_S if is_slow(chunk, settings) else HARD_CONTACT_S
+    samples = 0 if settings.robustness is None else settings.robustness.samples
+    per_sample = SLOW_CONTACT_S if chunk.torsional is not None else HARD_CONTACT_S
+    return floor_s + len(chunk.mu) * (per_contact + samples * per_sample)
 
 
 def is_slow(chunk: PackedGrasps, settings: Settings) -> bool:
-    """Whether ``chunk`` has soft contacts or asks for mu* or epsilon (far slower a
-    contact than hard contacts without them)."""
+    """Whether ``chunk`` has soft contacts or asks for mu*, epsilon or robustness (far
+    slower a contact than hard contacts without them)."""
     return (chunk.torsional is not None or settings.compute_min_friction
-            or settings.compute_epsilon)
+            or settings.compute_epsilon or settings.robustness is not None)
+
+
+def uses_epsilon_kernels(settings: Settings) -> bool:
+    """Whether deciding with ``settings`` runs the epsilon kernels (compiled on first use,
+    see :class:`_Slot`): epsilon, and the robustness radii (their position radius is an
+    epsilon search)."""
+    return bool(settings.compute_epsilon) or settings.robustness is not None
 
 
 def describe_chunk(chunk: PackedGrasps) -> str:
@@ -351,9 +361,10 @@ class _Slot:
         self._deadline: float | None = None
         self._bound_s = 0.0
         self._killed_late = False
-        # Whether the current process has answered an epsilon chunk: a worker warms
-        # only the verdict kernels at start, so its first epsilon chunk compiles (or
-        # loads from numba's cache) the epsilon kernels and gets the start-up allowance.
+        # Whether the current process has answered an epsilon (or robustness) chunk: a
+        # worker warms only the verdict kernels at start, so its first such chunk
+        # compiles (or loads from numba's cache) the epsilon kernels and gets the
+        # start-up allowance (uses_epsilon_kernels).
         self._epsilon_warm = False
         self._thread = threading.Thread(target=self._run, daemon=True,
                                         name=f"grasp_fc_worker_{index}")
@@ -443,7 +454,8 @@ class _Slot:
             for task in tasks:
                 settle_failed(task, f"internal error: {exc}")
             return True
-        compiles = any(task.settings.compute_epsilon for task in tasks) and not self._epsilon_warm
+        compiles = (any(uses_epsilon_kernels(task.settings) for task in tasks)
+                    and not self._epsilon_warm)
         with self._lock:
             self._arm(self.crew.worker_timeout_s
                       + sum(answer_bound_s(task.chunk, task.settings, 0.0) for task in tasks)
@@ -457,7 +469,7 @@ class _Slot:
             self.crew.message_died(tasks, self._lost(process, exc, "deciding a chunk"))
             return False
         self._disarm()
-        self._epsilon_warm |= any(bool(task.settings.compute_epsilon) for task in tasks)
+        self._epsilon_warm |= any(uses_epsilon_kernels(task.settings) for task in tasks)
         for task, (ok, answer) in zip(tasks, answers, strict=True):
             if ok:
                 settle(task, answer)

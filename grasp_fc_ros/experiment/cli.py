@@ -6,6 +6,7 @@ Example::
     grasp-fc-experiment --quick --out /tmp/quick   # small version (the test suite runs it)
     grasp-fc-experiment --objects mug --mesh part.stl --fingers 4 --grasps 20000
     grasp-fc-experiment --epsilon-only --epsilon-grasps 1000 --out bench_out/epsilon
+    grasp-fc-experiment --robustness-only --out bench_out/robustness
 """
 
 from __future__ import annotations
@@ -45,10 +46,12 @@ EXAMPLE_GRASPS = 400
 # Full-size defaults, and the --quick ones (explicit flags override both).
 FULL = {"grasps": 100_000, "points": 5000, "peer_grasps": 500, "sides_grasps": 50,
         "sides_pool": 1000, "sweep_grasps": 500, "label_grasps": 2000, "soft_grasps": 1000,
-        "epsilon_grasps": 500}
+        "epsilon_grasps": 500, "robustness_grasps": 500, "robustness_samples": 1000,
+        "reference_samples": 2000}
 QUICK = {"grasps": 300, "points": 1000, "peer_grasps": 20, "sides_grasps": 4,
          "sides_pool": 100, "sweep_grasps": 30, "label_grasps": 20, "soft_grasps": 20,
-         "epsilon_grasps": 12}
+         "epsilon_grasps": 12, "robustness_grasps": 16, "robustness_samples": 50,
+         "reference_samples": 100}
 
 
 def _finger_count(text: str) -> int:
@@ -129,6 +132,19 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--epsilon-only", action="store_true",
                         help="run only the epsilon comparison (writes "
                              "epsilon.csv, epsilon_vs_pyramids.png, epsilon_report.md)")
+    parser.add_argument("--robustness-grasps", type=positive_int,
+                        help="random 4-finger grasps per object in the robustness study "
+                             "(radii, probability, margin and epsilon ranked; default "
+                             f"{FULL['robustness_grasps']})")
+    parser.add_argument("--robustness-samples", type=positive_int,
+                        help="samples per grasp of its probability of force closure "
+                             f"(default {FULL['robustness_samples']})")
+    parser.add_argument("--reference-samples", type=positive_int,
+                        help="samples of the reference labels against Dex-Net's 25 "
+                             f"(default {FULL['reference_samples']})")
+    parser.add_argument("--robustness-only", action="store_true",
+                        help="run only the robustness study (writes robustness.csv, "
+                             "robustness.png, robustness_report.md)")
     return parser
 
 
@@ -233,6 +249,7 @@ def run(args: argparse.Namespace) -> tuple[Path, list[str]]:
     labels = quality.friction_labels(surfaces, args.label_grasps, _stream(args.seed, 4))
     soft_rows = quality.soft_sweep(surfaces, args.soft_grasps, _stream(args.seed, 5))
     epsilon_lines, epsilon_problems = _epsilon_part(surfaces, args)
+    robustness_lines = _robustness_part(surfaces, args)
 
     out = args.out
     report.write_csv(out / report.FRICTION_LABELS_CSV, report.friction_label_rows(labels))
@@ -259,7 +276,7 @@ def run(args: argparse.Namespace) -> tuple[Path, list[str]]:
                                    "jobs": args.jobs},
                                   total, names,
                                   report.quality_section(labels, soft_rows, quality.SOFT_SWEEP_MU)
-                                  + epsilon_lines)
+                                  + epsilon_lines + robustness_lines)
     path = out / report.REPORT_MD
     path.write_text(text)
     problems = report.soundness_problems(results) + epsilon_problems
@@ -290,6 +307,24 @@ def _epsilon_part(surfaces: Sequence[ContactSurface],
     return lines + [f"![epsilon against pyramid Q1]({report.PLOTS['epsilon']})", ""], problems
 
 
+def _robustness_part(surfaces: Sequence[ContactSurface], args: argparse.Namespace) -> list[str]:
+    """The robustness study: writes its CSV and plot into args.out; returns the report's
+    markdown lines."""
+    from . import plots, report, robustness_study
+
+    print("robustness: radii, probability, margin and epsilon ...", file=sys.stderr,
+          flush=True)
+    objects = robustness_study.measure_objects(
+        surfaces, args.robustness_grasps, args.robustness_samples, _stream(args.seed, 7),
+        args.reference_samples)
+    rows = robustness_study.summary_rows(objects)
+    report.write_csv(args.out / report.ROBUSTNESS_CSV, [report.epsilon_row(r) for r in rows])
+    plots.plot_robustness(objects, args.out / report.PLOTS["robustness"])
+    lines = report.robustness_section(objects, rows, args.robustness_samples,
+                                      args.reference_samples)
+    return lines + [f"![robustness against epsilon]({report.PLOTS['robustness']})", ""]
+
+
 def run_epsilon_only(args: argparse.Namespace) -> tuple[Path, list[str]]:
     """Only the epsilon comparison, with its own short report; returns (path, problems)."""
     from . import report
@@ -298,21 +333,44 @@ def run_epsilon_only(args: argparse.Namespace) -> tuple[Path, list[str]]:
     surfaces = load_objects(args)
     args.out.mkdir(parents=True, exist_ok=True)
     lines, problems = _epsilon_part(surfaces, args)
-    total = time.perf_counter() - start
-    path = args.out / report.EPSILON_REPORT_MD
-    path.write_text("\n".join(lines + [
-        f"Machine: {report.machine_description()}; code: {report.code_version()}; "
-        f"{total:.0f} s.", "", f"Reproduce: `{report.command_line()}`", ""]))
+    path = _short_report(args.out / report.EPSILON_REPORT_MD,
+                         "Exact epsilon against the pyramid Q1", lines, start)
     for line in problems:
         print(f"SOUNDNESS VIOLATION: {line}", file=sys.stderr)
-    print(f"report: {path} ({total:.1f} s)", file=sys.stderr)
     return path, problems
+
+
+def run_robustness_only(args: argparse.Namespace) -> Path:
+    """Only the robustness study, with its own short report; returns its path."""
+    from . import report
+
+    start = time.perf_counter()
+    surfaces = load_objects(args)
+    args.out.mkdir(parents=True, exist_ok=True)
+    lines = _robustness_part(surfaces, args)
+    return _short_report(args.out / report.ROBUSTNESS_REPORT_MD,
+                         "Robustness of force closure: the study", lines, start)
+
+
+def _short_report(path: Path, title: str, lines: list[str], start: float) -> Path:
+    """Write a part's report: ``title``, its lines, the machine, the time, the command."""
+    from . import report
+
+    total = time.perf_counter() - start
+    path.write_text("\n".join([f"# {title}", ""] + lines + [
+        f"Machine: {report.machine_description()}; code: {report.code_version()}; "
+        f"{total:.0f} s.", "", f"Reproduce: `{report.command_line()}`", ""]))
+    print(f"report: {path} ({total:.1f} s)", file=sys.stderr)
+    return path
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; exit status 1 if the filter changed any verdict or a pyramid Q1
     exceeded a certified epsilon bound, else 0."""
     args = resolve_settings(build_parser().parse_args(argv))
+    if args.robustness_only:
+        run_robustness_only(args)
+        return 0
     _, problems = run_epsilon_only(args) if args.epsilon_only else run(args)
     return 1 if problems else 0
 

@@ -22,6 +22,7 @@ if TYPE_CHECKING:
     from .epsilon_study import EpsilonComparison
     from .measure import FingerSweepRow, ObjectResult, SidesSweepRow
     from .quality import FrictionLabels, SoftRow
+    from .robustness_study import ObjectRobustness
 
 #: Where a PNG goes.
 PlotPath: TypeAlias = str | os.PathLike[str]
@@ -265,4 +266,35 @@ def plot_epsilon_comparison(comparisons: Sequence[EpsilonComparison], edge_count
     c0 = comparisons[0]
     fig.suptitle(f"Pyramid Q1 against the exact epsilon: {c0.n_fingers} fingers, "
                  f"mu = {c0.mu:.3f}")
+    _save(fig, path)
+
+
+def plot_robustness(objects: Sequence[ObjectRobustness], path: PlotPath) -> None:
+    """The probability of force closure against epsilon (left) and against the position
+    radius (middle), one colour per object, and the measures' rank correlations (right),
+    over the force-closure grasps."""
+    from .robustness_study import MEASURES, correlations
+
+    fig, (left, middle, right) = plt.subplots(1, 3, figsize=(15, 4.5))
+    colours = plt.get_cmap("tab10")
+    for k, o in enumerate(objects):
+        for ax, measure in ((left, "epsilon"), (middle, "position_radius")):
+            ax.scatter(o.measures[measure], o.measures["probability"], s=8, alpha=0.6,
+                       color=colours(k % 10), label=o.name)
+    left.set_xlabel("epsilon (certified, midpoint)")
+    middle.set_xlabel("position_radius (m)")
+    for ax in (left, middle):
+        ax.set_ylabel("probability of force closure")
+        ax.set_ylim(-0.03, 1.03)
+    left.legend(fontsize=7, markerscale=2)
+    matrix = correlations(objects)
+    image = right.imshow(matrix, vmin=-1, vmax=1, cmap="RdBu")
+    labels = [m.replace("_", "\n") for m in MEASURES]
+    right.set_xticks(range(len(MEASURES)), labels, fontsize=7)
+    right.set_yticks(range(len(MEASURES)), labels, fontsize=7)
+    for (i, j), value in np.ndenumerate(matrix):
+        right.text(j, i, "-" if value != value else f"{value:.2f}", ha="center",
+                   va="center", fontsize=7)
+    fig.colorbar(image, ax=right, label="Spearman rank correlation")
+    fig.suptitle("Robustness against epsilon: force-closure grasps of the built-in objects")
     _save(fig, path)

@@ -2,7 +2,7 @@
 
 GraspNet-style datasets label a grasp with the least friction that holds it, scanned on a
 grid of mu values; here it is the certified minimum friction coefficient mu*
-(:func:`grasp_fc_ros.core.minimum_friction.minimum_friction`). The soft-finger sweep counts
+(:func:`grasp_fc_ros.core.quality.minimum_friction.minimum_friction`). The soft-finger sweep counts
 force-closure grasps among the same random grasps with hard contacts (gamma = 0) and with
 soft ones, gamma growing as a fraction of the object's size.
 """
@@ -76,7 +76,7 @@ def object_size(surface: ContactSurface) -> float:
 def friction_labels(surfaces: Iterable[ContactSurface], n_grasps: int, rng: np.random.Generator,
                     n_fingers: int = LABEL_FINGERS) -> list[FrictionLabels]:
     """mu* of ``n_grasps`` random grasps per surface, equal friction at every contact."""
-    from grasp_fc_ros.core.minimum_friction import minimum_friction
+    from grasp_fc_ros.core.quality.minimum_friction import minimum_friction
 
     labels = []
     for surface in surfaces:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import math
 import os
 import platform
 import subprocess
@@ -34,6 +35,7 @@ from .paper import (
 if TYPE_CHECKING:
     from .measure import FingerSweepRow, ObjectResult, SidesSweepRow
     from .quality import FrictionLabels, SoftRow
+    from .robustness_study import ObjectRobustness
 
 #: One CSV row (column name -> value), or one summary row of
 #: :func:`.epsilon_study.summary_rows`.
@@ -45,8 +47,10 @@ PEER_SIDES_CSV = "peer_sides.csv"
 FRICTION_LABELS_CSV = "friction_labels.csv"
 SOFT_SWEEP_CSV = "soft_sweep.csv"
 EPSILON_CSV = "epsilon.csv"
+ROBUSTNESS_CSV = "robustness.csv"
 REPORT_MD = "report.md"
 EPSILON_REPORT_MD = "epsilon_report.md"
+ROBUSTNESS_REPORT_MD = "robustness_report.md"
 PLOTS = {
     "speedup": "speedup.png",
     "specificity": "specificity.png",
@@ -56,6 +60,7 @@ PLOTS = {
     "friction_labels": "friction_labels.png",
     "soft_sweep": "soft_vs_hard.png",
     "epsilon": "epsilon_vs_pyramids.png",
+    "robustness": "robustness.png",
 }
 # Friction values at which the report gives the share of force-closure grasps (mu* below).
 LABEL_MU_LEVELS = (0.1, 0.2, 0.5, 1.0)
@@ -225,6 +230,71 @@ def epsilon_section(rows: Sequence[Row], n_fingers: int, mu: float) -> list[str]
                  r["pyramid_zero"],
                  f"{r['flipped_pairs']} / {r['ordered_pairs']} ({share(r['flip_share'])})",
                  r["tied_pairs"], r["above_upper"]] for r in rows]),
+        "",
+    ]
+
+
+def robustness_section(objects: Sequence[ObjectRobustness], rows: Sequence[Row],
+                       samples: int, reference_samples: int) -> list[str]:
+    """Markdown lines of the robustness part (``rows``: its
+    :func:`.robustness_study.summary_rows`)."""
+    from .robustness_study import (
+        DEXNET_NOISE,
+        DEXNET_SAMPLES,
+        FINGERS,
+        MEASURES,
+        MU,
+        NOISE,
+        TOP_SHARE,
+        correlations,
+    )
+
+    def rho(value: object) -> str:
+        return "-" if not isinstance(value, float) or value != value else f"{value:+.2f}"
+
+    def noise(values: dict[str, float]) -> str:
+        return (f"positions {1e3 * values['position_sigma']:.1f} mm, normals "
+                f"{math.degrees(values['normal_sigma']):.2f} deg, friction "
+                f"{values['friction_sigma']:g}")
+
+    matrix = correlations(objects)
+    many = np.concatenate([o.many for o in objects])
+    few = np.concatenate([o.few for o in objects])
+    uncertain = (many > 0.2) & (many < 0.8)
+    differ = (few > 0.5) != (many > 0.5)
+    return [
+        "## Robustness: radii, probability, margin and epsilon",
+        "",
+        f"Random {FINGERS}-finger grasps per object, mu = {MU:g}, the objects in metres. "
+        "Over the force-closure grasps: the margin t*, the Ferrari-Canny epsilon (about "
+        "the object's centre, L = the grasp's largest |p_i - c|), the certified radii "
+        "`normal_angle` (rad), `position_radius` (m) and `friction_drop`, and the "
+        f"probability of force closure under {noise(NOISE)} ({samples} samples a grasp; "
+        "docs/robustness.md#probability-of-force-closure). Spearman's rank correlation "
+        "over the force-closure grasps of all objects:",
+        "",
+        _table([""] + list(MEASURES),
+               [[name] + [rho(float(v)) for v in matrix[k]] for k, name in enumerate(MEASURES)]),
+        "",
+        "Per object, the probability's rank correlation with each measure, and how many "
+        f"of the top {100 * TOP_SHARE:.0f} % of its force-closure grasps by epsilon rank in "
+        "the bottom half by probability:",
+        "",
+        _table(["object", "FC grasps"] + [f"rho(P, {m})" for m in MEASURES[:-1]]
+               + ["top by epsilon in bottom half by P"],
+               [[r["object"], f"{r['force_closure']} / {r['grasps']}"]
+                + [rho(r[f"rho_probability_{m}"]) for m in MEASURES[:-1]]
+                + [f"{r['top_epsilon_bottom_probability']} / {r['top_epsilon']}"]
+                for r in rows]),
+        "",
+        f"Labels \"probability > 0.5\" with Dex-Net's noise sizes ({noise(DEXNET_NOISE)}, "
+        f"mu = {MU:g}; see `robustness_study.DEXNET_NOISE` for the mapping) from "
+        f"{DEXNET_SAMPLES} samples, as Dex-Net labels, against {reference_samples} samples "
+        f"drawn apart, over all {differ.size} grasps: **{int(differ.sum())} differ "
+        f"({100 * differ.mean() if differ.size else float('nan'):.1f} %)**; "
+        f"among the {int(uncertain.sum())} grasps whose {reference_samples}-sample estimate "
+        f"is in (0.2, 0.8), {int(differ[uncertain].sum())} differ"
+        f" ({100 * differ[uncertain].mean() if uncertain.any() else float('nan'):.1f} %).",
         "",
     ]
 

@@ -26,10 +26,17 @@ from numpy.typing import ArrayLike, DTypeLike
 from std_msgs.msg import Header
 
 from grasp_fc_ros.interface import message_slots as slots
-from grasp_fc_ros.packed import OPTIONAL_FIELDS, PackedGrasps, Verdicts
+from grasp_fc_ros.packed import (
+    ASSESSMENT_FIELDS,
+    OPTIONAL_FIELDS,
+    Assessments,
+    PackedGrasps,
+    Verdicts,
+)
 
 __all__ = [
-    "BatchArrays", "MalformedBatch", "PackedGrasps", "Verdicts", "batch_arrays",
+    "BatchArrays", "MalformedBatch", "PackedGrasps", "Verdicts", "assessment_response",
+    "assessment_to_numpy", "batch_arrays",
     "batch_ids", "batch_msg", "batch_size", "batch_to_packed",
     "contact_arrays_to_packed", "grasp_to_contact_array", "grasps_to_batch_msg",
     "verdict_array_to_numpy", "verdict_msgs_to_numpy", "verdicts_to_array_msg",
@@ -364,6 +371,74 @@ def verdict_msgs_to_numpy(replies: list[ForceClosureVerdict], counts: ArrayLike)
         min_friction=np.array([r.min_friction for r in replies], dtype=np.float64),
         epsilon_lower=np.array([r.epsilon_lower for r in replies], dtype=np.float64),
         epsilon_upper=np.array([r.epsilon_upper for r in replies], dtype=np.float64))
+
+
+# The AssessRobustness response's fields for Assessments' fields (the same names, but
+# the wrenches in the plural as in ForceClosureVerdictArray); their array.array type
+# codes.
+_RESPONSE_FIELDS = {name: name for name in ASSESSMENT_FIELDS} | {
+    "separating_wrench": "separating_wrenches"}
+_RESPONSE_TYPECODES = {"holds": _TYPECODE_UINT8}
+
+
+def assessment_response(verdicts: Verdicts, response: Any) -> Any:
+    """Fill an AssessRobustness response from verdicts carrying ``robustness``.
+
+    Parallel arrays, one entry per grasp (the witness: 3 or 1 values per contact, the
+    wrenches 6 per grasp), laid out as in ForceClosureVerdictArray.
+    """
+    assessments = verdicts.robustness
+    if assessments is None:
+        raise ValueError("verdicts without robustness assessments")
+    response.ids = _to_field(_TYPECODE_UINT64, verdicts.ids)
+    response.force_closure = np.asarray(verdicts.force_closure, dtype=bool).tolist()
+    response.status = _to_field(_TYPECODE_UINT8, verdicts.status)
+    response.messages = list(verdicts.messages)
+    for name, field in _RESPONSE_FIELDS.items():
+        values = getattr(assessments, name)
+        if name == "holds_bound":
+            setattr(response, field, [str(value) for value in values])
+        else:
+            setattr(response, field, _to_field(_RESPONSE_TYPECODES.get(name, _TYPECODE_FLOAT64),
+                                               values.reshape(-1)))
+    return response
+
+
+def assessment_to_numpy(response: Any) -> Verdicts:
+    """Read an AssessRobustness response back into numpy arrays (client side):
+    :class:`Verdicts` (``margin`` NaN: the response carries none) with ``robustness``.
+
+    Raises
+    ------
+    ValueError
+        If its arrays do not have one entry per grasp (and the witness the same number
+        of contacts in its three arrays).
+    """
+    n_grasps = len(response.ids)
+    columns: dict[str, Any] = {}
+    for name, field in _RESPONSE_FIELDS.items():
+        values = getattr(response, field)
+        if name == "holds_bound":
+            columns[name] = np.array(list(values), dtype=object)
+            continue
+        array_ = _as_numpy(values, np.uint8 if name == "holds" else np.float64).copy()
+        columns[name] = array_.reshape(-1, 3 if name in ("witness_positions",
+                                                          "witness_normals")
+                                       else 6 if name == "separating_wrench" else 1)
+        if columns[name].shape[1] == 1:
+            columns[name] = columns[name][:, 0]
+    lengths = {name: len(values) for name, values in columns.items()}
+    contacts = lengths["witness_friction"]
+    wrong = [f"{name} {length}" for name, length in lengths.items()
+             if length != (contacts if name.startswith("witness") else n_grasps)]
+    if wrong or len(response.status) != n_grasps or len(response.messages) != n_grasps:
+        raise ValueError(f"malformed AssessRobustness response for {n_grasps} grasps: "
+                         + ", ".join(wrong or ["status or messages"]))
+    return Verdicts(ids=_as_numpy(response.ids, np.uint64).copy(),
+                    force_closure=np.asarray(response.force_closure, dtype=bool),
+                    status=_as_numpy(response.status, np.uint8).copy(),
+                    margin=np.full(n_grasps, np.nan), messages=list(response.messages),
+                    robustness=Assessments(**columns))
 
 
 class BatchArrays(NamedTuple):

@@ -25,6 +25,7 @@ DIAGNOSTICS_TOPIC = "/diagnostics"
 CHECK_SERVICE = "check_force_closure"
 CONTACT_FORCES_SERVICE = "compute_contact_forces"
 CLEAR_MARKERS_SERVICE = "clear_markers"
+ASSESS_SERVICE = "assess_robustness"
 LABEL_ACTION = "label_grasps"
 
 # The QoS clients use on all four grasp topics, and the node's query subscriptions.
@@ -83,3 +84,9 @@ MAX_MESSAGE_CONTACTS = 6_144
 # held such calls up twice as long, smaller ones slowed the big call down and held
 # them up no less on a busy machine (tuned: docs/performance.md#big-service-calls).
 MAX_REQUEST_CONTACTS = 3_072
+
+# Most samples (grasps x samples per grasp) GraspClient asks for in one assess_robustness
+# request: a larger call goes as several requests of whole grasps, one after the other,
+# each well under the node's default max_assessment_samples (1,000,000) and a fraction of
+# a second of the workers' time, so that other clients' requests are served between them.
+MAX_REQUEST_SAMPLES = 250_000

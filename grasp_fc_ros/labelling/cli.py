@@ -33,6 +33,7 @@ from .robustness import DEFAULT_CONFIDENCE, DEFAULT_SAMPLES, ERRORS, SIGMAS
 from .runner import CHUNK_WORK, DEFAULT_CHUNK_SIZE
 
 if TYPE_CHECKING:
+    from .output import OutputConflict
     from .robustness import Robustness
     from .runner import Plan, Summary
 
@@ -44,6 +45,19 @@ PROG = "grasp-fc-label"
 DEFAULT_MU = 0.17632698070846498
 DEFAULT_FINGERS = 6
 DEFAULT_QUALITY_RTOL = 1e-3
+#: The options behind each setting a run's manifest records (an output made with other
+#: values is refused naming these, not the manifest's keys), in the order they are named.
+SETTING_OPTIONS = {
+    "sources": "the INPUT files (or --objects, --mesh and the options drawing on them)",
+    "use_filter": "--filter", "origins": "--origins",
+    "quality_rtol": "--quality/--quality-rtol", "robustness": "--robustness",
+    **{f"robustness.{name}": "--" + name.replace("_", "-")
+       for name in (*ERRORS, *SIGMAS, "samples", "confidence", "seed")},
+    "chunk_size": "--chunk-size", "draw_block": "--chunk-size",
+    "format": "the grasp-fc-label version that wrote it", "layout": "its layout"}
+#: Settings whose default follows other options (the chunk size follows the columns):
+#: not named when those differ too and the user left them to their default.
+DERIVED_SETTINGS = ("chunk_size", "draw_block")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -202,7 +216,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         plan = make_plan(args)
         with dask_client(args.scheduler, args.workers, args.scheduler_file) as client:
             summary = run(plan, args.out, client, progress=not args.no_progress)
-    except (InputError, OutputConflict) as error:
+    except OutputConflict as error:
+        print(f"{PROG}: error: {_conflict_message(error, args)}", file=sys.stderr)
+        return 2
+    except InputError as error:
         print(f"{PROG}: error: {error}", file=sys.stderr)
         return 2
     except (TaskFailed, OSError, TimeoutError) as error:
@@ -213,6 +230,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     _report(summary)
     return 0
+
+
+def _conflict_message(error: OutputConflict, args: argparse.Namespace) -> str:
+    """Why ``--out`` is refused, naming the options in which its run differs."""
+    if not error.differing:
+        return str(error)
+    keys = list(error.differing)
+    if args.chunk_size is None and set(keys) - set(DERIVED_SETTINGS):
+        keys = [key for key in keys if key not in DERIVED_SETTINGS]
+    order = list(SETTING_OPTIONS)
+    keys.sort(key=lambda key: order.index(key) if key in order else len(order))
+    options = "; ".join(dict.fromkeys(SETTING_OPTIONS.get(key, key) for key in keys))
+    return (f"--out {args.out} holds labels of a run with other options ({options}); "
+            "remove it, choose another --out, or repeat that run's options to resume it")
 
 
 def _report(summary: Summary) -> None:

@@ -13,7 +13,7 @@ import json
 import os
 import shutil
 import uuid
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -29,21 +29,33 @@ TEMP_PREFIX = "."
 
 
 class OutputConflict(Exception):
-    """The output path holds something this run must not overwrite or mix with."""
+    """The output path holds something this run must not overwrite or mix with.
+
+    Attributes
+    ----------
+    differing : tuple of str
+        Where the output holds another run: the keys of the manifest (settings,
+        ``sources``; inside a nested setting, ``robustness.samples``) in which that run
+        differs from this one; else empty.
+    """
+
+    def __init__(self, message: str, differing: tuple[str, ...] = ()) -> None:
+        super().__init__(message)
+        self.differing = differing
 
 
-def _differing_keys(stored: dict[str, Any], wanted: dict[str, Any],
-                    prefix: str = "") -> list[str]:
-    """Keys whose values differ; inside entries that are dicts on both sides, their keys
-    (``robustness.samples``)."""
-    keys = []
+def _manifest_difference(stored: dict[str, Any], wanted: dict[str, Any],
+                         prefix: str = "") -> tuple[str, ...]:
+    """The keys whose values differ; inside entries that are dicts on both sides, their
+    keys (``robustness.samples``)."""
+    keys: list[str] = []
     for key in sorted(set(stored) | set(wanted)):
         old, new = stored.get(key), wanted.get(key)
         if isinstance(old, dict) and isinstance(new, dict):
-            keys += _differing_keys(old, new, f"{prefix}{key}.")
+            keys += _manifest_difference(old, new, f"{prefix}{key}.")
         elif old != new:
             keys.append(prefix + key)
-    return keys
+    return tuple(keys) or (() if prefix else ("layout",))
 
 
 class Output:
@@ -56,20 +68,14 @@ class Output:
     manifest : dict
         JSON-serialisable description of the run (inputs with sizes and modification
         times, chunk size, settings); parts are reused only under the same manifest.
-    setting_names : mapping of str to str
-        How the user sets each manifest key (nested keys as ``robustness.samples``), to
-        name it when a re-run's manifest differs, in this order; keys not in it are named
-        as they are, last.
     """
 
-    def __init__(self, out: str | os.PathLike[str], manifest: dict[str, Any],
-                 setting_names: Mapping[str, str] | None = None) -> None:
+    def __init__(self, out: str | os.PathLike[str], manifest: dict[str, Any]) -> None:
         self.out = Path(out).resolve()
         self.single_file = self.out.suffix.lower() == ".parquet"
         self.parts_dir = (self.out.with_name(self.out.name + ".parts") if self.single_file
                           else self.out)
         self.manifest = manifest
-        self.setting_names = dict(setting_names or {})
         self.text = json.dumps(manifest, sort_keys=True, indent=1)
 
     def existing_parts(self) -> set[str] | None:
@@ -84,14 +90,12 @@ class Output:
             except (OSError, ValueError):  # pyarrow's ArrowInvalid is a ValueError
                 raise OutputConflict(f"{self.out} exists and is not a Parquet file") from None
             stored = metadata.get(METADATA_KEY)
-            if stored is None:
-                raise OutputConflict(f"{self.out} already exists and holds no grasp-fc-label "
-                                     "labels; remove it or choose another --out")
-            if json.loads(stored) != self.manifest:
+            if stored is None or json.loads(stored) != self.manifest:
+                differing = () if stored is None else _manifest_difference(
+                    json.loads(stored), self.manifest)
                 raise OutputConflict(
-                    f"{self.out} already exists and holds another run's labels (differs in: "
-                    f"{self._difference(json.loads(stored))}); remove it or choose another "
-                    "--out")
+                    f"{self.out} already exists and holds another run's labels; remove it "
+                    "or choose another --out", differing)
             return None
         if not self.parts_dir.exists():
             return set()
@@ -105,18 +109,11 @@ class Output:
             return set()
         stored = json.loads(manifest_path.read_text())
         if stored != self.manifest:
+            differing = _manifest_difference(stored, self.manifest)
             raise OutputConflict(
                 f"{self.parts_dir} holds a run with other inputs or settings (differs in: "
-                f"{self._difference(stored)}); remove it or choose another --out")
+                f"{', '.join(differing)}); remove it or choose another --out", differing)
         return {path.name for path in self.parts_dir.glob("part-*.parquet")}
-
-    def _difference(self, stored: dict[str, Any]) -> str:
-        """The differing settings, by their names, in the order of ``setting_names``."""
-        order = {key: rank for rank, key in enumerate(self.setting_names)}
-        keys = sorted(_differing_keys(stored, self.manifest),
-                      key=lambda key: order.get(key, len(order)))
-        names = [self.setting_names.get(key, key) for key in keys]
-        return ", ".join(dict.fromkeys(names)) or "layout"
 
     def create(self) -> None:
         """Make the parts directory with its manifest; drop temporaries of killed runs."""

@@ -73,17 +73,6 @@ MANIFEST_FORMAT = 1
 #: chunk's memory is bounded, so trimming gains little here.
 WORKER_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
 
-#: How grasp-fc-label sets each entry of the manifest, to name it when a re-run's differs;
-#: the chunk size last, as its default follows the columns asked for.
-SETTING_NAMES = {
-    "sources": "the inputs", "use_filter": "--filter", "origins": "--origins",
-    "quality_rtol": "--quality/--quality-rtol", "robustness": "--robustness",
-    **{f"robustness.{name}": "--" + name.replace("_", "-")
-       for name in Robustness.__dataclass_fields__},
-    "chunk_size": "--chunk-size", "draw_block": "--chunk-size",
-}
-
-
 def cost_per_grasp(quality_rtol: float | None = None,
                    robustness: Robustness | None = None) -> int:
     """What labelling one grasp costs, in exact-test verdicts."""
@@ -325,7 +314,7 @@ def run(plan: Plan, out: str | os.PathLike[str], client: Client,
         A chunk failed on a worker for another reason (parts written so far stay valid).
     """
     start = time.perf_counter()
-    output = Output(out, plan.manifest(), SETTING_NAMES)
+    output = Output(out, plan.manifest())
     done = output.existing_parts()
     summary = Summary(str(output.out), plan.n_grasps)
     chunks = plan.chunks

@@ -11,6 +11,8 @@ interface                     what                                   lane (modul
 ``verdicts_batch``            sureVerdictArray out per batch
 ``check_force_closure``,      services (CheckForceClosure,           :mod:`.services`
 ``compute_contact_forces``    ComputeContactForces)
+``assess_robustness``         service (AssessRobustness): radii,     :mod:`.robustness_service`
+                              holds status, probability
 ``label_grasps``              action (LabelGrasps): a long batch     :mod:`.label_action`
                               with feedback and cancel               (goals: :mod:`.label_goal`)
 ``markers``,                  visualization_msgs/MarkerArray of      :mod:`.marker_lane`
@@ -59,6 +61,7 @@ from grasp_fc_ros.node.marker_lane import MarkerLane
 from grasp_fc_ros.node.parameters import LiveParameters
 from grasp_fc_ros.node.participant import BatchParticipant
 from grasp_fc_ros.node.replies import Replies
+from grasp_fc_ros.node.robustness_service import RobustnessLane
 from grasp_fc_ros.node.services import ServiceLane
 from grasp_fc_ros.node.single_queries import SingleQueryLane
 from grasp_fc_ros.node.statistics import WARN_THROTTLE_S, Statistics, Throttle
@@ -92,7 +95,7 @@ class ForceClosureNode(Node):
     replies : Replies
     batch_participant : BatchParticipant
         The DDS participant (and helper node) of the batch topic's subscription.
-    single_queries, batches, service_requests, label_action, markers
+    single_queries, batches, service_requests, robustness, label_action, markers
         The lanes.
     """
 
@@ -138,12 +141,13 @@ class ForceClosureNode(Node):
         self.batches = self._add(BatchLane(self.batch_participant, context, self.replies,
                                            self.markers))
         self.service_requests = self._add(ServiceLane(self, context, self.markers))
+        self.robustness = self._add(RobustnessLane(self, context))
         self.label_action = self._add(LabelAction(self, context, self.batch_participant))
         self.diagnostics = Diagnostics(self, self.statistics, lambda: self._lanes,
                                        context.internal_error, self._node_counts)
         self.get_logger().info(
             f"ready: topics contacts, contacts_batch; services check_force_closure, "
-            f"compute_contact_forces, clear_markers; action label_grasps; "
+            f"compute_contact_forces, assess_robustness, clear_markers; action label_grasps; "
             f"settings {self.parameters.settings}; workers {self.pool.workers}")
 
     def _node_counts(self) -> dict[str, int]:

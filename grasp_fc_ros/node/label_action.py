@@ -8,8 +8,10 @@ decide goals in chunks on the workers (:func:`~grasp_fc_ros.engine.long_jobs.dec
 and publish their feedback; so a running goal holds up neither cancel requests, nor
 other goals, nor the other lanes. A goal is answered as the batch topic answers
 (invalid and oversized goals, beyond ``max_batch`` grasps or ``max_message_contacts``
-contacts, get INVALID_INPUT verdicts); a cancel or the node's
-shutdown ends it with the verdicts decided so far, a prefix.
+contacts, get INVALID_INPUT verdicts, without feedback); a cancel or the node's
+shutdown ends it with the verdicts decided so far, a prefix. An ended goal's result is
+answered for 15 minutes, as rclpy's own default, within bounds of count and bytes
+(:mod:`.kept_results`).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from grasp_fc_msgs.msg import ForceClosureVerdictArray
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message, serialize_message
 
 from grasp_fc_ros.core import Status
 from grasp_fc_ros.engine.long_jobs import Progress, decide_in_chunks
@@ -35,6 +38,7 @@ from grasp_fc_ros.interface.conversions import (
     verdicts_to_array_msg,
 )
 from grasp_fc_ros.interface.names import LABEL_ACTION
+from grasp_fc_ros.node.kept_results import KeptResults
 from grasp_fc_ros.node.label_goal import LabelGoal
 from grasp_fc_ros.node.lane import Drained, LaneContext, Refusal, start_thread
 from grasp_fc_ros.node.participant import BatchParticipant
@@ -42,13 +46,12 @@ from grasp_fc_ros.node.replies import refused_verdicts
 
 # label_grasps goals decided side by side (their chunks share the workers); more wait.
 ACTION_THREADS = 4
-# How long the action server keeps an ended goal, its request (the whole batch) and
-# result for late result requests (s). rclpy's default, 15 minutes, would hold ~60 MB per
-# 100,000-grasp goal that long; clients ask for the result as soon as a goal is
-# accepted (GraspClient does), so they get it when the goal ends. Short, because every
-# goal kept is in every status message the server sends and each action client converts
-# in Python: a GraspClient job of many parts (goals) slowed down with the list
-# (tuned: docs/performance.md#big-batches).
+# How long rclpy's action server keeps an ended goal, its request (the whole batch) and
+# result (s). Short, because every goal kept is in every status message the server sends
+# and each action client converts in Python: a GraspClient job of many parts (goals)
+# slowed down with the list (tuned: docs/performance.md#big-label-jobs); and rclpy's
+# default, 15 minutes, would hold ~60 MB of request per 100,000-grasp goal that long.
+# The result alone stays longer, for late result requests (.kept_results).
 ACTION_RESULT_TIMEOUT_S = 5
 # At shutdown, how long the goals ended then may take to have their result responses
 # sent (s): the action's executor sends each one when the goal's client has asked for it
@@ -62,21 +65,47 @@ ACTION_RESULT_DELIVERY_S = 0.25
 
 
 class _ResultReportingActionServer(ActionServer):
-    """An ActionServer that reports each result response it has sent.
+    """An ActionServer that reports each result response it has sent, and answers
+    result requests for goals it has forgotten from the results it kept of them.
 
     Shutdown waits for the results of the goals it ends to have been sent. rclpy offers
     no public hook for that; ``_send_result_response`` is the method (rclpy 7, Jazzy)
     that sends one, and its response holds the very Result object the execute callback
-    returned.
+    returned. Likewise ``_execute_expire_goals`` is where it forgets ended goals (after
+    ``result_timeout``) and ``_execute_get_result_request`` where it answers a result
+    request (STATUS_UNKNOWN for a forgotten goal): the response of an expiring goal goes,
+    serialized, to :attr:`kept_results`, which answers later requests for it.
     """
 
     def __init__(self, *args: Any, on_result_sent: Any, **kwargs: Any):
         super().__init__(*args, **kwargs)
         self._on_result_sent = on_result_sent
+        self.kept_results = KeptResults()
 
     def _send_result_response(self, request_header: Any, future: Any) -> None:
         super()._send_result_response(request_header, future)
         self._on_result_sent(future.result().result)
+
+    async def _execute_expire_goals(self, expired_goals: Any) -> None:
+        for goal in expired_goals:
+            key = bytes(goal.goal_id.uuid)
+            future = self._result_futures.get(key)
+            if future is not None and future.done():
+                self.kept_results.keep(key, serialize_message(future.result()))
+        await super()._execute_expire_goals(expired_goals)
+
+    async def _execute_get_result_request(self, request_header_and_message: Any) -> None:
+        request_header, request = request_header_and_message
+        key = bytes(request.goal_id.uuid)
+        kept = None if key in self._goal_handles else self.kept_results.get(key)
+        if kept is None:
+            await super()._execute_get_result_request(request_header_and_message)
+            return
+        response = deserialize_message(kept, self._action_type.Impl.GetResultService.Response)
+        try:
+            self._handle.send_result_response(request_header, response)
+        except Exception:  # noqa: BLE001 - rclpy's RCLError: the client went away
+            pass
 
 
 class LabelAction:

@@ -13,17 +13,19 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import NamedTuple, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 from rclpy.context import Context
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.impl.rcutils_logger import RcutilsLogger
+from rclpy.node import Node
 
 from grasp_fc_ros.core import Status
 from grasp_fc_ros.engine.pool import PRIORITY_INTERACTIVE, Cancelled, EvaluationPool
+from grasp_fc_ros.interface.wait_sets import ServiceLoop
 from grasp_fc_ros.node.statistics import Statistics, Throttle
 from grasp_fc_ros.packed import PackedGrasps, Settings, Verdicts
 
@@ -208,3 +210,42 @@ def start_thread(name: str, step: Callable[[], None], stopping: Callable[[], boo
     thread = threading.Thread(target=run, daemon=True, name=name)
     thread.start()
     return thread
+
+
+class HelperServices:
+    """Services served from a helper node ``<node>_<suffix>`` and a thread of their own
+    (the service lanes' shared part).
+
+    The helper takes no command-line arguments of its own (a ``__node`` remapping would
+    give it the node's own name); the service names are resolved by the node itself, so
+    that the node's remappings apply to them.
+
+    Parameters
+    ----------
+    node : Node
+        The force_closure node: its name, namespace, context and remappings.
+    suffix : str
+        The helper node's name after the node's and an underscore.
+    context : LaneContext
+    services : sequence of (service type, name, callback)
+    """
+
+    def __init__(self, node: Node, suffix: str, context: LaneContext,
+                 services: Sequence[tuple[Any, str, Callable[[Any, Any], Any]]]):
+        self.stopping = False
+        self._helper = Node(f"{node.get_name()}_{suffix}", namespace=node.get_namespace(),
+                            context=node.context, use_global_arguments=False,
+                            start_parameter_services=False)
+        self._loop = ServiceLoop(
+            [self._helper.create_service(kind, node.resolve_service_name(name), callback)
+             for kind, name, callback in services],
+            node.context,
+            lambda service, exc: context.internal_error(
+                f"a {service.srv_name} request (no response sent)", exc),
+            name=suffix)
+
+    def stop(self) -> None:
+        """Let the request in progress be answered, then stop serving."""
+        self.stopping = True
+        self._loop.stop()
+        self._helper.destroy_node()

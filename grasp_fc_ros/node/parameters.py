@@ -41,6 +41,11 @@ MAX_MESSAGE_CONTACTS_LIMIT = 100_000_000
 # own; much larger ones held them up for 0.2 s (tuned: docs/performance.md#big-batches).
 DEFAULT_MAX_MESSAGE_CONTACTS = 491_520
 MAX_WORKERS = 64
+# Samples (grasps x samples per grasp) of one assess_robustness request by default:
+# about 2.5 s of one core at 4 contacts (docs/performance.md#robustness-service), so that a
+# request cannot keep the workers from batches for long; 1,000 grasps at 1,000 samples.
+DEFAULT_MAX_ASSESSMENT_SAMPLES = 1_000_000
+MAX_ASSESSMENT_SAMPLES_LIMIT = 1_000_000_000
 # Worker processes by default: the 2 cores of the machines this was measured on. A fixed
 # number, so that a params file and the docs say the same on every machine.
 DEFAULT_WORKERS = 2
@@ -108,8 +113,12 @@ PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
         "Every verdict carries certified bounds epsilon_lower <= epsilon <= "
         "epsilon_upper on the grasp's Ferrari-Canny epsilon (circular friction cones, "
         "normal forces summing to <= 1, torques about the frame's origin over the largest "
-        "contact distance from it); costs more than the verdict itself, and its first use "
-        "in a fresh install compiles kernels (docs/epsilon.md#cost)")),
+        "contact distance from it); costs more than the verdict itself "
+        "(docs/epsilon.md#cost)")),
+    "max_assessment_samples": (DEFAULT_MAX_ASSESSMENT_SAMPLES, _int_descriptor(
+        "Largest number of samples (grasps x samples per grasp) of one assess_robustness "
+        "request; a larger one is answered whole with INVALID_INPUT saying so",
+        1, MAX_ASSESSMENT_SAMPLES_LIMIT)),
     "workers": (DEFAULT_WORKERS, _int_descriptor(
         "Worker processes deciding large batches and service requests (0: none, decide "
         "in the node's threads); set at start-up", 0, MAX_WORKERS, read_only=True)),
@@ -137,7 +146,8 @@ PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
 MARKER_SETTINGS = {"publish_markers": "enabled", "marker_lifetime": "lifetime_s",
                     "marker_batch_sample": "batch_sample"}
 
-SETTING_NAMES = frozenset(f.name for f in fields(Settings))
+# The Settings fields that are parameters (``robustness`` is set per request).
+SETTING_NAMES = frozenset(f.name for f in fields(Settings)) & frozenset(PARAMETERS)
 
 
 def check_parameter(name: str, value: Any) -> str:

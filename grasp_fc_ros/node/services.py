@@ -30,8 +30,7 @@ from grasp_fc_ros.engine.contact_forces import contact_forces_for_load
 from grasp_fc_ros.engine.pool import Cancelled
 from grasp_fc_ros.interface.conversions import contact_arrays_to_packed, verdicts_to_msgs
 from grasp_fc_ros.interface.names import CHECK_SERVICE, CONTACT_FORCES_SERVICE
-from grasp_fc_ros.interface.wait_sets import ServiceLoop
-from grasp_fc_ros.node.lane import Drained, LaneContext, Refusal
+from grasp_fc_ros.node.lane import Drained, HelperServices, LaneContext, Refusal
 from grasp_fc_ros.node.marker_lane import MarkerLane
 from grasp_fc_ros.node.single_queries import failure_replies
 from grasp_fc_ros.packed import ContactForces
@@ -52,24 +51,12 @@ class ServiceLane:
     def __init__(self, node: Node, context: LaneContext, markers: MarkerLane):
         self._context = context
         self._markers = markers
-        self._stopping = False
-        self._helper = Node(f"{node.get_name()}_service", namespace=node.get_namespace(),
-                            context=node.context, use_global_arguments=False,
-                            start_parameter_services=False)
-        services = [
-            self._helper.create_service(
-                CheckForceClosure, node.resolve_service_name(CHECK_SERVICE),
-                self._on_check),
-            self._helper.create_service(
-                ComputeContactForces, node.resolve_service_name(CONTACT_FORCES_SERVICE),
-                self._on_contact_forces)]
-        self._loop = ServiceLoop(
-            services, node.context,
-            lambda service, exc: context.internal_error(
-                f"a {service.srv_name} request (no response sent)", exc))
+        self._served = HelperServices(node, "service", context, [
+            (CheckForceClosure, CHECK_SERVICE, self._on_check),
+            (ComputeContactForces, CONTACT_FORCES_SERVICE, self._on_contact_forces)])
 
     def stopping(self) -> bool:
-        return self._stopping
+        return self._served.stopping
 
     def counts(self) -> dict[str, int]:
         return {}
@@ -150,9 +137,7 @@ class ServiceLane:
     def stop(self) -> None:
         """Let the request in progress be answered (a shutdown answer if it waits for the
         workers), then stop serving."""
-        self._stopping = True
-        self._loop.stop()
-        self._helper.destroy_node()
+        self._served.stop()
 
     def drain(self) -> Drained:
         return Drained()  # a request is answered in its callback, never queued here

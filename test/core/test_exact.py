@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 
 from grasp_cases import MU_PAPER, ellipsoid_grasps
-from grasp_fc_ros.core import Status, check_force_closure, exact_force_closure, exact_test
-from grasp_fc_ros.core.exact_test import solve_exact
-from grasp_fc_ros.core.grasp_input import prepare_grasps
+from grasp_fc_ros.core import Status, check_force_closure, exact_force_closure
+from grasp_fc_ros.core.exact import exact_test
+from grasp_fc_ros.core.exact.exact_test import solve_exact
+from grasp_fc_ros.core.model.grasp_input import prepare_grasps
 from grasp_fc_ros.core.tolerances import MARGIN_TOL
 from reference_pyramids import pyramid_margin
 

@@ -8,10 +8,15 @@ from hypothesis import strategies as st
 
 from grasp_cases import MU_PAPER, ellipsoid_grasps, random_rotation
 from grasp_fc_ros.core import Status, check_force_closure, verify_certificates, warm_up
-from grasp_fc_ros.core.certificates import normalise_positions
-from grasp_fc_ros.core.exact_test import solve_exact
-from grasp_fc_ros.core.grasp_input import prepare_grasps
-from grasp_fc_ros.core.interior_point import FORCE_CLOSURE, NOT_FORCE_CLOSURE, UNDECIDED, solve_fast
+from grasp_fc_ros.core.exact.certificates import normalise_positions
+from grasp_fc_ros.core.exact.exact_test import solve_exact
+from grasp_fc_ros.core.exact.interior_point import (
+    FORCE_CLOSURE,
+    NOT_FORCE_CLOSURE,
+    UNDECIDED,
+    solve_fast,
+)
+from grasp_fc_ros.core.model.grasp_input import prepare_grasps
 from grasp_fc_ros.core.tolerances import (
     MARGIN_ACCURACY,
     MARGIN_TOL,
@@ -323,7 +328,10 @@ def test_verdicts_just_above_the_threshold_are_certified_by_the_fast_stage():
 
 
 def _compiled_signatures() -> int:
-    from grasp_fc_ros.core import force_interior_point, interior_point, one_grasp, positive_span
+    from grasp_fc_ros.core import one_grasp
+    from grasp_fc_ros.core.exact import interior_point
+    from grasp_fc_ros.core.filter import positive_span
+    from grasp_fc_ros.core.forces import force_interior_point
     kernels = (interior_point._solve_all, one_grasp._prepare_one,
                force_interior_point._solve_all, positive_span._pair_test_kernel)
     return sum(len(kernel.signatures) for kernel in kernels)

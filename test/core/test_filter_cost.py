@@ -6,14 +6,9 @@ import numpy as np
 import pytest
 
 from grasp_cases import ellipsoid_grasps
-from grasp_fc_ros.core import (
-    check_force_closure,
-    exact_force_closure,
-    positive_span,
-    torque_filter,
-    torque_space_filter,
-)
-from grasp_fc_ros.core.torque_space_filter import (
+from grasp_fc_ros.core import check_force_closure, exact_force_closure, torque_filter
+from grasp_fc_ros.core.filter import positive_span, torque_space_filter
+from grasp_fc_ros.core.filter.torque_space_filter import (
     FILTER_PAYS_UP_TO_CONTACTS,
     filter_worthwhile,
     resolve_use_filter,
@@ -115,7 +110,7 @@ def test_thousands_of_contacts_need_no_per_size_tables():
 
 
 def test_all_origins_are_capped_for_many_contacts_and_stay_sound():
-    from grasp_fc_ros.core.torque_space_filter import MAX_ALL_ORIGINS, _origin_indices
+    from grasp_fc_ros.core.filter.torque_space_filter import MAX_ALL_ORIGINS, _origin_indices
     rng = np.random.default_rng(5)
     positions, normals = ellipsoid_grasps(rng, 6, 200)
     positions[:3, :, 1:] *= 1e-3             # nearly a line: most are not force closure

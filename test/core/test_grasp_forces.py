@@ -7,14 +7,10 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from grasp_cases import adversarial_grasps, ellipsoid_grasps, random_rotation
-from grasp_fc_ros.core import (
-    certificates,
-    check_force_closure,
-    force_interior_point,
-    grasp_forces,
-    warm_up,
-)
-from grasp_fc_ros.core.grasp_forces import (
+from grasp_fc_ros.core import check_force_closure, warm_up
+from grasp_fc_ros.core.exact import certificates
+from grasp_fc_ros.core.forces import force_interior_point, grasp_forces
+from grasp_fc_ros.core.forces.grasp_forces import (
     FORCE_TOL,
     OPTIMALITY_TOL,
     GraspForces,

@@ -202,7 +202,7 @@ def test_complex_and_non_numeric_input_is_refused_naming_the_argument(argument):
 def test_quick_all_valid_check_agrees_with_the_per_grasp_validation(seed):
     """prepare_grasps skips the per-grasp validation when a few whole-array checks pass:
     those must pass exactly when the per-grasp validation finds nothing."""
-    from grasp_fc_ros.core.grasp_input import _all_valid, _largest_component, _validate
+    from grasp_fc_ros.core.model.grasp_input import _all_valid, _largest_component, _validate
     from grasp_fc_ros.core.tolerances import (
         MAX_ABS_COORDINATE,
         MAX_FRICTION_COEFFICIENT,
@@ -237,7 +237,7 @@ def test_quick_all_valid_check_agrees_with_the_per_grasp_validation(seed):
 @given(st.integers(1, 4), st.integers(2, 5), st.data())
 def test_validate_grasps_shortcut_reports_as_the_full_check(n_grasps, n_contacts, data):
     """validate_grasps skips its per-check bookkeeping for good input: same answer."""
-    from grasp_fc_ros.core.grasp_input import _validate
+    from grasp_fc_ros.core.model.grasp_input import _validate
 
     values = st.sampled_from([0.0, 1.0, -2.5, 1e-320, 1e300, 1e302, np.inf, np.nan])
     p = np.array(data.draw(st.lists(values, min_size=n_grasps * n_contacts * 3,
@@ -255,7 +255,7 @@ def test_validate_grasps_shortcut_reports_as_the_full_check(n_grasps, n_contacts
 def test_unit_vectors_of_a_large_batch_equal_those_of_its_small_pieces():
     """unit_vectors works component by component from COMPONENTWISE_MIN_VECTORS vectors
     on and in its broadcast form below: bit for bit the same directions."""
-    from grasp_fc_ros.core.grasp_input import COMPONENTWISE_MIN_VECTORS, unit_vectors
+    from grasp_fc_ros.core.model.grasp_input import COMPONENTWISE_MIN_VECTORS, unit_vectors
     rng = np.random.default_rng(11)
     vectors = rng.normal(size=(3 * COMPONENTWISE_MIN_VECTORS, 3)) * 10.0 ** rng.integers(
         -300, 300, size=(3 * COMPONENTWISE_MIN_VECTORS, 1))

@@ -9,8 +9,9 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from grasp_cases import ellipsoid_grasps, random_rotation
-from grasp_fc_ros.core import certificates, check_force_closure
-from grasp_fc_ros.core.minimum_friction import (
+from grasp_fc_ros.core import check_force_closure
+from grasp_fc_ros.core.exact import certificates
+from grasp_fc_ros.core.quality.minimum_friction import (
     ABS_TOL,
     CERT_MARGIN,
     MU_CAP,
@@ -68,7 +69,7 @@ def test_fast_stage_search_matches_the_clarabel_search(monkeypatch):
     """The search on the fast interior-point stage gives the same mu* (margin MARGIN_TOL,
     where the boundary is sharp) as the search on Clarabel alone, and the fast stage
     does nearly all of the solves."""
-    module = importlib.import_module("grasp_fc_ros.core.minimum_friction")
+    module = importlib.import_module("grasp_fc_ros.core.quality.minimum_friction")
     rng = np.random.default_rng(21)
     positions, normals = ellipsoid_grasps(rng, 60, 6)
     ratios = rng.uniform(0.5, 2.0, (60, 6))

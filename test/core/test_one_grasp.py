@@ -9,12 +9,12 @@ from hypothesis import strategies as st
 
 from grasp_cases import MU_PAPER, adversarial_grasps, ellipsoid_grasps
 from grasp_fc_ros.core import check_force_closure, minimum_friction, pipeline
-from grasp_fc_ros.core.certificates import normalise_positions
-from grasp_fc_ros.core.grasp_input import prepare_grasps
+from grasp_fc_ros.core.exact.certificates import normalise_positions
+from grasp_fc_ros.core.filter.one_grasp_filter import MAX_FILTER_CONTACTS, passes_filter
+from grasp_fc_ros.core.filter.torque_space_filter import passes_torque_filter
+from grasp_fc_ros.core.model.grasp_input import prepare_grasps
 from grasp_fc_ros.core.one_grasp import GENERAL_PATH, _prepare_one
-from grasp_fc_ros.core.one_grasp_filter import MAX_FILTER_CONTACTS, passes_filter
 from grasp_fc_ros.core.tolerances import MARGIN_ACCURACY, MARGIN_TOL
-from grasp_fc_ros.core.torque_space_filter import passes_torque_filter
 from grasp_fc_ros.objects import make_object, sample_grasps
 from reference_pyramids import pyramid_margin
 

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.optimize import linprog
 
-from grasp_fc_ros.core import positive_span
-from grasp_fc_ros.core.positive_span import positively_spans
-from grasp_fc_ros.core.torque_sets import TorqueSetKind, TorqueSets
+from grasp_fc_ros.core.filter import positive_span
+from grasp_fc_ros.core.filter.positive_span import positively_spans
+from grasp_fc_ros.core.filter.torque_sets import TorqueSetKind, TorqueSets
 
 
 def spans_by_lp(vectors):

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from scipy import special, stats
 
 from grasp_cases import ellipsoid_grasps
-from grasp_fc_ros.core import check_force_closure
+from grasp_fc_ros.core import check_force_closure, robustness
 from grasp_fc_ros.core.robustness import (
     ForceClosureProbability,
     probability,
@@ -193,6 +193,31 @@ def test_tilt_bound_is_the_probability_that_every_tilt_is_small():
     assert (tilt_probability_bound(delta, 0.0, 4) == [1.0, 1.0, 0.0]).all()
 
 
+def test_the_sample_free_bound_holds_where_only_normals_are_noisy():
+    """The bound from normal_angle is a lower bound on the probability: below every
+    interval's upper end (2,000 samples), and tight where the tilts are tiny."""
+    rng = np.random.default_rng(8)
+    positions, normals = ellipsoid_grasps(rng, 60, 5)
+    result = probability_of_force_closure(positions, normals, 0.6, normal_sigma=0.08,
+                                          samples=2000, seed=4)
+    radii = robustness(positions, normals, 0.6)
+    expected = tilt_probability_bound(radii.normal_angle, 0.08, 5)
+    np.testing.assert_array_equal(result.normal_lower_bound, expected)
+    assert (result.normal_lower_bound <= result.upper).all()
+    assert (result.normal_lower_bound[~radii.force_closure] == 0).all()
+    assert (result.normal_lower_bound > 0.5).any()        # not vacuous
+    tiny = probability_of_force_closure(OCTAHEDRON, -OCTAHEDRON, 0.8, normal_sigma=1e-3,
+                                        samples=100, seed=0)
+    assert tiny.normal_lower_bound == pytest.approx(1.0) and tiny.estimate == 1.0
+    for noisy in ({"position_sigma": 1e-3}, {"friction_sigma": 1e-3}):
+        other = probability_of_force_closure(positions[:3], normals[:3], 0.6,
+                                             normal_sigma=0.08, samples=10, seed=4, **noisy)
+        assert np.isnan(other.normal_lower_bound).all()
+    soft = probability_of_force_closure(positions[:3], normals[:3], 0.6, normal_sigma=0.08,
+                                        samples=10, seed=4, torsional_friction=0.01)
+    assert np.isnan(soft.normal_lower_bound).all()
+
+
 # -- reproducibility ---------------------------------------------------------------------
 
 NOISE = {"position_sigma": 0.05, "normal_sigma": 0.1, "friction_sigma": 0.1}
@@ -226,8 +251,8 @@ def test_a_grasps_answer_does_not_depend_on_its_batch(monkeypatch):
                                         seed=9, grasp_ids=[5, 6, 7], **NOISE)
     assert (part.successes == whole.successes[5:8]).all()
     # Blocks smaller than a grasp's samples (its stream drawn in parts), and odd sizes.
-    for block in (7, 128, 1000):
-        monkeypatch.setattr(probability, "SAMPLE_BLOCK", block)
+    for block in (7, 128, 1000):                          # samples of 4 contacts
+        monkeypatch.setattr(probability, "BLOCK_CONTACTS", 4 * block)
         blocked = probability_of_force_closure(positions, normals, 0.5, samples=300, seed=9,
                                                **NOISE)
         assert (blocked.successes == whole.successes).all()
@@ -272,8 +297,10 @@ def test_scaling_grasp_and_position_noise_together_keeps_every_sample(seed, powe
 
 def test_one_grasp_gives_scalars_and_a_batch_arrays():
     positions, normals = some_grasps(2)
-    one = probability_of_force_closure(positions[0], normals[0], 0.5, samples=10, seed=0)
-    batch = probability_of_force_closure(positions, normals, 0.5, samples=10, seed=0)
+    one = probability_of_force_closure(positions[0], normals[0], 0.5, samples=10, seed=0,
+                                       position_sigma=0.01)
+    batch = probability_of_force_closure(positions, normals, 0.5, samples=10, seed=0,
+                                         position_sigma=0.01)
     assert isinstance(one, ForceClosureProbability)
     assert np.ndim(one.estimate) == 0 and np.ndim(one.lower) == 0
     assert batch.estimate.shape == batch.upper.shape == batch.successes.shape == (2,)
@@ -309,6 +336,14 @@ def test_bad_options_are_refused_by_name(option, value, message):
     positions, normals = some_grasps(2)
     with pytest.raises(ValueError, match=message):
         probability_of_force_closure(positions, normals, 0.5, **{option: value})
+
+
+def test_noise_that_moves_contacts_out_of_range_is_refused():
+    positions, normals = some_grasps(2)
+    with pytest.raises(ValueError, match="position_sigma = 1e\\+305 moves contacts of grasps 0 "
+                                         "to 1 beyond"):
+        probability_of_force_closure(positions, normals, 0.5, position_sigma=1e305,
+                                     samples=10, seed=0)
 
 
 def test_bad_grasps_are_refused_naming_grasp_and_contact():

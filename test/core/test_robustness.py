@@ -3,14 +3,17 @@ perturbations inside each radius (judged by the exact test and by independent ch
 circumscribed pyramids with an LP, a separating wrench recomputed from its definition,
 Clarabel on the torque set), tightness, invariances, per-contact friction, input."""
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from grasp_cases import adversarial_grasps, ellipsoid_grasps, random_rotation
-from grasp_fc_ros.core import check_force_closure
-from grasp_fc_ros.core.grasp_input import prepare_grasps
+from grasp_fc_ros.core import Holds, check_force_closure, epsilon_quality, holds_under
+from grasp_fc_ros.core.model.grasp_input import prepare_grasps
 from grasp_fc_ros.core.robustness import RobustnessRadii, robustness
 from grasp_fc_ros.core.robustness.break_distance import least_breaking_direction
 from grasp_fc_ros.core.robustness.position_radius import INRADIUS_RTOL, torque_inradius
@@ -248,3 +251,57 @@ def test_bad_input_is_refused_by_name(kwargs, message):
     positions, normals, mu = (arguments.pop(k) for k in ("positions", "normals", "mu"))
     with pytest.raises(ValueError, match=message):
         robustness(positions, normals, mu, **arguments)
+
+
+def test_a_contact_whose_cone_shrinks_away_is_left_out():
+    """A seventh contact of tiny friction beside the cube's six (mu 1): tilts and drops
+    past its cone leave it out, so the radii are those of the cube (arctan 1 and 1, up
+    to the bracket), not of the smallest cone; holds_under proves HOLDS past it too."""
+    positions = np.vstack([CUBE, [[0.5, 0.5, 1.0]]])
+    normals = np.vstack([-CUBE, [[0.0, 0.0, -1.0]]])
+    mu = np.array([1.0] * 6 + [0.01])
+    radii = robustness(positions, normals, mu)
+    assert radii.normal_angle >= np.arctan(1.0) * (1 - 2 * BRACKET_RTOL)
+    assert radii.friction_drop >= 1.0 * (1 - 2 * BRACKET_RTOL)
+    answer = holds_under(positions, normals, mu, normal_error=0.5, friction_error=0.2)
+    assert answer.status == Holds.HOLDS and answer.bound == "shrunk_cones"
+
+
+def test_rho_is_never_below_the_weaker_epsilon_form():
+    """For any centre c and torque scale L, epsilon(c, L) L / sqrt(1 + mu^2) bounds rho
+    from below (a unit-normal-force disc point over sqrt(1 + mu^2) is a unit-force
+    generator, and h(u) >= epsilon |u| >= epsilon L |b|); the note behind issue 29 found
+    rho within 1.00-1.05x of its best L. Certified bounds on both sides."""
+    positions, normals = force_closure_grasps(41, 8, 5, 0.5)
+    bounds = torque_inradius(prepare_grasps(positions, normals, 0.5))
+    centre = positions.mean(axis=1)
+    reach = np.linalg.norm(positions - centre[:, None], axis=-1).max(axis=1)
+    best = np.zeros(len(positions))
+    for factor in (0.25, 1.0, 4.0, 16.0):
+        epsilon = epsilon_quality(positions, normals, 0.5, center=centre,
+                                  torque_scale=factor * reach)
+        weaker = epsilon.lower * factor * reach / np.sqrt(1 + 0.5 ** 2)
+        assert np.all(weaker <= bounds.upper)
+        best = np.maximum(best, weaker)
+    assert np.all(bounds.upper / best < 1.5)
+
+
+def test_warm_up_compiles_the_search_of_the_position_radius():
+    """In a fresh process, after the core's warm_up (the node's start, make setup),
+    robustness and epsilon_quality compile no new specialisation of the search: the
+    problem is a run-time code of one type for epsilon and the torque inradius."""
+    code = (
+        "import numpy as np\n"
+        "from grasp_fc_ros.core import epsilon_quality, robustness, warm_up\n"
+        "from grasp_fc_ros.core.quality import epsilon_kernels as k\n"
+        "warm_up()\n"
+        "before = len(k.epsilon_batch.signatures)\n"
+        "cube = np.vstack([np.eye(3), -np.eye(3)])\n"
+        "robustness(cube, -cube, 0.5)\n"
+        "epsilon_quality(cube, -cube, 0.5)\n"
+        "print(before, len(k.epsilon_batch.signatures))\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    before, after = done.stdout.split()
+    assert before == after and int(before) >= 1

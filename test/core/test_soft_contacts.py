@@ -18,8 +18,8 @@ from grasp_fc_ros.core import (
     validate_grasps,
     verify_certificates,
 )
-from grasp_fc_ros.core.contact_model import HARD, SOFT, model_of
-from grasp_fc_ros.core.grasp_input import prepare_grasps
+from grasp_fc_ros.core.model.contact_model import HARD, SOFT, model_of
+from grasp_fc_ros.core.model.grasp_input import prepare_grasps
 from reference_pyramids import (
     soft_pyramid_is_force_closure,
     soft_pyramid_min_max_force,
@@ -327,7 +327,7 @@ def test_filter_stays_sound_where_soft_normals_share_a_plane(seed, n_contacts, m
 
 def test_filter_passes_grasps_whose_soft_normals_span_at_once(monkeypatch):
     """The shortcut changes no verdict: the same grasps through the torque sets."""
-    from grasp_fc_ros.core import torque_space_filter
+    from grasp_fc_ros.core.filter import torque_space_filter
     rng = np.random.default_rng(11)
     positions, normals, gamma = soft_grasps(rng, 600, 4, soft_share=0.6)
     spanned = torque_space_filter.soft_normals_span(prepare_grasps(positions, normals, 0.3,

@@ -4,8 +4,12 @@ import numpy as np
 import pytest
 
 from grasp_cases import rotate_towards
+from grasp_fc_ros.core.filter.torque_sets import (
+    TorqueSetKind,
+    cone_torque_sets,
+    friction_half_angle_sine,
+)
 from grasp_fc_ros.core.tolerances import FAN_WIDEN_RAD
-from grasp_fc_ros.core.torque_sets import TorqueSetKind, cone_torque_sets, friction_half_angle_sine
 
 
 def sampled_torques(lever_arm, normal, mu, rng, count=20000):

@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from grasp_fc_ros.core import Status, check_force_closure
-from grasp_fc_ros.core.grasp_input import show_value
+from grasp_fc_ros.core.model.grasp_input import show_value
 from grasp_fc_ros.engine.evaluation import InvalidGrasp, evaluate, find_invalid
 from grasp_fc_ros.objects import make_object, sample_grasps
 from grasp_fc_ros.packed import PackedGrasps, Settings, Verdicts

@@ -17,6 +17,11 @@ def test_demo_labels_through_the_action_and_writes_the_markers_png(tmp_path):
     # The 20 single queries first, then 380 grasps through label_grasps with a bar.
     assert re.search(r"label_grasps: 100%\|.*\| 380/380", done.stderr), done.stderr
     assert re.search(r"^  queries\s+400$", done.stdout, re.M), done.stdout
+    # The bar's total and the table's differ by the single queries, and both say so.
+    assert "the first 20 as single queries on contacts, the other 380 as a label_grasps " \
+        "job (its progress bar):" in done.stdout
+    assert re.search(r"^  single queries \(contacts\)\s+20$", done.stdout, re.M)
+    assert re.search(r"^  label_grasps \(progress bar\)\s+380$", done.stdout, re.M)
     assert re.search(r"^markers: ", done.stdout, re.M)
     assert f"to {png}" in done.stdout
     data = png.read_bytes()

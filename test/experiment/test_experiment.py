@@ -9,7 +9,7 @@ import pytest
 pytest.importorskip("matplotlib")
 pytest.importorskip("scipy")
 
-from grasp_fc_ros.experiment import cli, epsilon_study, report  # noqa: E402
+from grasp_fc_ros.experiment import cli, epsilon_study, report, robustness_study  # noqa: E402
 from grasp_fc_ros.experiment.linearized_peer import linearized_force_closure, pyramid_edges  # noqa: E402
 from grasp_fc_ros.objects import make_object  # noqa: E402
 
@@ -30,14 +30,52 @@ def _rows(path):
 
 def test_quick_run_writes_report_csv_and_plots(quick_run):
     for name in (report.REPORT_MD, report.RESULTS_CSV, report.FINGERS_CSV,
-                 report.PEER_SIDES_CSV, *report.PLOTS.values()):
+                 report.PEER_SIDES_CSV, report.ROBUSTNESS_CSV, *report.PLOTS.values()):
         assert (quick_run / name).stat().st_size > 0, name
     for name in report.PLOTS.values():
         assert (quick_run / name).read_bytes()[:8] == PNG_MAGIC, name
     text = (quick_run / report.REPORT_MD).read_text()
     for heading in ("Table I", "Table II", "Per-query cost", "linearized peer",
-                    "Ferrari-Canny epsilon"):
+                    "Ferrari-Canny epsilon", "Robustness: radii, probability"):
         assert heading in text
+
+
+def test_quick_robustness_rows_are_consistent(quick_run):
+    rows = _rows(quick_run / report.ROBUSTNESS_CSV)
+    assert [r["object"] for r in rows] == [*cli.DEFAULT_OBJECTS, "all"]
+    for r in rows[:-1]:
+        assert int(r["grasps"]) == int(r["label_grasps"]) == cli.QUICK["robustness_grasps"]
+        assert 0 <= int(r["label_differ"]) <= int(r["label_grasps"])
+        assert 0 <= int(r["top_epsilon_bottom_probability"]) <= int(r["top_epsilon"])
+        assert int(r["top_epsilon"]) <= max(1, int(r["force_closure"]))
+    for key in ("grasps", "force_closure", "top_epsilon", "label_differ"):
+        assert int(rows[-1][key]) == sum(int(r[key]) for r in rows[:-1]), key
+
+
+def test_robustness_only_writes_its_report(tmp_path):
+    assert cli.main(["--quick", "--robustness-only", "--objects", "box", "ellipsoid",
+                     "--out", str(tmp_path)]) == 0
+    for name in (report.ROBUSTNESS_REPORT_MD, report.ROBUSTNESS_CSV,
+                 report.PLOTS["robustness"]):
+        assert (tmp_path / name).stat().st_size > 0, name
+    assert "Spearman" in (tmp_path / report.ROBUSTNESS_REPORT_MD).read_text()
+
+
+def test_robustness_study_ranks_and_counts_by_hand():
+    """Spearman's matrix is symmetric with a unit diagonal; the top-by-epsilon count and
+    the label flips count what they say on a hand-made object."""
+    measures = {name: np.arange(10.0) for name in robustness_study.MEASURES}
+    measures["probability"] = np.arange(10.0)[::-1]           # the reverse order
+    made = robustness_study.ObjectRobustness(
+        "made", 12, measures, few=np.array([0.6, 0.4, 0.52, 0.0] * 3),
+        many=np.array([0.4, 0.4, 0.55, 0.0] * 3))
+    matrix = robustness_study.correlations([made])
+    np.testing.assert_allclose(matrix, matrix.T)
+    np.testing.assert_allclose(np.diag(matrix), 1.0)
+    assert matrix[-1, 1] == pytest.approx(-1.0)
+    # top 10 % of 10 by epsilon: the grasp with epsilon 9, whose probability is lowest
+    assert made.top_epsilon_in_bottom_probability() == (1, 1)
+    assert made.label_flips() == (3, 12)
 
 
 def test_quick_run_numbers_are_consistent(quick_run):

@@ -316,6 +316,36 @@ def test_quality_usage_errors(tmp_path, capsys):
     assert "epsilon_direction" in cli.build_parser().format_help()
 
 
+@pytest.mark.parametrize("out_name", ["labels", "labels.parquet"])
+def test_cli_refusing_another_runs_output_names_the_users_option(tmp_path, capsys,
+                                                                 monkeypatch, out_name):
+    """A run with --quality on an output of a run without it exits 2 naming --quality,
+    not the manifest's key quality_rtol."""
+    import contextlib
+
+    from grasp_fc_ros.labelling import runner
+    from grasp_fc_ros.labelling.output import METADATA_KEY
+
+    positions, normals = _grasps(10)
+    np.savez(tmp_path / "a.npz", positions=positions, normals=normals, mu=0.5)
+    out = tmp_path / out_name
+    command = [str(tmp_path / "a.npz"), "--out", str(out), "--no-progress"]
+    earlier = cli.make_plan(cli.build_parser().parse_args(command)).manifest()
+    if out.suffix == ".parquet":
+        pq.write_table(pa.table({"id": [0]}).replace_schema_metadata(
+            {METADATA_KEY: json.dumps(earlier)}), out)
+    else:
+        Output(out, earlier).create()
+    # The conflict is found before any task: no cluster is needed.
+    monkeypatch.setattr(runner, "dask_client", lambda *_: contextlib.nullcontext())
+    assert cli.main(command + ["--quality"]) == 2
+    error = capsys.readouterr().err
+    assert f"--out {out} holds labels of a run with other options (--quality/--quality-rtol)" \
+        in error and "quality_rtol" not in error
+    assert cli.main(command + ["--chunk-size", "7"]) == 2
+    assert "(--chunk-size)" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("arrays, message", [
     ({"positions": np.zeros((4, 3, 3)), "mu": 0.5}, "missing array(s) normals"),
     ({"positions": np.zeros((4, 3)), "normals": np.zeros((4, 3)), "mu": 0.5},
@@ -350,8 +380,9 @@ def test_cli_usage_errors(tmp_path):
 def test_output_refuses_another_runs_directory(tmp_path):
     Output(tmp_path / "o", {"chunk_size": 10}).create()
     assert Output(tmp_path / "o", {"chunk_size": 10}).existing_parts() == set()
-    with pytest.raises(OutputConflict, match="differs in: chunk_size"):
+    with pytest.raises(OutputConflict, match="differs in: chunk_size") as refused:
         Output(tmp_path / "o", {"chunk_size": 20}).existing_parts()
+    assert refused.value.differing == ("chunk_size",)
     (tmp_path / "other").mkdir()
     (tmp_path / "other" / "x.txt").write_text("x")
     with pytest.raises(OutputConflict, match="not a grasp-fc-label output"):
@@ -443,6 +474,8 @@ def test_robustness_manifest_holds_what_changes_the_columns(tmp_path):
     ([], ["--quality"], "--quality/--quality-rtol"),
     (["--quality"], ["--quality", "--quality-rtol", "1e-4"], "--quality/--quality-rtol"),
     (["--chunk-size", "4"], ["--chunk-size", "5"], "--chunk-size"),
+    (["--chunk-size", "4"], ["--chunk-size", "5", "--quality"],
+     "--quality/--quality-rtol; --chunk-size"),
     ([], ["--robustness"], "--robustness"),
     (["--robustness", "--normal-sigma", "0.1"],
      ["--robustness", "--normal-sigma", "0.1", "--samples", "50"], "--samples"),
@@ -450,27 +483,34 @@ def test_robustness_manifest_holds_what_changes_the_columns(tmp_path):
      ["--robustness", "--normal-sigma", "0.1", "--seed", "2"], "--seed"),
     (["--robustness", "--normal-sigma", "0.1"], ["--robustness", "--normal-sigma", "0.2"],
      "--normal-sigma"),
+    (["--robustness", "--normal-error", "0.1"],
+     ["--robustness", "--normal-error", "0.1", "--position-error", "0.01"],
+     "--position-error"),
 ])
-def test_rerun_with_other_options_is_refused_naming_them(tmp_path, first, second, named):
-    from grasp_fc_ros.labelling.runner import SETTING_NAMES
+def test_rerun_with_other_options_is_refused_naming_them(tmp_path, capsys, monkeypatch,
+                                                         first, second, named):
+    """Named as the user gives them; a default chunk size that follows the columns is not
+    named when the columns differ."""
+    import contextlib
+
+    from grasp_fc_ros.labelling import runner
+    from grasp_fc_ros.labelling.output import METADATA_KEY
 
     positions, normals = _grasps(10)
     np.savez(tmp_path / "a.npz", positions=positions, normals=normals, mu=0.5)
-
-    def output(options, out):
-        args = cli.build_parser().parse_args([str(tmp_path / "a.npz"), "--out", "o", *options])
-        return Output(out, cli.make_plan(args).manifest(), SETTING_NAMES)
-
+    monkeypatch.setattr(runner, "dask_client", lambda *_: contextlib.nullcontext())
     for out in (tmp_path / "dir", tmp_path / "one.parquet"):
+        command = [str(tmp_path / "a.npz"), "--out", str(out), "--no-progress"]
+        earlier = Output(out, cli.make_plan(cli.build_parser().parse_args(
+            [*command, *first])).manifest())
         if out.suffix:  # a finished single file: its manifest is in its metadata
             pq.write_table(pa.table({"x": [1]}).replace_schema_metadata(
-                {b"grasp_fc_label": output(first, out).text}), out)
+                {METADATA_KEY: earlier.text}), out)
         else:
-            output(first, out).create()
-        assert output(first, out).existing_parts() in (set(), None)  # the same: resumes
-        # (named first: a default chunk size that follows the columns may differ too)
-        with pytest.raises(OutputConflict, match=rf"\(differs in: {named}[,)]"):
-            output(second, out).existing_parts()
+            earlier.create()
+        assert earlier.existing_parts() in (set(), None)  # the same options: resumes
+        assert cli.main([*command, *second]) == 2
+        assert f"other options ({named}); remove it" in capsys.readouterr().err
 
 
 def test_robustness_options_need_robustness(tmp_path, capsys):

@@ -266,10 +266,11 @@ def test_malformed_and_oversized_goals_get_invalid_input_verdicts(grasps, served
 
     node.set_parameters([Parameter("max_message_contacts", value=20)])
     try:
-        status, verdicts = Goal(action_client, batch_msg(positions[:4], normals[:4])).result()
+        too_big = Goal(action_client, batch_msg(positions[:4], normals[:4]))
+        status, verdicts = too_big.result()
     finally:
         node.set_parameters([Parameter("max_message_contacts", value=0)])
-    assert status == GoalStatus.STATUS_SUCCEEDED
+    assert status == GoalStatus.STATUS_SUCCEEDED and too_big.feedback == []  # (docs/node.rst)
     assert list(verdicts.status) == [Status.INVALID_INPUT] * 4
     assert verdicts.messages[0] == ("24 contacts in one message exceed "
                                     "max_message_contacts=20: split it into messages of "

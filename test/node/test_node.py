@@ -19,7 +19,7 @@ import pytest
 from rclpy.parameter import Parameter
 
 from grasp_fc_ros.core import Status, check_force_closure
-from grasp_fc_ros.core.grasp_input import show_value
+from grasp_fc_ros.core.model.grasp_input import show_value
 from grasp_fc_ros.engine import evaluation as evaluation_module
 from grasp_fc_ros.engine.pool import EvaluationPool
 from grasp_fc_ros.interface.conversions import (

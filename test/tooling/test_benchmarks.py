@@ -108,6 +108,11 @@ EXPECTED: dict[str, Run] = {
                rf"24\s+[\d.]+\s+{N}\s+{N}\s+{N}\s+0\s+0\s+0\s+.*"),
         Line(r"^least ratio .*; violations 0, inconsistencies 0$"),
     )),
+    "bench_first_call": Run(lines=(
+        Line(rf"^first calls, fresh processes, installed cache: epsilon_quality {N} s, "
+             rf"minimum_friction {N} s, optimal_contact_forces {N} s, check_force_closure "
+             rf"{N} s$"),
+    )),
     "bench_exact": Run(lines=(
         # clarabel and fast grasps/s, their ratio, +margin and its ratio; 0 disagreements.
         *_rows(EXACT_CELLS, rf"[\d.]+\s+{N}\s+{N}\s+{N}x\s+{N}\s+{N}x\s+\d+\s+0"),
@@ -165,11 +170,32 @@ EXPECTED: dict[str, Run] = {
              r"CPU per grasp: owner \d+\.\d+ us, workers \d+\.\d+ us$", count=2),
         Line(rf"^pool: median {N}x the core in one process$"),
     )),
+    "bench_probability": Run(lines=(
+        Line(rf"^\s+probability_of_force_closure\s+{N} samples/s \(mean estimate {N}, "
+             r"undecided samples 0\)$"),
+        Line(rf"^\s+exact test, random grasps\s+{N} grasps/s\s+-> ratio {N} \(target >= 0\.5\)$"),
+        Line(rf"^\s+exact test, the same samples\s+{N} grasps/s\s+-> ratio {N}$"),
+        Line(rf"^\s+\.\.\. without the filter\s+{N} grasps/s"),
+        Line(rf"^\s+one grasp, 1,000 samples: median {N} ms, max {N} ms of {N} \(wall time\)$"),
+    )),
     "bench_quality": Run(lines=(
         *_rows(["6", "4"], rf"256\s+{N}\s+{N}\s+{N}\s+{N}\s+.*"),
         Line(r"^n = 6: mu\* finite .*, unresolved 0;"),
         Line(r"^n = 4: mu\* finite .*, unresolved 0;"),
         Line(rf"^six fingers: mu\* {N} grasps/s"),
+    )),
+    "bench_robustness": Run(lines=(
+        Line(rf"^speed n = [46], mu 0\.5: {N} grasps/s over {N} grasps \({N}% force closure\), "
+             rf"{N} force-closure grasps/s$", count=2),
+        Line(rf"^soundness: {N} perturbations \(tilts \(random\) {N}, moves \(random\) {N}, "),
+        Line(r"^soundness: not force closure by the exact test \d+, of which certified by a "
+             r"separating wrench 0$"),
+        Line(rf"^tightness, normals: a searched tilt breaks within 1\.05x normal_angle on {N}% "),
+        Line(rf"^tightness, positions: least breaking move / position_radius: median {N}, "
+             rf"quartiles {N} {N}, max {N}, "),
+        Line(r"^holds_under UNDECIDED \(all n\): normal 0\.5x [\d.]+%, normal 3x [\d.]+%, "
+             r"position 0\.5x [\d.]+%, position 5x [\d.]+%, "),
+        Line(rf"^holds_under witnesses: {N} BREAKS checked, 0 failed$"),
     )),
     "bench_ros": Run(lines=(
         Line(rf"^single-grasp topic:\s+{N} queries/s over 300 queries, no loss, in order"),
@@ -178,6 +204,17 @@ EXPECTED: dict[str, Run] = {
         Line(r"^service round trip during a 20000-grasp batch: "),
         Line(rf"^service round trip, no core work \(invalid query\): p50 {N} ms, p99 {N} ms "
              r"over 20 calls$"),
+    ), timeout_s=240),
+    "bench_robustness_service": Run(lines=(
+        Line(rf"^assess_robustness, one grasp x 1000 samples, idle: p50 {N} ms, p99 {N} ms "
+             r"over 20 calls .*; answers differing from the core's: 0$"),
+        Line(rf"^check_force_closure, one grasp, idle: p50 {N} ms, p99 {N} ms over 20 calls$"),
+        Line(rf"^the work of one assessment \(engine, this process, CPU time\): p50 {N} ms, "
+             rf"p99 {N} ms over 20 calls$"),
+        *(Line(rf"^  of which {part} alone: p50 [\d.]+ ms, p99 {N} ms over 20 calls$")
+          for part in ("probability", "robustness", "holds_under")),
+        Line(rf"^check_force_closure, one grasp, during a 20-grasp x 1000-sample assessment "
+             rf"\({N} s\): p50 {N} ms, p99 {N} ms over {N} calls$"),
     ), timeout_s=240),
     "bench_soak": Run(lines=(
         Line(r"^sent: .*; lost \(never answered\): 0 "),
@@ -199,6 +236,14 @@ OTHER_RUNS: dict[str, tuple[str, Run]] = {
         args=("--against", "e89657b", "--grasps", "60", "--repeats", "1"),
         lines=_rows(EXACT_CELLS, rf"[\d.]+\s+{N}\s+{N}\s+{N}x\s+{N}\s+{N}x\s+0"),
         skip_if=r"git history not available", timeout_s=600)),
+    "bench_probability --coverage": ("bench_probability", Run(
+        args=("--quick", "--coverage"),
+        lines=(Line(rf"^\s+contains the reference: {N} of all grasps \(target >= 0\.94\); "
+                    rf"{N} of the {N} with reference in \(0\.02, 0\.98\)$"),
+               Line(r"undecided samples 0$")))),
+    "bench_probability --blocks": ("bench_probability", Run(
+        args=("--quick", "--blocks"),
+        lines=(Line(rf"^\s+\d+\s+{N} samples/s, peak {N} MB \(tracemalloc\)$", count=3),))),
     "bench_exact --against unknown": ("bench_exact", Run(
         args=("--against", "0123456789abcdef", "--grasps", "60", "--repeats", "1"),
         lines=(Line(r"^--against 0123456789abcdef: git history not available"),

@@ -85,6 +85,11 @@ def test_docs_build_with_warnings_as_errors_and_render_the_api(tmp_path: Path) -
     for name in labelling.__all__:
         assert f'id="grasp_fc_ros.labelling.{name}"' in labelling_page, name
     assert 'id="grasp_fc_ros.client.GraspClient"' in (out / "api" / "client.html").read_text()
+    import grasp_fc_ros.objects as objects
+
+    objects_page = (out / "api" / "objects.html").read_text()
+    for name in objects.__all__:
+        assert f'id="grasp_fc_ros.objects.{name}"' in objects_page, f"objects.{name}"
     node_page = (out / "node.html").read_text()
     from grasp_fc_ros.node import PARAMETERS
 
@@ -94,7 +99,8 @@ def test_docs_build_with_warnings_as_errors_and_render_the_api(tmp_path: Path) -
         if definition.suffix in (".msg", ".srv", ".action"):
             assert f"grasp_fc_msgs/{definition.suffix[1:]}/{definition.stem}" in \
                 (out / "interfaces.html").read_text()
-    for page in ("performance", "install", "markers", "labelling", "quality", "soft_fingers"):
+    for page in ("performance", "install", "markers", "labelling", "quality", "soft_fingers",
+                 "objects"):
         assert (out / f"{page}.html").is_file(), page
 
 

@@ -1,14 +1,19 @@
-"""The README's examples work as written.
+"""The README's examples work as written, in the setup it describes.
 
-Every ```python block of the README (and of the ROS-free guides docs/core.md and
-docs/soft_fingers.md) runs in a fresh interpreter, in README order in one folder (the
-labelling blocks share their files), with a node running for the client examples;
-a ``# -> text`` comment after a statement is output the block must print. The
-``grasp-fc-label`` shell block runs too. The ros2 command lines cannot run here (the
-``ros2`` CLI is not on PyPI): every name they use must exist (topics, services, action,
-types, executables, parameters, launch arguments, make targets), and the payloads of
-``ros2 topic pub`` and ``ros2 service call`` are sent to the node as those commands would
-send them, and must be answered as the README says.
+Every ```python and ```sh block of the README runs, in README order, with a node running
+for the client examples: Python blocks in a fresh interpreter, shell blocks in bash, both
+in one folder standing for the repository's (it holds a link to this venv as ``.venv``,
+so ``.venv/bin/grasp-fc-...`` runs as the README writes it; the labelling blocks share
+their files there) and ``make`` commands in the repository itself. A ``# -> text``
+comment is output the block must print. Not run, and said so: ``make test`` (the suite
+running this test), and the blocks the README marks ``<!-- readme-examples: not run
+(reason) -->`` on the line before them, which must be the ones that need the ``ros2`` CLI
+or an apt ROS install (the CLI is not on PyPI). Of those, every name they use must
+exist (topics, services, action, types, executables, parameters, launch arguments, make
+targets), and the payloads of ``ros2 topic pub`` and ``ros2 service call`` are sent to
+the node as those commands would send them, and must be answered as the README says. The
+Python blocks of the ROS-free guides (docs/core.md, docs/soft_fingers.md,
+docs/objects.md, docs/robustness.md) run too.
 """
 
 from __future__ import annotations
@@ -30,16 +35,24 @@ import yaml
 ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
 # Guides whose Python blocks are ROS-free and self-contained.
-GUIDES_WITH_RUNNABLE_PYTHON = (ROOT / "docs" / "core.md", ROOT / "docs" / "soft_fingers.md")
+GUIDES_WITH_RUNNABLE_PYTHON = (ROOT / "docs" / "core.md", ROOT / "docs" / "soft_fingers.md",
+                               ROOT / "docs" / "objects.md", ROOT / "docs" / "robustness.md")
 # Documents whose shell blocks are checked for the names they use.
 SHELL_DOCUMENTS = (README, ROOT / "docs" / "install.md", ROOT / "docs" / "markers.md",
-                   ROOT / "docs" / "params.md", ROOT / "docs" / "labelling.md")
+                   ROOT / "docs" / "params.md", ROOT / "docs" / "labelling.md",
+                   ROOT / "docs" / "client.md")
 # The issue's limits: at most 300 lines; the four uses on the first screens.
 MAX_README_LINES = 300
 FIRST_SCREENS_LINES = 160
 EXAMPLE_TIMEOUT_S = 180
 REPLY_TIMEOUT_S = 30.0
 EXPECTED_OUTPUT = re.compile(r"#\s*->\s*(.+?)\s*$")
+# The marker of a README block the tests do not run, on the line before its fence.
+NOT_RUN = re.compile(r"^<!-- readme-examples: not run \((.+)\) -->$")
+# What only a ROS 2 install has (the ros2 CLI, apt's setup file): the marked blocks'.
+NEEDS_ROS_INSTALL = re.compile(r"^\s*ros2 |/opt/ros/", re.M)
+# The one README command never run here, and why.
+SUITE_ITSELF = (["make", "test"], "the test suite that runs this test")
 
 sys.path.insert(0, str(ROOT / "docs" / "_ext"))
 import grasp_fc_docs  # noqa: E402 - the node reference's interface table
@@ -309,13 +322,45 @@ def _run(args: list[str], cwd: Path, where: str) -> str:
     return done.stdout
 
 
+def not_run_reason(path: Path, line: int) -> str | None:
+    """The reason given on the line before the fence of the block whose code starts at
+    ``line`` (1-based), if the block is marked not to be run."""
+    lines = path.read_text().splitlines()
+    match = NOT_RUN.match(lines[line - 3]) if line >= 3 else None
+    return match.group(1) if match else None
+
+
 def _runnable_readme_blocks() -> Iterator[Any]:
-    """The README's python blocks and its grasp-fc-label block, in order."""
+    """The README's python and sh blocks that are not marked, in order."""
     for language, code, line in code_blocks(README):
-        commands = _commands(code) if language == "sh" else []
-        if language == "python" or (commands and all(c[0] == "grasp-fc-label"
-                                                     for c in commands)):
+        if language in ("python", "sh") and not_run_reason(README, line) is None:
             yield pytest.param(language, code, id=f"README.md:{line}")
+
+
+def _venv_folder(example_dir: Path) -> Path:
+    """``example_dir`` with ``.venv`` linked to this interpreter's venv, as the README's
+    repository folder has it."""
+    if sys.prefix == sys.base_prefix:
+        pytest.skip("the README's .venv/bin commands need the tests to run in a venv")
+    link = example_dir / ".venv"
+    if not link.exists():
+        link.symlink_to(sys.prefix)
+    return example_dir
+
+
+def _shell_block(code: str, example_dir: Path) -> tuple[str, Path]:
+    """The commands of a README shell block to run, and where: ``make`` in the
+    repository (only in its own .venv, which the Makefile would otherwise build), the
+    others in the example folder; ``make test`` left out."""
+    commands = _commands(code)
+    run = [c for c in commands if c != SUITE_ITSELF[0]]
+    if run and all(c[0] == "make" for c in run):
+        if Path(sys.prefix).resolve() != (ROOT / ".venv").resolve():
+            pytest.skip(f"make targets build {ROOT / '.venv'}; these tests run in {sys.prefix}")
+        return " && ".join(shlex.join(c) for c in run), ROOT
+    assert not any(c[0] == "make" for c in run), "a block mixes make and other commands"
+    assert run == commands, f"{SUITE_ITSELF[0]} beside other commands"
+    return code, _venv_folder(example_dir)
 
 
 # --- the tests ---------------------------------------------------------------------------
@@ -337,9 +382,23 @@ def test_readme_example_runs(language: str, code: str, readme_node: Any, example
     where = request.node.callspec.id
     if language == "python":
         stdout = _run([sys.executable, "-c", code], example_dir, where)
-        assert_prints_in_order(stdout, expected_outputs(code), where)
     else:
-        _run(["bash", "-euo", "pipefail", "-c", code], example_dir, where)
+        script, folder = _shell_block(code, example_dir)
+        stdout = _run(["bash", "-euo", "pipefail", "-c", script], folder, where)
+    assert_prints_in_order(stdout, expected_outputs(code), where)
+
+
+def test_only_blocks_that_need_a_ros_install_are_marked_not_run() -> None:
+    """A marker cannot hide a runnable block; every block is run or marked with why."""
+    marked = []
+    for language, code, line in code_blocks(README):
+        reason = not_run_reason(README, line)
+        if reason is not None:
+            assert NEEDS_ROS_INSTALL.search(code), f"README.md:{line} runs here: {reason}"
+            marked.append(line)
+        else:
+            assert language in ("python", "sh"), f"README.md:{line}: a ```{language} block"
+    assert len(marked) == 3, marked  # the workspace, ros2 topic and ros2 service blocks
 
 
 @pytest.mark.timeout(EXAMPLE_TIMEOUT_S)
@@ -484,12 +543,26 @@ def test_readme_interface_tables_match_the_node_reference() -> None:
 
 
 def test_readme_parameter_table_matches_the_node() -> None:
+    """Every parameter the node declares (and config/force_closure.yaml sets), each
+    with its type and default."""
     from grasp_fc_ros.node import PARAMETERS
 
     types = {bool: "bool", int: "integer", float: "double", str: "string"}
-    for name, type_name, default, _ in _readme_table("parameter"):
+    rows = _readme_table("parameter")
+    assert [row[0] for row in rows] == list(PARAMETERS), "README's parameter table"
+    for name, type_name, default, _ in rows:
         assert name in PARAMETERS, f"README: no parameter {name}"
         value = PARAMETERS[name][0]
         assert types[type(value)] == type_name, f"README: {name} is a {types[type(value)]}"
         shown = str(value).lower() if isinstance(value, bool) else str(value)
         assert default.replace(",", "") == shown, f"README: {name} defaults to {shown}"
+
+
+def test_readme_lists_every_documentation_page() -> None:
+    """Every page of docs/ (but the site's index, which the README stands for) is
+    linked from the README's documentation list."""
+    text = README.read_text()
+    listed = set(re.findall(r"\]\((docs/[^)#\s]+)", text[text.index("\n## Documentation"):]))
+    pages = {f"docs/{page.name}" for page in (ROOT / "docs").iterdir()
+             if page.suffix in (".md", ".rst") and page.name != "index.md"}
+    assert pages <= listed, f"README's documentation list lacks {sorted(pages - listed)}"

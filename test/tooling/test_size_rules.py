@@ -62,6 +62,6 @@ def test_the_rules_catch_a_long_class_and_a_long_module():
 
 
 def test_kernel_modules_are_told_apart_by_name():
-    assert is_kernel_module(PACKAGE / "core" / "epsilon_kernels.py")
+    assert is_kernel_module(PACKAGE / "core" / "quality" / "epsilon_kernels.py")
     assert is_kernel_module(PACKAGE / "core" / "_kernels" / "cones.py")
-    assert not is_kernel_module(PACKAGE / "core" / "epsilon.py")
+    assert not is_kernel_module(PACKAGE / "core" / "quality" / "epsilon.py")

@@ -56,4 +56,4 @@ def test_core_public_api_has_real_signatures(cache_dir, tmp_path):
     certified = r"numpy\.ndarray\[.*\] \| tuple\[numpy\.ndarray.*\]"
     assert re.fullmatch(certified, returns[1]), returns[1]
     assert returns[2].startswith("numpy.ndarray")
-    assert returns[3] == "grasp_fc_ros.core.grasp_input.GraspValidation"
+    assert returns[3] == "grasp_fc_ros.core.model.grasp_input.GraspValidation"

@@ -1,7 +1,7 @@
 """Compiled (numba) building blocks shared by the core's interior-point stages.
 
-The exact stage (:mod:`..interior_point`), the s* stage (:mod:`..force_interior_point`)
-and, through the exact stage's signed mode, the mu* stage (:mod:`..minimum_friction`)
+The exact stage (:mod:`..exact.interior_point`), the s* stage (:mod:`..forces.force_interior_point`)
+and, through the exact stage's signed mode, the mu* stage (:mod:`..quality.minimum_friction`)
 are written from these pieces. Every function here is compiled with :func:`.jit.jit`
 and works on one grasp in unit size: arrays are float64, C-contiguous, and outputs go
 into arrays the caller owns (the stages reuse their scratch from grasp to grasp).

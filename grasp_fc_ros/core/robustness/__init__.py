@@ -9,8 +9,8 @@ contacts move and friction drop with force closure kept.
 * :mod:`.break_distance` -- the least moves that let a torque direction separate a
   grasp (a conic program per direction), searched over directions;
 * :mod:`.witness` -- tilts and moves that break force closure;
-* :mod:`.probability` -- :func:`probability_of_force_closure`: Monte Carlo with
-  Clopper-Pearson bounds.
+* :mod:`.probability` -- :func:`probability_of_force_closure`: Monte Carlo under random
+  errors, every sample decided by the exact test, with Clopper-Pearson bounds.
 
 docs/robustness.md has the definitions and the proofs.
 """

@@ -25,11 +25,11 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from ..certificates import verify_batch
-from ..grasp_input import GraspBatch
+from ..exact.certificates import verify_batch
+from ..model.grasp_input import GraspBatch
 from .position_radius import torque_inradius
 from .radii import hard_grasps
-from .shrink import SHRINK_ROUNDING, closed_under, with_friction, without_vanished
+from .shrink import closed_under, tilted_friction, with_friction, without_vanished
 from .witness import (
     breaking_moves,
     exact_verdicts,
@@ -117,65 +117,115 @@ def holds_under(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayL
     """
     grasps = hard_grasps(positions, normals, mu)
     n_grasps = grasps.mu.shape[0]
-    radius = _error(position_error, "position_error", n_grasps, np.inf)
-    tilt = _error(normal_error, "normal_error", n_grasps, np.pi)
-    drop = _error(friction_error, "friction_error", n_grasps, np.inf)
+    errors = _Errors(_error(position_error, "position_error", n_grasps, np.inf),
+                     _error(normal_error, "normal_error", n_grasps, np.pi),
+                     _error(friction_error, "friction_error", n_grasps, np.inf), grasps.mu)
     answers = _Answers.empty(grasps)
-    witness_mu, kept = _witness_cones(grasps.mu, tilt, drop)
-    holds_mu = _holds_cones(grasps.mu, tilt, drop)
-
-    # The witness's shrunk cones, with certificates: often the same as HOLDS's.
-    shrunk_closed, shrunk_wrench = exact_verdicts(
-        GraspBatch(grasps.positions, grasps.normals, kept, False, None))
-    same = (holds_mu == kept).all(axis=1)
-    closed = np.where(same, shrunk_closed, False)
-    other = np.flatnonzero(~same)
-    if other.size:
-        closed[other] = closed_under(grasps, other, holds_mu[other])
-    answers.hold(np.flatnonzero(closed & (radius == 0)), SHRUNK_CONES)
-
-    # Moves: HOLDS below the shrunk grasp's torque inradius, else search a witness.
-    moving = np.flatnonzero(closed & (radius > 0))
-    directions = np.full((n_grasps, 6), np.nan)
-    if moving.size:
-        inradius = torque_inradius(without_vanished(grasps, moving, holds_mu[moving])[0])
-        safe = radius[moving] < inradius.lower
-        answers.hold(moving[safe], SHRUNK_CONES_AND_POSITION_RADIUS)
-        directions[moving] = inradius.direction
-
-    # Witnesses: the shrunk grasp's own separating wrench, or moves that break it.
-    separated = ~np.isnan(shrunk_wrench).any(axis=1)
-    wrench = shrunk_wrench.copy()
-    moves = np.zeros(grasps.positions.shape)
-    search = np.flatnonzero(~separated & shrunk_closed & (radius > 0)
-                            & (answers.status != Holds.HOLDS))
-    if search.size:
-        # The torque inradius search's direction is a good first guess where it ran.
-        start = np.nan_to_num(directions[search, 3:])
-        found, step, breaking = breaking_moves(with_friction(grasps, search, kept[search]),
-                                               radius[search], start)
-        moves[search[found]], wrench[search[found]] = step[found], breaking[found]
-    spare = tilt[:, None] - (np.arctan(witness_mu) - np.arctan(kept))
-    # (Such shrunk grasps are often marginal: tiny cones leave a margin below MARGIN_TOL.)
-    turning = np.flatnonzero(np.isnan(wrench).any(axis=1) & (answers.status != Holds.HOLDS)
-                             & (spare > 0).any(axis=1))
-    if turning.size:
-        wrench[turning] = turned_axes_wrench(with_friction(grasps, turning, kept[turning]),
-                                             np.maximum(spare[turning], 0.0))
-    # Friction that may drop to nothing: a witness with nearly none.
-    bare = np.flatnonzero(np.isnan(wrench).any(axis=1) & (answers.status != Holds.HOLDS)
-                          & (grasps.mu <= drop[:, None]).all(axis=1))
-    if bare.size:
-        wrench[bare], witness_mu[bare] = frictionless_wrench(with_friction(
-            grasps, bare, grasps.mu[bare]), witness_mu[bare])
+    # The witness's shrunk cones, with certificates: mostly the same as HOLDS's.
+    closed, wrench = exact_verdicts(GraspBatch(grasps.positions, grasps.normals,
+                                               errors.searched_mu, False, None))
+    directions = _prove(grasps, errors, closed, answers)
+    witness_mu = errors.witness_mu
+    moves = _find_witnesses(grasps, errors, closed, directions, answers, wrench, witness_mu)
     candidates = np.flatnonzero(~np.isnan(wrench).any(axis=1) & (answers.status != Holds.HOLDS))
     if candidates.size:
         moved = grasps.positions[candidates] + moves[candidates]
         answers.check_witnesses(candidates, moved, tilt_towards(
             grasps.normals[candidates], work_vectors(moved, wrench[candidates]),
-            np.broadcast_to(tilt[candidates, None], moved.shape[:2])),
+            np.broadcast_to(errors.tilt[candidates, None], moved.shape[:2])),
             witness_mu[candidates], wrench[candidates])
     return answers.result(grasps.single)
+
+
+@dataclass(frozen=True)
+class _Errors:
+    """The errors (N,) and the cones they give (N, n).
+
+    ``holds_mu``: the cones every perturbation contains, tan(arctan(mu - dmu) - delta)
+    rounded down (:mod:`.shrink`), 0 where the half-angle is not positive (the contact
+    is left out of the proof). ``witness_mu``: the witness's friction, mu - dmu, not below
+    tan(WITNESS_MIN_HALF_ANGLE) (or mu where that is smaller). ``searched_mu``: the
+    shrunk cones a separating wrench is searched for, half-angle arctan(mu_w) - delta
+    (not below WITNESS_MIN_HALF_ANGLE or arctan(mu_w)): tilting by delta towards -v_i of
+    a wrench that separates them separates mu_w's cones. Where no floor applies,
+    searched_mu is holds_mu (one exact test serves both)."""
+
+    radius: np.ndarray
+    tilt: np.ndarray
+    drop: np.ndarray
+    mu: np.ndarray
+
+    @property
+    def holds_mu(self) -> np.ndarray:
+        lowered = self.mu - self.drop[:, None]
+        return np.where(lowered > 0.0, tilted_friction(lowered, self.tilt[:, None]), 0.0)
+
+    @property
+    def witness_mu(self) -> np.ndarray:
+        floor = np.minimum(self.mu, np.tan(WITNESS_MIN_HALF_ANGLE))
+        return np.maximum(self.mu - self.drop[:, None], floor)
+
+    @property
+    def searched_mu(self) -> np.ndarray:
+        witness = self.witness_mu
+        return np.maximum(tilted_friction(witness, self.tilt[:, None]),
+                          np.minimum(witness, np.tan(WITNESS_MIN_HALF_ANGLE)))
+
+
+def _prove(grasps: GraspBatch, errors: _Errors, closed: np.ndarray,
+           answers: _Answers) -> np.ndarray:
+    """HOLDS where the shrunk cones are force closure (``closed``: the verdicts on
+    ``searched_mu``, used where it equals ``holds_mu``) and the position error is below
+    their torque inradius. Returns the torque inradius searches' directions (N, 6), NaN
+    where none ran (a first guess for the move search)."""
+    holds_mu, searched_mu = errors.holds_mu, errors.searched_mu
+    proved = np.where((holds_mu == searched_mu).all(axis=1), closed, False)
+    other = np.flatnonzero(~(holds_mu == searched_mu).all(axis=1))
+    if other.size:
+        proved[other] = closed_under(grasps, other, holds_mu[other])
+    answers.hold(np.flatnonzero(proved & (errors.radius == 0)), SHRUNK_CONES)
+    moving = np.flatnonzero(proved & (errors.radius > 0))
+    directions = np.full((grasps.mu.shape[0], 6), np.nan)
+    if moving.size:
+        inradius = torque_inradius(without_vanished(grasps, moving, holds_mu[moving])[0])
+        answers.hold(moving[errors.radius[moving] < inradius.lower],
+                     SHRUNK_CONES_AND_POSITION_RADIUS)
+        directions[moving] = inradius.direction
+    return directions
+
+
+def _find_witnesses(grasps: GraspBatch, errors: _Errors, closed: np.ndarray,
+                    directions: np.ndarray, answers: _Answers, wrench: np.ndarray,
+                    witness_mu: np.ndarray) -> np.ndarray:
+    """Separating wrenches for the grasps not proved to hold, into ``wrench`` (N, 6)
+    (it holds the shrunk grasp's own where it has one): moves that break the shrunk
+    grasp, tiny cones turned within the spare tilt, or nearly no friction (and
+    ``witness_mu`` (N, n) lowered for those). Returns the moves (N, n, 3)."""
+    moves = np.zeros(grasps.positions.shape)
+    open_ = answers.status != Holds.HOLDS
+    searched_mu = errors.searched_mu
+    search = np.flatnonzero(np.isnan(wrench).any(axis=1) & closed & (errors.radius > 0)
+                            & open_)
+    if search.size:
+        # The torque inradius search's direction is a good first guess where it ran.
+        found, step, breaking = breaking_moves(
+            with_friction(grasps, search, searched_mu[search]), errors.radius[search],
+            np.nan_to_num(directions[search, 3:]))
+        moves[search[found]], wrench[search[found]] = step[found], breaking[found]
+    spare = errors.tilt[:, None] - (np.arctan(errors.witness_mu) - np.arctan(searched_mu))
+    # (Such shrunk grasps are often marginal: tiny cones leave a margin below MARGIN_TOL.)
+    turning = np.flatnonzero(np.isnan(wrench).any(axis=1) & open_ & (spare > 0).any(axis=1))
+    if turning.size:
+        wrench[turning] = turned_axes_wrench(
+            with_friction(grasps, turning, searched_mu[turning]),
+            np.maximum(spare[turning], 0.0))
+    # Friction that may drop to nothing: a witness with nearly none.
+    bare = np.flatnonzero(np.isnan(wrench).any(axis=1) & open_
+                          & (grasps.mu <= errors.drop[:, None]).all(axis=1))
+    if bare.size:
+        wrench[bare], witness_mu[bare] = frictionless_wrench(
+            with_friction(grasps, bare, grasps.mu[bare]), witness_mu[bare])
+    return moves
 
 
 def _error(value: npt.ArrayLike, name: str, n_grasps: int, largest: float) -> np.ndarray:
@@ -187,35 +237,12 @@ def _error(value: npt.ArrayLike, name: str, n_grasps: int, largest: float) -> np
         raise ValueError(f"{name} must be a number or have shape ({n_grasps},), "
                          f"got {array.shape}")
     array = np.broadcast_to(array.astype(np.float64), (n_grasps,))
-    bad = ~((array >= 0.0) & (array <= largest))
+    bad = ~((array >= 0.0) & (array <= largest) & np.isfinite(array))
     if bad.any():
         g = int(np.flatnonzero(bad)[0])
         upper = "" if np.isinf(largest) else f" and <= {largest:.6g}"
         raise ValueError(f"{name} of grasp {g} must be finite, >= 0{upper}, got {array[g]!r}")
     return np.ascontiguousarray(array)
-
-
-def _holds_cones(mu: np.ndarray, tilt: np.ndarray, drop: np.ndarray) -> np.ndarray:
-    """Friction of the cones every perturbation contains (N, n): tan(arctan(mu - dmu) -
-    delta), rounded down; 0 where that half-angle is not positive (the contact is left
-    out of the proof)."""
-    lowered = mu - drop[:, None]
-    angle = np.arctan(np.maximum(lowered, 0.0)) - tilt[:, None]
-    ok = (lowered > 0.0) & (angle > 0.0)
-    return np.where(ok, np.tan(np.maximum(angle, 0.0)) * (1.0 - SHRINK_ROUNDING), 0.0)
-
-
-def _witness_cones(mu: np.ndarray, tilt: np.ndarray, drop: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """The witness's friction mu_w (N, n) (mu - dmu, not below tan(WITNESS_MIN_HALF_ANGLE)
-    or mu if smaller), and the shrunk friction its wrench is searched with (half-angle
-    arctan(mu_w) - delta, not below WITNESS_MIN_HALF_ANGLE or arctan(mu_w)): tilting by
-    delta towards -v_i of a wrench that separates the shrunk grasp separates mu_w's."""
-    floor = np.minimum(mu, np.tan(WITNESS_MIN_HALF_ANGLE))
-    witness_mu = np.maximum(mu - drop[:, None], floor)
-    full = np.arctan(witness_mu)
-    kept = np.maximum(full - tilt[:, None], np.minimum(full, WITNESS_MIN_HALF_ANGLE))
-    return witness_mu, np.tan(kept)
 
 
 class _Answers:

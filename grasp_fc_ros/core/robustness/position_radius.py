@@ -28,11 +28,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import epsilon_kernels
 from .._kernels.jit import kernel_array
-from ..certificates import normalise_positions
-from ..epsilon import SEED_DIRECTIONS, search_workspace, wrench_rows
-from ..grasp_input import GraspBatch
+from ..exact.certificates import normalise_positions
+from ..model.grasp_input import GraspBatch
+from ..quality import epsilon_kernels
+from ..quality.epsilon import SEED_DIRECTIONS, search_workspace, wrench_rows
 
 #: Relative accuracy of the torque inradius: the search stops once its certified lower
 #: bound is within 1% of its upper bound. The radius is a lower bound either way; an
@@ -42,6 +42,22 @@ from ..grasp_input import GraspBatch
 INRADIUS_RTOL = 1e-2
 
 _EPS = float(np.finfo(np.float64).eps)
+
+#: Seed directions past epsilon's 19 (the search tries all of them where the first 7
+#: span too little): with unit-force generators a 3-contact grasp of the benchmark had
+#: its 19 support points in one hyperplane, and these 64 span six dimensions.
+EXTRA_SEEDS = 45
+
+
+def _seeds() -> np.ndarray:
+    """epsilon's seed directions (:data:`.quality.epsilon.SEED_DIRECTIONS`), then
+    EXTRA_SEEDS random unit directions (seed fixed)."""
+    extra = np.random.default_rng(29).standard_normal((EXTRA_SEEDS, 6))
+    extra /= np.linalg.norm(extra, axis=1, keepdims=True)
+    return np.ascontiguousarray(np.vstack([SEED_DIRECTIONS, extra]))
+
+
+SEEDS = _seeds()
 
 
 @dataclass(frozen=True)
@@ -93,7 +109,7 @@ def torque_inradius(grasps: GraspBatch, rtol: float = INRADIUS_RTOL) -> TorqueIn
     lower, upper, direction, _, status = epsilon_kernels.epsilon_batch(
         normal_rows, tangent_rows, kernel_array(grasps.mu),
         _unit_force_scale(normal_rows, tangent_rows), epsilon_kernels.TORQUE_INRADIUS, rtol,
-        SEED_DIRECTIONS, search_workspace())
+        SEEDS, search_workspace())
     length = lever * size
     return TorqueInradius(lower * length * (1.0 - 4.0 * _EPS),
                           upper * length * (1.0 + 4.0 * _EPS),

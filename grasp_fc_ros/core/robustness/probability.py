@@ -36,8 +36,8 @@ are drawn as one row, so the first s samples of a call with ``samples`` > s are 
 of the call with ``samples`` = s (a 25-sample label is a prefix of a 2,000-sample one).
 
 Every sample is decided by the exact test (:func:`.pipeline.run_pipeline` without the
-filter, verdicts only: the same verdicts), SAMPLE_BLOCK perturbed grasps per call:
-memory stays bounded for any N x samples. A sample the solver cannot decide
+filter, verdicts only: the same verdicts), perturbed grasps of BLOCK_CONTACTS contacts
+in all per call: memory stays bounded for any N x samples. A sample the solver cannot decide
 (Status.SOLVER_FAILURE, rare) counts as neither: ``successes`` excludes it,
 ``undecided`` counts it, and the interval covers both readings (its lower end from
 ``successes``, its upper end from ``successes + undecided``).
@@ -51,11 +51,13 @@ It covers the true probability with at least that probability, for every p and S
 
 Sample-free lower bound (normals only)
 --------------------------------------
-Where only the normals are noisy (``position_sigma`` = ``friction_sigma`` = 0), every
-choice of normals each within the grasp's ``normal_angle`` delta of its own keeps force
-closure (:func:`.robustness`), so P(force closure) >= P(every theta_i <= delta)
-= prod_i P(|N(0, sigma^2)| <= delta) = erf(delta / (sigma sqrt 2))^n
-(:func:`tilt_probability_bound`): ``normal_lower_bound``, NaN under any other noise.
+Where only the normals are noisy (``position_sigma`` = ``friction_sigma`` = 0) and the
+contacts are hard, every choice of normals each within the grasp's certified
+``normal_angle`` delta of its own keeps force closure (:func:`.radii.robustness`), and
+each sampled normal is at most theta_i from its own, so P(force closure) >= P(every
+theta_i <= delta) = prod_i P(|N(0, sigma^2)| <= delta) = erf(delta / (sigma sqrt 2))^n
+(:func:`tilt_probability_bound`; the tilts are independent): ``normal_lower_bound``,
+NaN under any other noise and for soft fingers (whose radii the core refuses).
 """
 
 from __future__ import annotations
@@ -68,21 +70,23 @@ import numpy as np
 import numpy.typing as npt
 from scipy import special, stats
 
-from ..grasp_input import GraspBatch, prepare_grasps
+from ..exact.stacked_socp import tangent_bases
+from ..model.grasp_input import GraspBatch, prepare_grasps
 from ..pipeline import Status, run_pipeline
-from ..stacked_socp import tangent_bases
-from ..tolerances import MAX_FRICTION_COEFFICIENT
+from ..tolerances import MAX_ABS_COORDINATE, MAX_FRICTION_COEFFICIENT
+from .radii import robustness
 
-#: Perturbed grasps per call of the exact pipeline. Bounds the memory of a call (a few
-#: kB per perturbed grasp of n <= 8 contacts in the pipeline's arrays, so tens of MB per
-#: block) whatever N x samples is; larger blocks gain nothing measurable
-#: (benchmarks/bench_probability.py --blocks, docs/performance.md#probability).
-SAMPLE_BLOCK = 16_384
+#: Contacts of the perturbed grasps given to one call of the exact test (16,384 grasps
+#: of 4 contacts, 1,024 of 64). Bounds the memory of a call whatever N x samples is:
+#: its peak was 11.5 MB at 4, 8 and 32 contacts (tracemalloc); larger blocks gain little
+#: (benchmarks/bench_probability.py --blocks, docs/performance.md#probability-of-force-closure).
+BLOCK_CONTACTS = 65_536
 
 #: Smallest sampled friction coefficient kept as drawn. The truncated offset d keeps
-#: mu + d > 0 in exact arithmetic; its rounding can still give 0 or a subnormal at the
-#: boundary (a probability below 1e-300 for any sigma the validation accepts), which is
-#: lifted to this, the smallest normal float, so that every sample is valid input.
+#: mu + d > 0 in exact arithmetic; rounding can still give 0 or a subnormal for an offset
+#: within an ulp of the boundary (a chance of order 1e-16 per sample), which is lifted to
+#: this, the smallest normal float, so that every sample is valid input (the largest
+#: coefficient is kept at MAX_FRICTION_COEFFICIENT likewise).
 MIN_SAMPLED_FRICTION = np.finfo(np.float64).tiny
 
 _FORCE_CLOSURE, _SOLVER_FAILURE = int(Status.FORCE_CLOSURE), int(Status.SOLVER_FAILURE)
@@ -180,14 +184,19 @@ def probability_of_force_closure(
     successes = np.zeros(n_grasps, dtype=np.int64)
     undecided = np.zeros(n_grasps, dtype=np.int64)
     span, streams = (0, 0), []
-    for first, last, rows in _blocks(n_grasps, samples, SAMPLE_BLOCK):
+    block = max(1, BLOCK_CONTACTS // grasps.positions.shape[1])
+    for first, last, rows in _blocks(n_grasps, samples, block):
         if (first, last) != span:      # (a grasp drawn in parts keeps its generator)
             span, streams = (first, last), [_stream(entropy, int(ids[k]))
                                             for k in range(first, last)]
         _decide_block(grasps, first, last, rows, model, streams, successes, undecided)
     lower, upper = clopper_pearson(successes, successes + undecided, samples, confidence)
     bound = np.full(n_grasps, np.nan)
-    # (the sample-free bound needs robustness(); wired where only normals are noisy)
+    if (model.position_sigma == model.friction_sigma == 0 and grasps.torsional is None
+            and n_grasps):
+        radii = robustness(grasps.positions, grasps.normals, grasps.mu)
+        bound = tilt_probability_bound(radii.normal_angle, model.normal_sigma,
+                                       grasps.positions.shape[1])
     return ForceClosureProbability(
         estimate=grasps.unbatch(successes / samples), lower=grasps.unbatch(lower),
         upper=grasps.unbatch(upper), successes=grasps.unbatch(successes), samples=samples,
@@ -365,11 +374,15 @@ def _decide_block(grasps: GraspBatch, first: int, last: int, rows: int, model: _
                                            grasps.mu[first:last], draws)
     torsional = (None if grasps.torsional is None
                  else np.repeat(grasps.torsional[first:last], rows, axis=0))
+    if model.position_sigma > 0 and not np.abs(positions).max() <= MAX_ABS_COORDINATE:
+        raise ValueError(
+            f"position_sigma = {model.position_sigma:g} moves contacts of grasps {first} to "
+            f"{last - 1} beyond +-{MAX_ABS_COORDINATE:.3g}: use a larger length unit")
     sampled = GraspBatch(np.ascontiguousarray(positions), np.ascontiguousarray(normals),
                          np.ascontiguousarray(mu), single=False, torsional=torsional)
     # (the exact test alone: samples of one grasp are alike, so the filter rarely rejects
-    # most of a block, and it costs more than it saves even on random grasps at n = 4,
-    # docs/performance.md#probability)
+    # most of a block, and on perturbed grasps it costs more than it saves at n = 4,
+    # docs/performance.md#probability-of-force-closure)
     status = run_pipeline(sampled, use_filter=False, margin="bound").status
     status = status.reshape(last - first, rows)
     successes[first:last] += (status == _FORCE_CLOSURE).sum(axis=1)

@@ -24,8 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from ..exact_test import solve_exact
-from ..grasp_input import GraspBatch, prepare_grasps
+from ..exact.exact_test import solve_exact
+from ..model.grasp_input import GraspBatch, prepare_grasps
 from .position_radius import torque_inradius
 from .shrink import dropped_friction, largest_closed_shrink, tilted_friction, with_friction
 

@@ -17,8 +17,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..exact_test import solve_exact
-from ..grasp_input import GraspBatch
+from ..exact.exact_test import solve_exact
+from ..model.grasp_input import GraspBatch
 
 #: A shrunk friction coefficient is lowered by this relative amount after it is
 #: computed, so that it is never above the exact tan(arctan(mu) - delta) (or mu - d):

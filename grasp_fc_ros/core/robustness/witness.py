@@ -21,23 +21,26 @@ chosen u separates the perturbed grasp.
   enough keeps it separating (:func:`frictionless_wrench`).
 * Moves (a search): moving contact i by d_i turns v_i into v_i + b x d_i, any vector
   of length <= r |b| across b. :mod:`.break_distance` finds the torque direction b that
-  needs the least moves; for it the deepest moves of length <= r are found contact by
-  contact (:func:`best_moves`), and the exact test judges the moved grasp.
+  needs the least moves and, for it, the moves of length <= r that put the work vectors
+  deepest into their polar cones; the exact test judges the moved grasp.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..certificates import normalise_positions
-from ..epsilon import epsilon_quality
-from ..grasp_input import GraspBatch
+from ..exact.certificates import normalise_positions, verify_batch
+from ..model.grasp_input import GraspBatch
 from ..pipeline import run_pipeline
-from .break_distance import least_breaking_direction
+from ..quality.epsilon import epsilon_quality
+from .break_distance import deepest_breaking_direction, deepest_moves
 
-#: A direction whose r*(b) is up to this much (relative) over the radius is still tried:
-#: Clarabel's optimum is accurate to ~1e-8, and the exact test judges the witness.
-BREAK_SLACK = 1e-6
+_EPS = float(np.finfo(np.float64).eps)
+
+#: Moves whose depth (sigma / r) is at least minus this are judged by the exact test:
+#: some least breaking moves keep every work vector on its cone's boundary (depth 0,
+#: which Clarabel returns as a few -1e-10), and the moved grasp may still be certified.
+DEPTH_SLACK = 1e-6
 
 #: Rounds of :func:`turned_axes_wrench`, and the accuracy of its epsilon searches (only
 #: a direction is needed). One round found every witness on the benchmark's grasps
@@ -50,12 +53,6 @@ AXIS_RTOL = 1e-2
 #: not a least-squares compromise).
 FRICTIONLESS_RESIDUAL = 1e-9
 
-#: Directions on the circle of moves of length r tried per contact, before the best is
-#: refined by golden-section steps (MOVE_REFINEMENTS).
-MOVE_ANGLES = 48
-MOVE_REFINEMENTS = 16
-
-_GOLDEN = 0.5 * (np.sqrt(5.0) - 1.0)
 
 
 def tilt_towards(normals: np.ndarray, work: np.ndarray, angles: np.ndarray) -> np.ndarray:
@@ -75,7 +72,7 @@ def tilt_towards(normals: np.ndarray, work: np.ndarray, angles: np.ndarray) -> n
                       fallback)
     turn = np.minimum(angles, between)
     turned = np.cos(turn)[..., None] * normals + np.sin(turn)[..., None] * across
-    turned = np.where((between <= angles)[..., None], target, turned)
+    turned = np.where(((between <= angles) & (angles > 0.0))[..., None], target, turned)
     no_work = ~(np.linalg.norm(work, axis=-1) > 0.0)
     return np.where(no_work[..., None], normals, turned)
 
@@ -85,57 +82,12 @@ def work_vectors(positions: np.ndarray, wrench: np.ndarray) -> np.ndarray:
     return wrench[:, None, :3] + np.cross(wrench[:, None, 3:], positions)
 
 
-def polar_excess(work: np.ndarray, normals: np.ndarray, mu: np.ndarray) -> np.ndarray:
-    """v . n + mu |v_t| (...): the largest work of a unit-normal force of the cone on v,
-    <= 0 exactly where v lies in the cone's polar."""
-    normal = np.sum(work * normals, axis=-1)
-    return normal + mu * np.linalg.norm(work - normal[..., None] * normals, axis=-1)
-
-
-def best_moves(grasps: GraspBatch, direction: np.ndarray, radius: np.ndarray) -> np.ndarray:
-    """Per contact a move d_i, |d_i| <= r, that makes v_i + b x d_i as deep in the polar
-    cone as found (the least :func:`polar_excess`), for directions (a, b) (N, 6) with
-    |b| = 1 and radii r (N,). Returns d (N, n, 3)."""
-    torque = direction[:, 3:]
-    work = work_vectors(grasps.positions, direction)                      # (N, n, 3)
-    first = np.cross(torque, np.where(np.abs(torque[:, :1]) < 0.9, [1.0, 0.0, 0.0],
-                                      [0.0, 1.0, 0.0]))
-    first /= np.linalg.norm(first, axis=1, keepdims=True)
-    second = np.cross(torque, first)
-
-    def excess(angle: np.ndarray, scale: np.ndarray) -> np.ndarray:
-        across = (np.cos(angle)[..., None] * first[:, None, None, :]
-                  + np.sin(angle)[..., None] * second[:, None, None, :])
-        moved = work[:, :, None, :] + (radius[:, None, None] * scale)[..., None] * across
-        return polar_excess(moved, grasps.normals[:, :, None, :], grasps.mu[:, :, None])
-
-    n_grasps, n_contacts = grasps.mu.shape
-    angles = np.broadcast_to(2 * np.pi * np.arange(MOVE_ANGLES) / MOVE_ANGLES,
-                             (n_grasps, n_contacts, MOVE_ANGLES))
-    ring = excess(angles, np.ones(angles.shape))
-    best = np.take_along_axis(angles, ring.argmin(axis=-1)[..., None], axis=-1)
-    low, high = best - 2 * np.pi / MOVE_ANGLES, best + 2 * np.pi / MOVE_ANGLES
-    one = np.ones(best.shape)
-    for _ in range(MOVE_REFINEMENTS):
-        left, right = high - _GOLDEN * (high - low), low + _GOLDEN * (high - low)
-        keep_left = excess(left, one) <= excess(right, one)
-        high = np.where(keep_left, right, high)
-        low = np.where(keep_left, low, left)
-    angle = 0.5 * (low + high)[..., 0]
-    # The move that stays (length 0) where it is better than every move of length r.
-    stay = (polar_excess(work, grasps.normals, grasps.mu)
-            < excess(angle[..., None], one)[..., 0])
-    across = (np.cos(angle)[..., None] * first[:, None, :]
-              + np.sin(angle)[..., None] * second[:, None, :])
-    change = np.where(stay[..., None], 0.0, radius[:, None, None] * across)   # b x d
-    return np.cross(change, torque[:, None, :])                               # d = w x b
-
-
 def breaking_moves(grasps: GraspBatch, radius: np.ndarray, start: np.ndarray | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Search moves of at most ``radius`` (N,) that break force closure of force-closure
-    grasps: the direction of the least r*(b) found (:mod:`.break_distance`), where it is
-    at most the radius, then the deepest moves of length <= r for it (:func:`best_moves`).
+    grasps: the torque direction whose moves of length <= r put every work vector
+    deepest into its polar cone (:mod:`.break_distance`), where that depth is positive,
+    and those moves.
 
     Parameters
     ----------
@@ -149,31 +101,53 @@ def breaking_moves(grasps: GraspBatch, radius: np.ndarray, start: np.ndarray | N
     Returns
     -------
     found : ndarray of bool, shape (N,)
-        The exact test certified the moved grasp not force closure (a verified
-        separating wrench).
+        The exact test says the moved grasp is not force closure, and a separating
+        wrench (its own, or the search's) checks out on it.
     moves : ndarray, shape (N, n, 3)
         The moves (NaN where not found).
     wrench : ndarray, shape (N, 6)
-        The exact test's separating wrench of the moved grasp (NaN where not found).
+        That separating wrench (NaN where not found).
     """
+    depth, direction = deepest_breaking_direction(grasps, radius, start)
+    # Depth 0 up to Clarabel's accuracy is worth a try too: the exact test judges.
+    return moves_towards(grasps, radius, direction[:, 3:], depth > -DEPTH_SLACK)
+
+
+def moves_towards(grasps: GraspBatch, radius: np.ndarray, torque: np.ndarray,
+                  tried: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The moves of at most ``radius`` (N,) that put every work vector deepest into its
+    polar cone for the unit torque directions ``torque`` (N, 3) (:func:`.break_distance.
+    deepest_moves`), judged by the exact test; only the grasps ``tried`` (N,) bool, or
+    all. Returns what :func:`breaking_moves` does."""
     n_grasps, n_contacts = grasps.mu.shape
     found = np.zeros(n_grasps, dtype=bool)
     moves = np.full((n_grasps, n_contacts, 3), np.nan)
     wrench = np.full((n_grasps, 6), np.nan)
-    distance, direction = least_breaking_direction(grasps, start)
-    # Clarabel's r*(b) is accurate to ~1e-8 relative: a little over the radius may
-    # still break with moves of the whole radius.
-    near = np.flatnonzero(distance <= radius * (1.0 + BREAK_SLACK))
-    if near.size:
-        batch = GraspBatch(grasps.positions[near], grasps.normals[near], grasps.mu[near],
-                           False, None)
-        step = best_moves(batch, direction[near], radius[near])
-        closed, separating = exact_verdicts(GraspBatch(batch.positions + step, batch.normals,
-                                                       batch.mu, False, None))
-        broken = ~closed & ~np.isnan(separating).any(axis=1)
-        found[near[broken]] = True
-        moves[near[broken]] = step[broken]
-        wrench[near[broken]] = separating[broken]
+    near = np.arange(n_grasps) if tried is None else np.flatnonzero(tried)
+    if not near.size:
+        return found, moves, wrench
+    torque = torque[near]
+    unit, centre, size = normalise_positions(grasps.positions[near])
+    _, force, step = deepest_moves(unit, grasps.normals[near], grasps.mu[near], torque,
+                                   radius[near] / size)
+    # Clarabel keeps |w_i| <= r only to its tolerance: shorten to the radius (rounded in).
+    length = np.linalg.norm(step, axis=-1) * size[:, None]
+    step *= (size[:, None] * np.minimum(1.0, radius[near, None] * (1.0 - 4.0 * _EPS)
+                                        / np.maximum(length, np.finfo(float).tiny)))[..., None]
+    # a + b x q_i with q_i = (p_i - c) / size is, times size, (size a - b x c) + b x p_i.
+    searched = np.concatenate([size[:, None] * force - np.cross(torque, centre), torque],
+                              axis=1)
+    searched /= np.linalg.norm(searched, axis=1, keepdims=True)
+    moved = grasps.positions[near] + step
+    closed, separating = exact_verdicts(GraspBatch(moved, grasps.normals[near],
+                                                   grasps.mu[near], False, None))
+    own = ~np.isnan(separating).any(axis=1)
+    _, searched_ok = verify_batch(moved, grasps.normals[near], grasps.mu[near],
+                                  separating_wrench=searched)
+    broken = ~closed & (own | searched_ok)
+    found[near[broken]] = True
+    moves[near[broken]] = step[broken]
+    wrench[near[broken]] = np.where(own[:, None], separating, searched)[broken]
     return found, moves, wrench
 
 

@@ -52,12 +52,12 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from .certificates import grasp_maps, normalise_positions
-from .contact_model import HARD, SOFT, ContactModel, model_of, torsion_scales, wrench_columns
-from .grasp_input import GraspBatch, prepare_grasps
-from .interior_point import CONVERGED, solve_fast
-from .stacked_socp import SOLVE_BATCH, BlockShape, solve_stacked, split_normal, tangent_bases
-from .tolerances import MAX_FRICTION_COEFFICIENT, RANK_TOL
+from ..exact.certificates import grasp_maps, normalise_positions
+from ..exact.interior_point import CONVERGED, solve_fast
+from ..exact.stacked_socp import SOLVE_BATCH, BlockShape, solve_stacked, split_normal, tangent_bases
+from ..model.contact_model import HARD, SOFT, ContactModel, model_of, torsion_scales, wrench_columns
+from ..model.grasp_input import GraspBatch, prepare_grasps
+from ..tolerances import MAX_FRICTION_COEFFICIENT, RANK_TOL
 
 #: Relative and absolute width of the certified interval [L, U] at which iteration stops
 #: (the issue's 1e-6 relative or 1e-9 absolute).
@@ -236,6 +236,8 @@ def solve_minimum_friction(grasps: GraspBatch, margin: float = 0.0
     solves : ndarray of int, shape (N,)
     """
     n_grasps = grasps.mu.shape[0]
+    if n_grasps == 0:  # (an empty batch's (0, 0) reshapes below cannot infer their width)
+        return np.empty(0), np.empty(0), np.zeros(0, dtype=np.int64)
     model = model_of(grasps.torsional)
     unit, _, size = normalise_positions(grasps.positions)
     torsional_unit = None if grasps.torsional is None else grasps.torsional / size[:, None]

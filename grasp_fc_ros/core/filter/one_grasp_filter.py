@@ -26,9 +26,9 @@ import math
 
 import numpy as np
 
-from ._kernels.jit import Vector3, jit, row
+from .._kernels.jit import Vector3, jit, row
+from ..tolerances import FAN_WIDEN_RAD, HALF_PLANE_MARGIN_RAD, PARALLEL_TOL, SPAN_TOL
 from .positive_span import SPANS, pair_test_problem
-from .tolerances import FAN_WIDEN_RAD, HALF_PLANE_MARGIN_RAD, PARALLEL_TOL, SPAN_TOL
 from .torque_sets import TorqueSetKind
 
 #: Most contacts whose filter runs compiled: 2 (n - 1) boundary torques per origin stay

@@ -40,7 +40,7 @@ from typing import TypeAlias
 
 import numpy as np
 
-from ._kernels.cones import (
+from .._kernels.cones import (
     MIN_STEP,
     NO_LIMIT,
     STEP_FRACTION,
@@ -54,10 +54,10 @@ from ._kernels.cones import (
     scaled_apply,
     scaling_of,
 )
-from ._kernels.frames import normal_split, tangent_frames, work_at
-from ._kernels.grasp_map import add_congruence, add_wrench, apply_grasp_map, certified_rank
-from ._kernels.jit import jit, kernel_array, row
-from ._kernels.linear_algebra import cholesky, cholesky_solve
+from .._kernels.frames import normal_split, tangent_frames, work_at
+from .._kernels.grasp_map import add_congruence, add_wrench, apply_grasp_map, certified_rank
+from .._kernels.jit import jit, kernel_array, row
+from .._kernels.linear_algebra import cholesky, cholesky_solve
 
 #: Index into a :data:`._kernels.cones.Scaling` of the entry (r, c) of the symmetric W.
 _SYMMETRIC = ((0, 1, 2), (1, 3, 4), (2, 4, 5))

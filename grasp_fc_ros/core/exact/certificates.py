@@ -38,8 +38,8 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from .contact_model import HARD, ContactModel, cone_depth, depth_reach_factor, largest_work
-from .tolerances import CERTIFICATE_TOL, EQUILIBRIUM_TOL, ROUNDING_SLACK
+from ..model.contact_model import HARD, ContactModel, cone_depth, depth_reach_factor, largest_work
+from ..tolerances import CERTIFICATE_TOL, EQUILIBRIUM_TOL, ROUNDING_SLACK
 
 _EPS = np.finfo(np.float64).eps
 

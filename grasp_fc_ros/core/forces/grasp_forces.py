@@ -42,11 +42,18 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from .certificates import grasp_maps, normalise_positions
-from .contact_model import HARD, ContactModel, cone_rows, model_of, torsion_scales, wrench_columns
+from ..exact.certificates import grasp_maps, normalise_positions
+from ..exact.stacked_socp import SOLVE_BATCH, BlockShape, solve_stacked, split_normal, tangent_bases
+from ..model.contact_model import (
+    HARD,
+    ContactModel,
+    cone_rows,
+    model_of,
+    torsion_scales,
+    wrench_columns,
+)
+from ..model.grasp_input import GraspBatch, prepare_grasps
 from .force_interior_point import UNDECIDED, solve_fast_forces
-from .grasp_input import GraspBatch, prepare_grasps
-from .stacked_socp import SOLVE_BATCH, BlockShape, solve_stacked, split_normal, tangent_bases
 
 #: s* = inf is reported where a dual wrench proves s* >= 1 / INFEASIBLE_BETA for the unit
 #: wrench of the normalised grasp (beta* <= 1e-9): no forces hold the load, or only

@@ -53,10 +53,10 @@ from typing import Literal, TypeAlias, overload
 import numpy as np
 import numpy.typing as npt
 
-from .contact_model import largest_work
-from .grasp_input import GraspBatch, prepare_grasps
+from ..model.contact_model import largest_work
+from ..model.grasp_input import GraspBatch, prepare_grasps
+from ..tolerances import CERTIFICATE_TOL, SOFT_SPAN_TOL, WORK_ROUNDING_ULPS
 from .positive_span import positively_spans
-from .tolerances import CERTIFICATE_TOL, SOFT_SPAN_TOL, WORK_ROUNDING_ULPS
 from .torque_sets import concatenate, cone_torque_sets, dot, friction_half_angle_sine, normal_lines
 
 ORIGIN_CHOICES = ("seed", "all")

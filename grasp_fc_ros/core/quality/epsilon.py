@@ -50,16 +50,17 @@ does positive work on it (within CERTIFICATE_TOL), so ``upper`` is 0 or within
 from __future__ import annotations
 
 import threading
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
 
+from .._kernels.jit import kernel_array
+from ..model.grasp_input import GraspBatch, prepare_grasps, unit_vectors
+from ..pipeline import check_force_closure, run_pipeline
+from ..tolerances import MAX_ABS_COORDINATE
 from . import epsilon_kernels
-from ._kernels.jit import kernel_array
-from .grasp_input import GraspBatch, prepare_grasps, unit_vectors
-from .pipeline import check_force_closure, run_pipeline
-from .tolerances import MAX_ABS_COORDINATE
 
 BUDGETS = ("l1", "linf")
 
@@ -75,6 +76,10 @@ MAX_SUPPORT_POINTS = 2000
 #: docs/epsilon.md#how-it-is-computed). With MAX_SUPPORT_POINTS it sizes the search's
 #: arrays (~11 MB, kept per thread).
 MAX_FACETS = 1 << 16
+
+#: Support points and facets of :func:`warm_up`'s own workspace: the kernels' types do
+#: not depend on the sizes, and a small one is not kept (the full one is ~11 MB).
+WARM_UP_POINTS, WARM_UP_FACETS = 128, 1 << 13
 
 #: A grasp that is not force closure counts as ``converged`` when its ``upper`` is at
 #: most this fraction of its wrench scale: the separating wrench of its verdict is only
@@ -96,6 +101,13 @@ def _seed_directions() -> np.ndarray:
 
 #: Directions of the first support points (:func:`_seed_directions`).
 SEED_DIRECTIONS = _seed_directions()
+
+
+class EpsilonNotConverged(RuntimeWarning):
+    """Warned by :func:`epsilon_quality` when some grasps' bounds miss the requested
+    accuracy (``converged`` False): the bounds are still certified, only wider. It names
+    how many grasps and the widest gap; ``warnings.simplefilter("error",
+    EpsilonNotConverged)`` makes it an exception, ``"ignore"`` silences it."""
 
 
 @dataclass(frozen=True)
@@ -171,6 +183,12 @@ def epsilon_quality(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.Ar
     ------
     ValueError
         On bad input, naming the grasp and contact (or the argument) and the value.
+
+    Warns
+    -----
+    EpsilonNotConverged
+        If the bounds of some grasps miss ``rtol`` (``converged`` False): how many, and
+        the grasp with the widest relative gap.
     """
     linf = _budget_is_linf(budget)
     rtol = _checked_rtol(rtol)
@@ -200,11 +218,46 @@ def epsilon_quality(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.Ar
     lower[~force_closure] = 0.0
     converged = np.where(force_closure, status == epsilon_kernels.CONVERGED,
                          upper <= ZERO_UPPER_TOL * rows.wrench_scale)
+    if not converged.all():
+        _warn_not_converged(lower, upper, converged, rtol)
     return EpsilonResult(
         lower=grasps.unbatch(lower), upper=grasps.unbatch(upper),
         direction=grasps.unbatch(direction), force_closure=grasps.unbatch(force_closure),
         converged=grasps.unbatch(converged), center=grasps.unbatch(centre),
         torque_scale=grasps.unbatch(scale), support_points=grasps.unbatch(points))
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the search's kernels, both budgets, on a
+    force-closure tetrahedron grasp, in a small workspace of its own, so that the calling
+    thread keeps no full one (:func:`search_workspace` makes that at its first real
+    search). The problem is a run-time code, so these also serve the position radius's
+    search (``TORQUE_INRADIUS``).
+    """
+    corners = np.array([[[1.0, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]]])
+    grasps = prepare_grasps(corners, -corners, 0.5)
+    arrays = epsilon_kernels.workspace(WARM_UP_POINTS, WARM_UP_FACETS)
+    for linf in (False, True):
+        rows = _Rows(*wrench_rows(grasps, np.zeros((1, 3)), np.ones(1)), grasps.mu, linf)
+        direction = epsilon_kernels.epsilon_batch(
+            rows.normal_rows, rows.tangent_rows, rows.mu, rows.wrench_scale, rows.problem,
+            1e-3, SEED_DIRECTIONS, arrays)[2]
+        _certified_uppers(rows, kernel_array(direction))
+
+
+def _warn_not_converged(lower: np.ndarray, upper: np.ndarray, converged: np.ndarray,
+                        rtol: float) -> None:
+    """Warn :class:`EpsilonNotConverged`: how many of the (N,) grasps missed ``rtol``,
+    and the one with the widest gap relative to its upper bound."""
+    missed = np.flatnonzero(~converged)
+    gaps = (upper[missed] - lower[missed]) / upper[missed]   # upper > 0 where missed
+    worst = int(missed[np.argmax(gaps)])
+    warnings.warn(
+        f"epsilon_quality: {missed.size} of {converged.size} grasps did not converge to "
+        f"rtol {rtol:g}; widest gap: grasp {worst}, {lower[worst]:.6g} <= epsilon <= "
+        f"{upper[worst]:.6g} ((upper - lower) / upper = {gaps.max():.2g}). The bounds are "
+        "still certified, only wider; EpsilonResult.converged says which grasps "
+        "(docs/epsilon.md#what-is-returned)", EpsilonNotConverged, stacklevel=3)
 
 
 def _verdicts(positions: npt.ArrayLike, normals: npt.ArrayLike, mu: npt.ArrayLike,

@@ -32,15 +32,15 @@ support value seen. Nothing in the result rests on the surface being a convex hu
   may lie from the exact one).
 
 The surface starts as the simplex of support points in 7 fixed directions (those of a
-regular simplex; 19 where these span too little), built around an interior point of
-its own until the origin lies strictly inside every facet, and only then switches to
-facets oriented about the origin.
+regular simplex; 19, then all the seeds given, where these span too little), built
+around an interior point of its own until the origin lies strictly inside every facet,
+and only then switches to facets oriented about the origin.
 
 The same search bounds the torque inradius of the position radius
-(:mod:`.robustness.position_radius`, ``problem=TORQUE_INRADIUS``): W is then the hull
-of the origin and every contact's wrenches of forces of length at most 1 in its cone,
-and the bounded quantity is min over u of h(u) / |u_t|, the radius of the largest
-ball about the origin of the torque space {(0, tau)} inside W. A ray from the origin
+(:mod:`grasp_fc_ros.core.robustness.position_radius`, ``problem=TORQUE_INRADIUS``):
+W is then the hull of the origin and every contact's wrenches of forces of length at
+most 1 in its cone, and the bounded quantity is min over u of h(u) / |u_t|, the radius
+of the largest ball about the origin of the torque space {(0, tau)} inside W. A ray from the origin
 in that space, (0, s tau) with |tau| = 1, meets a facet of unit normal m and certified
 offset d no nearer than s = d / |m_t|: that facet's key, which the search refines
 instead of d, and the least key is the lower bound. A convex hull that holds a ball of
@@ -55,7 +55,7 @@ from typing import TypeAlias
 
 import numpy as np
 
-from ._kernels.jit import jit
+from .._kernels.jit import jit
 
 _EPS = float(np.finfo(np.float64).eps)
 
@@ -92,16 +92,20 @@ VISIBLE_RETRY = 1e-3
 #: of a facet would be ill-conditioned.
 CONTAINMENT_TOL = 1e-10
 
-#: The first surface is the simplex of the support points in this many seed directions.
+#: The first surface is the simplex of the support points in this many seed directions;
+#: where they span less than six dimensions, the hull of the first SEED_FALLBACK (the
+#: simplex and +-each axis), then of all the seeds given (more only for the position
+#: radius: :mod:`grasp_fc_ros.core.robustness.position_radius`).
 SEED_SIMPLEX = 7
+SEED_FALLBACK = 19
 
 #: Status codes of a grasp.
 CONVERGED, BUDGET, STUCK, NOT_CONTAINED, DEGENERATE = 0, 1, 2, 3, 4
 
 #: What a search bounds (the ``problem`` argument): epsilon with the L1 or the
 #: L-infinity budget (disc generators, the facets' offsets), or the torque inradius of
-#: :mod:`.robustness.position_radius` (unit-force generators; facets keyed by their
-#: distance from the origin along the torque space).
+#: :mod:`grasp_fc_ros.core.robustness.position_radius` (unit-force generators; facets
+#: keyed by their distance from the origin along the torque space).
 EPSILON_L1, EPSILON_LINF, TORQUE_INRADIUS = 0, 1, 2
 
 #: Room of the per-insertion scratch: facets seen by one new point, ridges of the
@@ -696,15 +700,19 @@ def _epsilon_one(normal_rows: np.ndarray, tangent_rows: np.ndarray, mu: np.ndarr
     status); ``direction`` (6,) <- the direction certifying upper.
 
     The first surface uses the support points in the first ``SEED_SIMPLEX`` rows of
-    ``seeds`` (a regular simplex of directions), or all of them where those do not span
-    six dimensions (several directions with one support point)."""
+    ``seeds`` (a regular simplex of directions), or the first ``SEED_FALLBACK``, then
+    all of them, where those do not span six dimensions (several directions with one
+    support point)."""
     allowance = SUPPORT_ROUNDING_ULPS * _EPS * scale
     tol = VISIBLE_TOL * scale
     reference = np.zeros(6)
     upper = np.inf
     n_points, n_facets, stamp = 0, 0, 0
-    for n_seeds in (SEED_SIMPLEX, seeds.shape[0]):
-        n_points = n_seeds
+    tried = 0
+    for n_seeds in (SEED_SIMPLEX, min(SEED_FALLBACK, seeds.shape[0]), seeds.shape[0]):
+        if n_seeds == tried:
+            continue
+        tried = n_points = n_seeds
         n_facets, stamp, upper = _seed_surface(
             normal_rows, tangent_rows, mu, problem, allowance, tol, CONTAINMENT_TOL * scale,
             seeds, n_seeds, points, vertices, neighbours, normals, offsets, certified, alive,

@@ -36,8 +36,8 @@ from typing import Literal, overload
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-from ._kernels.jit import jit, kernel_array
-from .tolerances import PARALLEL_TOL, SPAN_TOL
+from .._kernels.jit import jit, kernel_array
+from ..tolerances import PARALLEL_TOL, SPAN_TOL
 from .torque_sets import TorqueSetKind, TorqueSets, cross, dot
 
 # Plain integers for the hot path: comparing with an IntEnum member looks it up each time.

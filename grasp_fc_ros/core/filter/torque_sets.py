@@ -33,7 +33,7 @@ from enum import IntEnum
 
 import numpy as np
 
-from .tolerances import FAN_WIDEN_RAD, HALF_PLANE_MARGIN_RAD
+from ..tolerances import FAN_WIDEN_RAD, HALF_PLANE_MARGIN_RAD
 
 
 class TorqueSetKind(IntEnum):

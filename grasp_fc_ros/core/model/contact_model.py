@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .tolerances import MAX_ABS_COORDINATE
+from ..tolerances import MAX_ABS_COORDINATE
 
 
 @dataclass(frozen=True)

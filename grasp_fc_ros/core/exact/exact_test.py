@@ -51,12 +51,19 @@ import clarabel
 import numpy as np
 from scipy import sparse  # clarabel's Python API takes scipy CSC matrices
 
+from ..model.contact_model import (
+    HARD,
+    ContactModel,
+    cone_rows,
+    model_of,
+    torsion_scales,
+    wrench_columns,
+)
+from ..model.grasp_input import GraspBatch
+from ..tolerances import MARGIN_TOL, RANK_TOL
 from .certificates import certified_internal_force, grasp_maps, normalise_positions, wrench_bound
-from .contact_model import HARD, ContactModel, cone_rows, model_of, torsion_scales, wrench_columns
-from .grasp_input import GraspBatch
 from .interior_point import FORCE_CLOSURE, UNDECIDED, solve_fast
 from .stacked_socp import tangent_bases
-from .tolerances import MARGIN_TOL, RANK_TOL
 
 #: What ``margin`` asks for (see :func:`solve_exact`).
 MARGIN_CHOICES = ("optimum", "bound")

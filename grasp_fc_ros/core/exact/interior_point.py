@@ -46,7 +46,7 @@ from typing import TypeAlias
 
 import numpy as np
 
-from ._kernels.cones import (
+from .._kernels.cones import (
     MIN_STEP,
     STEP_FRACTION,
     inverse_square_apply,
@@ -58,17 +58,17 @@ from ._kernels.cones import (
     scaling_of,
     step_within,
 )
-from ._kernels.frames import normal_split, tangent_frames, work_at, wrench_rows
-from ._kernels.grasp_map import apply_grasp_map, certified_rank, normalise_grasp
-from ._kernels.jit import Vector3, jit, jit_fused, kernel_array, row
-from ._kernels.linear_algebra import (
+from .._kernels.frames import normal_split, tangent_frames, work_at, wrench_rows
+from .._kernels.grasp_map import apply_grasp_map, certified_rank, normalise_grasp
+from .._kernels.jit import Vector3, jit, jit_fused, kernel_array, row
+from .._kernels.linear_algebra import (
     Diagonal6,
     diagonal_reciprocals,
     ldl,
     ldl_substitute,
     substitute,
 )
-from .tolerances import (
+from ..tolerances import (
     MARGIN_ACCURACY,
     MARGIN_TOL,
     ROUNDING_SLACK,
