@@ -98,7 +98,8 @@ def _worker_cpu(client: Client) -> float:
 
 
 def _idle_share(client: Client, seconds: float = 5.0) -> float:
-    """The share of a core the workers use while idle (heartbeats, monitors, profiler)."""
+    """The share of a core the workers use while idle (heartbeats, monitors, profiler):
+    part of the worker CPU overhead, in proportion to wall time rather than chunks."""
     cpu, start = _worker_cpu(client), time.perf_counter()
     time.sleep(seconds)
     return (_worker_cpu(client) - cpu) / (time.perf_counter() - start)
@@ -143,12 +144,9 @@ def overhead(folder: Path, chunks: int, fingers: int, repeats: int) -> None:
           f"{fingers}-finger box grasps, mu = {MU}); medians of {repeats} rounds of: the "
           "chunks in this process, then a run on 1 worker less a run of 2 grasps (the "
           "run's fixed cost)")
-    print("the worker's CPU includes its threads' background work, which grows with wall "
-          "time, not chunks: 'less idle' takes off its idle share of a core over the "
-          "chunk's wall time (the same on a quiet machine, less under load)")
     print(f"{'columns':15} {'chunk':>7} {'compute/chunk wall, CPU':>24} {'overhead wall':>20} "
-          f"{'overhead worker CPU':>20} {'less idle':>18} {'client CPU':>11} {'fixed':>7} "
-          f"{'B/grasp':>8} {'grasps/s 1 w':>13} {'2 w':>9}")
+          f"{'overhead worker CPU':>20} {'client CPU':>11} {'fixed':>7} {'B/grasp':>8} "
+          f"{'grasps/s 1 w':>13} {'2 w':>9} {'idle worker':>12}")
     tiny = write_npz(folder / "tiny.npz", 2, fingers, seed=9)
     for name, settings in COLUMN_SETS.items():
         size = Plan([], **settings).chunk_size
@@ -159,7 +157,7 @@ def overhead(folder: Path, chunks: int, fingers: int, repeats: int) -> None:
         n, rows = len(plan.chunks), plan.n_grasps
         _warm(str(path), settings)
         rounds: dict[str, list[float]] = {key: [] for key in (
-            "compute", "compute_cpu", "wall", "cpu", "net", "client", "fixed", "rate")}
+            "compute", "compute_cpu", "wall", "cpu", "client", "fixed", "rate")}
         with dask_client(workers=1) as client:
             client.run(_warm, str(path), settings)
             idle = _idle_share(client)
@@ -173,8 +171,6 @@ def overhead(folder: Path, chunks: int, fingers: int, repeats: int) -> None:
                                       - statistics.median(walls))
                 rounds["cpu"].append((whole["worker_cpu"] - fixed["worker_cpu"]) / n
                                      - statistics.median(cpus))
-                rounds["net"].append(rounds["cpu"][-1] - idle * (
-                    whole["seconds"] - fixed["seconds"]) / n)
                 rounds["client"].append((whole["client_cpu"] - fixed["client_cpu"]) / n)
                 rounds["fixed"].append(fixed["seconds"])
                 rounds["rate"].append(rows / whole["seconds"])
@@ -185,9 +181,9 @@ def overhead(folder: Path, chunks: int, fingers: int, repeats: int) -> None:
         print(f"{name:15} {size:7,} {m['compute']:10.3f} s, {m['compute_cpu']:8.3f} s "
               f"{1e3 * m['wall']:9.1f} ms ({m['wall'] / m['compute']:6.1%}) "
               f"{1e3 * m['cpu']:9.1f} ms ({m['cpu'] / m['compute_cpu']:6.1%}) "
-              f"{1e3 * m['net']:7.1f} ms ({m['net'] / m['compute_cpu']:6.1%}) "
               f"{1e3 * m['client']:8.1f} ms {m['fixed']:5.2f} s "
-              f"{whole['bytes'] / rows:8.1f} {m['rate']:13,.1f} {rows / two['seconds']:9,.1f}")
+              f"{whole['bytes'] / rows:8.1f} {m['rate']:13,.1f} {rows / two['seconds']:9,.1f} "
+              f"{idle:8.1%} CPU")
         path.unlink()
 
 
@@ -375,8 +371,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--sections", default=",".join(SECTIONS),
                         help=f"comma-separated, of {', '.join(SECTIONS)} (default all)")
-    parser.add_argument("--chunks", type=int, default=5,
-                        help="chunks per column set in the overhead section (default 5)")
+    parser.add_argument("--chunks", type=int, default=3,
+                        help="chunks per column set in the overhead section (default 3)")
     parser.add_argument("--repeats", type=int, default=3,
                         help="rounds per column set in the overhead section (default 3)")
     parser.add_argument("--fingers", type=int, default=6)
