@@ -6,7 +6,6 @@ import json
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +18,7 @@ from grasp_fc_ros.core.model.grasp_input import show_value
 from grasp_fc_ros.labelling import InputError, Plan, cli, dask_client, object_sources, run, runner
 from grasp_fc_ros.labelling.output import Output
 from grasp_fc_ros.objects import make_object, sample_grasps
+from waiting import wait_for
 
 DASK = Path(sys.executable).with_name("dask")
 CHUNK = 700
@@ -239,14 +239,6 @@ def test_cli_robustness_on_drawn_grasps_keeps_the_grasps_and_resumes(client, tmp
 # --- a scheduler and workers as separate processes -------------------------------------
 
 
-def _wait_for(condition, timeout, what):
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.05)
-
-
 @pytest.fixture
 def processes(tmp_path):
     """A `dask scheduler` and a way to start `dask worker` processes, all on 127.0.0.1."""
@@ -264,7 +256,7 @@ def processes(tmp_path):
     try:
         start("scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
               "--scheduler-file", str(scheduler_file))
-        _wait_for(scheduler_file.exists, 60, "the scheduler")
+        wait_for(scheduler_file.exists, 60, "the scheduler")
         address = json.loads(scheduler_file.read_text())["address"]
 
         def worker():
@@ -304,14 +296,14 @@ def test_worker_killed_mid_run_loses_nothing(processes, tmp_path):
                                    "--out", str(out), "--chunk-size", "300", "--scheduler",
                                    address, "--no-progress"], stderr=subprocess.PIPE,
                                   text=True)
-        _wait_for(lambda: len(list(out.glob("part-*"))) >= 3, 120, "the first parts")
+        wait_for(lambda: len(list(out.glob("part-*"))) >= 3, 120, "the first parts")
         # Kill a worker while both run chunks (between two chunks one may be idle for a
         # moment, more so on a loaded machine).
         def both_busy_or_run_over():
             busy = dask.processing()
             return (len(busy) == 2 and all(busy.values())) or runner.poll() is not None
 
-        _wait_for(both_busy_or_run_over, 60, "both workers running chunks")
+        wait_for(both_busy_or_run_over, 60, "both workers running chunks")
         workers[0].kill()
         workers[0].wait()
         parts_at_kill = len(list(out.glob("part-*")))
@@ -340,7 +332,7 @@ def test_killed_client_resumes_on_the_same_cluster(processes, tmp_path, capsys):
     runner = subprocess.Popen([sys.executable, "-m", "grasp_fc_ros.labelling.cli", *command],
                               stderr=subprocess.DEVNULL)
     parts = Path(str(out) + ".parts")
-    _wait_for(lambda: len(list(parts.glob("part-*"))) >= 4, 120, "the first parts")
+    wait_for(lambda: len(list(parts.glob("part-*"))) >= 4, 120, "the first parts")
     runner.kill()
     runner.wait()
     done = len(list(parts.glob("part-*")))

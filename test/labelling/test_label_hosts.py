@@ -17,6 +17,7 @@ import net_hosts
 from grasp_fc_ros.labelling import open_input
 from grasp_fc_ros.labelling.tasks import label_chunk
 from grasp_fc_ros.objects import make_object, sample_grasps
+from waiting import wait_for
 
 BIN = Path(sys.executable).parent
 REASON = net_hosts.unavailable()
@@ -78,14 +79,6 @@ def test_namespaces_of_a_killed_run_are_swept(tmp_path):
         subprocess.run(["ip", "netns", "del", stale], capture_output=True)
 
 
-def _wait_for(condition, timeout, what):
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.05)
-
-
 def _one_process_labels(path, chunk):
     """The labels of a run in one process: label_chunk over the same chunks."""
     source = open_input(path)
@@ -116,7 +109,7 @@ def test_worker_host_cut_mid_run_loses_nothing(tmp_path):
             return any(w.startswith(lost) and k for w, k in busy.items()) and any(
                 out.glob("part-*")) or labeller.poll() is not None
 
-        _wait_for(lost_host_busy, 120, "a part written and chunks on the lost host")
+        wait_for(lost_host_busy, 120, "a part written and chunks on the lost host")
         cut_at = time.time()
         hosts.cut(LOST)
         parts_at_cut = len(list(out.glob("part-*")))

@@ -463,8 +463,9 @@ def test_robustness_manifest_holds_what_changes_the_columns(tmp_path):
         "position_error": 0.0, "normal_error": 0.1, "friction_error": 0.0}
     assert set(Robustness(friction_sigma=0.1).manifest()) == {
         "position_sigma", "normal_sigma", "friction_sigma", "samples", "confidence", "seed"}
+    assert not Robustness(normal_sigma=0.1, samples=0).probability
     for bad, message in (({"normal_sigma": -1.0}, "normal_sigma must be finite and >= 0"),
-                         ({"samples": 0}, "samples must be >= 1"),
+                         ({"normal_error": 4.0}, "normal_error must be <= pi rad"),
                          ({"confidence": 1.0}, "confidence must be in (0, 1)")):
         with pytest.raises(ValueError, match=re.escape(message)):
             Robustness(**bad)
