@@ -43,25 +43,24 @@ Result = TypeVar("Result")
 DEFAULT_CHUNK_SIZE = 50_000
 
 # Costlier columns get smaller chunks, sized by cost. The unit of cost is one exact-test
-# verdict of one grasp (~10 us of a core). A chunk of the costlier columns is CHUNK_WORK
-# verdicts' worth (~10 s of a core): the per-chunk overhead (task, transfer, part; a few
-# ms, docs/performance.md#labelling) stays far below 5 % of it, a chunk lost with its
-# worker costs seconds, and 10^8 grasps at a 1,000-sample probability make 10^5 tasks,
-# tens a second on a thousand cores (docs/labelling.md, "Planning").
-CHUNK_WORK = 1_000_000
-# Verdicts' worth of one certified epsilon at the default rtol: epsilon_quality runs at
-# 1/85 to 1/125 of the exact test's rate on six-finger grasps (mu 0.18 to 0.5).
+# verdict of one grasp (~5 us of a core here, six fingers). A chunk of the costlier columns
+# is CHUNK_WORK verdicts' worth (~10 s of a core): the labeller's own cost per chunk
+# (task, transfer, part: milliseconds) is far below 5 % of it, a chunk lost with its worker
+# costs seconds, and 10^8 grasps at a 1,000-sample probability make 55,000 tasks, about
+# 100 a second on a thousand cores (docs/labelling.md, "Planning").
+CHUNK_WORK = 2_000_000
+# Verdicts' worth of one grasp's columns, measured on six-finger box grasps, mu 0.5, by CPU
+# time (bench_label_cluster.py, compute per chunk against the verdicts'; docs/
+# performance.md#labelling), rounded: epsilon_quality at the default rtol 85-134 (fewer
+# with fewer fingers); robustness()'s three radii 117 (35 at four fingers); holds_under at
+# errors of every kind (2 mm, 3 degrees, friction 0.1: the position error's search
+# dominates) 990, about 2 with a normal error alone (the worst case is taken: a smaller
+# chunk costs little, a larger one may last minutes).
 EPSILON_COST = 100
+RADII_COST = 100
+HOLDS_COST = 1000
 # One Monte-Carlo sample of the probability is one batched exact test (a verdict).
 PROBABILITY_SAMPLE_COST = 1
-# Verdicts' worth of the three certified radii per grasp: robustness() ran at 1/35 (four
-# fingers) to 1/127 (six) of the exact test's rate, mu 0.5 (CPU time, one run).
-RADII_COST = 100
-# Verdicts' worth of holds_under per grasp at errors of every kind (2 mm, 3 degrees,
-# friction 0.1: the position error's conic search dominates): 1/186 (four fingers) to
-# 1/477 (six) of the exact test's rate; about 2 with a normal error alone (taken as the
-# worst case: a smaller chunk costs little, a larger one may last minutes).
-HOLDS_COST = 500
 MANIFEST_FORMAT = 1
 
 
