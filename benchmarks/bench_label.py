@@ -51,8 +51,9 @@ MU = float(np.tan(np.radians(10.0)))
 
 
 def write_npz_by_chunks(path: Path, n_grasps: int, n_fingers: int, chunk: int,
-                        seed: int) -> None:
-    """An uncompressed .npz of random box grasps, written chunk by chunk (bounded memory)."""
+                        seed: int, mu: float = MU) -> None:
+    """An uncompressed .npz of random box grasps with friction ``mu``, written chunk by
+    chunk (bounded memory)."""
     surface = make_object("box")
 
     def draw(c: int) -> tuple[np.ndarray, np.ndarray]:
@@ -68,7 +69,7 @@ def write_npz_by_chunks(path: Path, n_grasps: int, n_fingers: int, chunk: int,
                 for c in range(-(-n_grasps // chunk)):
                     member.write(np.ascontiguousarray(draw(c)[which]).tobytes())
         with archive.open("mu.npy", "w") as member:
-            np.lib.format.write_array(member, np.asarray(MU, dtype=np.float64))
+            np.lib.format.write_array(member, np.asarray(mu, dtype=np.float64))
 
 
 def core_in_process(path: Path, chunk: int) -> tuple[float, float]:

@@ -7,6 +7,8 @@ Examples::
     grasp-fc-label --mesh part.stl --objects mug --grasps-per-object 100000 \\
         --fingers 4 --mu 0.5 --out dataset/
     grasp-fc-label grasps.npz --quality --out labels/        # + certified epsilon (Q1)
+    grasp-fc-label grasps.npz --robustness --normal-sigma 0.05 --position-sigma 0.002 \
+        --out labels/                    # + robustness radii and probability of closure
 
 Exit status: 0 done, 2 bad input or usage (nothing written), 1 a failure while running
 (the parts written so far are kept; the same command resumes).
@@ -19,13 +21,20 @@ import sys
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-from grasp_fc_ros.cli_arguments import positive_float, positive_int
+from grasp_fc_ros.cli_arguments import (
+    non_negative_float,
+    non_negative_int,
+    positive_float,
+    positive_int,
+)
 from grasp_fc_ros.objects import DEFAULT_N_POINTS, OBJECT_NAMES
 
-from .runner import DEFAULT_CHUNK_SIZE
+from .robustness import DEFAULT_CONFIDENCE, DEFAULT_SAMPLES, ERRORS, SIGMAS
+from .runner import CHUNK_WORK, DEFAULT_CHUNK_SIZE
 
 if TYPE_CHECKING:
     from .output import OutputConflict
+    from .robustness import Robustness
     from .runner import Plan, Summary
 
 #: --filter's choices, as check_force_closure's use_filter.
@@ -37,12 +46,18 @@ DEFAULT_MU = 0.17632698070846498
 DEFAULT_FINGERS = 6
 DEFAULT_QUALITY_RTOL = 1e-3
 #: The options behind each setting a run's manifest records (an output made with other
-#: values is refused naming these, not the manifest's keys).
+#: values is refused naming these, not the manifest's keys), in the order they are named.
 SETTING_OPTIONS = {
-    "chunk_size": "--chunk-size", "use_filter": "--filter", "origins": "--origins",
-    "quality_rtol": "--quality/--quality-rtol",
     "sources": "the INPUT files (or --objects, --mesh and the options drawing on them)",
+    "use_filter": "--filter", "origins": "--origins",
+    "quality_rtol": "--quality/--quality-rtol", "robustness": "--robustness",
+    **{f"robustness.{name}": "--" + name.replace("_", "-")
+       for name in (*ERRORS, *SIGMAS, "samples", "confidence", "seed")},
+    "chunk_size": "--chunk-size", "draw_block": "--chunk-size",
     "format": "the grasp-fc-label version that wrote it", "layout": "its layout"}
+#: Settings whose default follows other options (the chunk size follows the columns):
+#: not named when those differ too and the user left them to their default.
+DERIVED_SETTINGS = ("chunk_size", "draw_block")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -69,7 +84,9 @@ def build_parser() -> argparse.ArgumentParser:
                          help=f"contacts per grasp (default {DEFAULT_FINGERS})")
     objects.add_argument("--mu", type=positive_float, default=DEFAULT_MU,
                          help=f"friction coefficient (default tan 10 deg = {DEFAULT_MU:.4f})")
-    objects.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    objects.add_argument("--seed", type=non_negative_int, default=0,
+                         help="random seed of the grasps drawn and of the probability's "
+                              "noise (default 0)")
     objects.add_argument("--points", type=positive_int, default=DEFAULT_N_POINTS,
                          help=f"surface points sampled per object (default {DEFAULT_N_POINTS})")
     cluster = parser.add_argument_group("cluster and chunks")
@@ -80,8 +97,12 @@ def build_parser() -> argparse.ArgumentParser:
                               "--scheduler-file FILE` wrote")
     cluster.add_argument("--workers", type=positive_int,
                          help="worker processes of the local cluster (default: the cores)")
-    cluster.add_argument("--chunk-size", type=positive_int, default=DEFAULT_CHUNK_SIZE,
-                         help=f"grasps per chunk and output part (default {DEFAULT_CHUNK_SIZE:,})")
+    cluster.add_argument("--chunk-size", type=positive_int,
+                         help=f"grasps per chunk and output part (default: by the columns' "
+                              f"cost, {DEFAULT_CHUNK_SIZE:,} for the verdicts alone, "
+                              f"{CHUNK_WORK:,} verdicts' worth for costlier columns: "
+                              "docs/labelling.md); also the grasps drawn per random stream "
+                              f"with --objects/--mesh (default {DEFAULT_CHUNK_SIZE:,})")
     cluster.add_argument("--filter", choices=sorted(FILTER_CHOICES), default="auto",
                          help="run the torque filter before the exact test: where it pays "
                               "for the contact count (auto, the default), always (on: "
@@ -103,7 +124,44 @@ def build_parser() -> argparse.ArgumentParser:
     quality.add_argument("--quality-rtol", type=positive_float, default=DEFAULT_QUALITY_RTOL,
                          help=f"relative accuracy of epsilon (default {DEFAULT_QUALITY_RTOL:g}; "
                               "down to 1e-6 and below, slower)")
+    robust = parser.add_argument_group(
+        "robustness to contact errors (docs/robustness.md)",
+        "--robustness writes the certified radii normal_angle (rad), position_radius "
+        "(positions' unit) and friction_drop; with errors, whether each grasp holds under "
+        "them (holds, holds_name, holds_bound); with noise, its probability of force "
+        "closure (probability_estimate, _lower, _upper, _successes, _undecided, "
+        "_normal_lower_bound), each grasp's noise drawn from --seed and its id")
+    robust.add_argument("--robustness", action="store_true",
+                        help="also write the robustness columns")
+    for name, unit in zip(ERRORS, ("positions' unit", "rad", "mu"), strict=True):
+        robust.add_argument("--" + name.replace("_", "-"), type=non_negative_float,
+                            metavar="E", help=f"{unit}: holds columns under this error")
+    for name, unit in zip(SIGMAS, ("positions' unit", "rad", "mu"), strict=True):
+        robust.add_argument("--" + name.replace("_", "-"), type=non_negative_float,
+                            metavar="SIGMA", help=f"{unit}: probability columns under this "
+                                                  "noise")
+    robust.add_argument("--samples", type=positive_int,
+                        help=f"Monte-Carlo samples per grasp (default {DEFAULT_SAMPLES:,})")
+    robust.add_argument("--confidence", type=positive_float,
+                        help=f"of the probability's Clopper-Pearson interval (default "
+                             f"{DEFAULT_CONFIDENCE})")
     return parser
+
+
+#: The options that only --robustness reads.
+ROBUSTNESS_OPTIONS = (*ERRORS, *SIGMAS, "samples", "confidence")
+
+
+def robustness_settings(args: argparse.Namespace) -> Robustness | None:
+    """The :class:`~grasp_fc_ros.labelling.robustness.Robustness` of the parsed
+    arguments, None without --robustness."""
+    from .robustness import Robustness
+
+    if not args.robustness:
+        return None
+    given = {name: getattr(args, name) for name in ROBUSTNESS_OPTIONS
+             if getattr(args, name) is not None}
+    return Robustness(**given, seed=args.seed)
 
 
 def make_plan(args: argparse.Namespace) -> Plan:
@@ -119,11 +177,13 @@ def make_plan(args: argparse.Namespace) -> Plan:
 
     settings = {"chunk_size": args.chunk_size, "use_filter": FILTER_CHOICES[args.filter],
                 "origins": args.origins,
-                "quality_rtol": args.quality_rtol if args.quality else None}
+                "quality_rtol": args.quality_rtol if args.quality else None,
+                "robustness": robustness_settings(args)}
     if args.inputs:
         return Plan.from_files(args.inputs, **settings)
     return Plan(object_sources(args.objects, args.mesh, args.grasps_per_object, args.fingers,
-                               args.mu, args.seed, args.points, args.chunk_size), **settings)
+                               args.mu, args.seed, args.points,
+                               args.chunk_size or DEFAULT_CHUNK_SIZE), **settings)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -142,6 +202,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error("--workers sets up a local cluster; it cannot go with a scheduler")
     if args.quality and not 1e-9 <= args.quality_rtol < 1:
         parser.error(f"--quality-rtol must be in [1e-9, 1), got {args.quality_rtol:g}")
+    for name in ROBUSTNESS_OPTIONS:
+        if getattr(args, name) is not None and not args.robustness:
+            parser.error(f"--{name.replace('_', '-')} needs --robustness")
+    if args.confidence is not None and not args.confidence < 1:
+        parser.error(f"--confidence must be in (0, 1), got {args.confidence:g}")
 
     from .output import OutputConflict
     from .runner import TaskFailed, dask_client, run
@@ -152,7 +217,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         with dask_client(args.scheduler, args.workers, args.scheduler_file) as client:
             summary = run(plan, args.out, client, progress=not args.no_progress)
     except OutputConflict as error:
-        print(f"{PROG}: error: {_conflict_message(error, args.out)}", file=sys.stderr)
+        print(f"{PROG}: error: {_conflict_message(error, args)}", file=sys.stderr)
         return 2
     except InputError as error:
         print(f"{PROG}: error: {error}", file=sys.stderr)
@@ -167,13 +232,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-def _conflict_message(error: OutputConflict, out: str) -> str:
+def _conflict_message(error: OutputConflict, args: argparse.Namespace) -> str:
     """Why ``--out`` is refused, naming the options in which its run differs."""
     if not error.differing:
         return str(error)
-    options = "; ".join(SETTING_OPTIONS.get(key, key) for key in error.differing)
-    return (f"--out {out} holds labels of a run with other options ({options}); remove "
-            "it, choose another --out, or repeat that run's options to resume it")
+    keys = list(error.differing)
+    if args.chunk_size is None and set(keys) - set(DERIVED_SETTINGS):
+        keys = [key for key in keys if key not in DERIVED_SETTINGS]
+    order = list(SETTING_OPTIONS)
+    keys.sort(key=lambda key: order.index(key) if key in order else len(order))
+    options = "; ".join(dict.fromkeys(SETTING_OPTIONS.get(key, key) for key in keys))
+    return (f"--out {args.out} holds labels of a run with other options ({options}); "
+            "remove it, choose another --out, or repeat that run's options to resume it")
 
 
 def _report(summary: Summary) -> None:

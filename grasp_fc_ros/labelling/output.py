@@ -35,7 +35,8 @@ class OutputConflict(Exception):
     ----------
     differing : tuple of str
         Where the output holds another run: the keys of the manifest (settings,
-        ``sources``) in which that run differs from this one; else empty.
+        ``sources``; inside a nested setting, ``robustness.samples``) in which that run
+        differs from this one; else empty.
     """
 
     def __init__(self, message: str, differing: tuple[str, ...] = ()) -> None:
@@ -43,9 +44,18 @@ class OutputConflict(Exception):
         self.differing = differing
 
 
-def _manifest_difference(stored: dict[str, Any], wanted: dict[str, Any]) -> tuple[str, ...]:
-    return tuple(sorted(k for k in set(stored) | set(wanted)
-                        if stored.get(k) != wanted.get(k))) or ("layout",)
+def _manifest_difference(stored: dict[str, Any], wanted: dict[str, Any],
+                         prefix: str = "") -> tuple[str, ...]:
+    """The keys whose values differ; inside entries that are dicts on both sides, their
+    keys (``robustness.samples``)."""
+    keys: list[str] = []
+    for key in sorted(set(stored) | set(wanted)):
+        old, new = stored.get(key), wanted.get(key)
+        if isinstance(old, dict) and isinstance(new, dict):
+            keys += _manifest_difference(old, new, f"{prefix}{key}.")
+        elif old != new:
+            keys.append(prefix + key)
+    return tuple(keys) or (() if prefix else ("layout",))
 
 
 class Output:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import os
 import sys
 import time
@@ -23,8 +24,9 @@ from typing import IO, TYPE_CHECKING, Any, TypeVar
 import numpy as np
 
 from .output import Output
+from .robustness import Robustness
 from .schema import STATUS_NAMES, output_schema
-from .sources import InputError, Source, open_input
+from .sources import InputError, Source, SurfaceSource, open_input
 from .tasks import label_chunk, validate_chunk
 
 if TYPE_CHECKING:
@@ -33,12 +35,61 @@ if TYPE_CHECKING:
 
 Result = TypeVar("Result")
 
-# Grasps per chunk: large enough that the core's vectorised filter and batched exact test
-# run at full speed and the per-task overhead of Dask (~1 ms) is negligible, small enough
-# that a chunk's arrays stay far below a worker's memory (50,000 six-finger grasps are
-# 15 MB of input) and a retried chunk loses little work (a few seconds).
+# Grasps per chunk of verdicts alone: large enough that the core's vectorised filter and
+# batched exact test run at full speed and the per-task overhead of Dask (~1 ms) is
+# negligible, small enough that a chunk's arrays stay far below a worker's memory (50,000
+# six-finger grasps are 15 MB of input) and a retried chunk loses little work (a few
+# seconds). Also the default block of grasps drawn on objects from one random stream.
 DEFAULT_CHUNK_SIZE = 50_000
+
+# Costlier columns get smaller chunks, sized by cost. The unit of cost is one exact-test
+# verdict of one grasp (~5 us of a core here, six fingers). A chunk of the costlier columns
+# is CHUNK_WORK verdicts' worth (~10 s of a core): the labeller's own cost per chunk
+# (task, transfer, part: milliseconds) is far below 5 % of it, a chunk lost with its worker
+# costs seconds, and 10^8 grasps at a 1,000-sample probability make 55,000 tasks, about
+# 100 a second on a thousand cores (docs/labelling.md, "Planning").
+CHUNK_WORK = 2_000_000
+# Verdicts' worth of one grasp's columns, measured on six-finger box grasps, mu 0.5, by CPU
+# time (bench_label_cluster.py, compute per chunk against the verdicts'; docs/
+# performance.md#labelling), rounded: epsilon_quality at the default rtol 85-134 (fewer
+# with fewer fingers); robustness()'s three radii 117 (35 at four fingers); holds_under at
+# errors of every kind (2 mm, 3 degrees, friction 0.1: the position error's search
+# dominates) 990, about 2 with a normal error alone (the worst case is taken: a smaller
+# chunk costs little, a larger one may last minutes).
+EPSILON_COST = 100
+RADII_COST = 100
+HOLDS_COST = 1000
+# One Monte-Carlo sample of the probability is one batched exact test (a verdict).
+PROBABILITY_SAMPLE_COST = 1
 MANIFEST_FORMAT = 1
+
+
+#: Dask settings of the local cluster's workers (docs/labelling.md says how to set them on
+#: a cluster's): Dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536, which also
+#: stops glibc from raising its mmap threshold, so every large temporary array of the core
+#: is a fresh mmap with its page faults: the probability's chunks took 8-17 % more CPU on
+#: a worker than in-process with it and 0-2 % without (docs/performance.md#labelling). A
+#: chunk's memory is bounded, so trimming gains little here.
+WORKER_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
+
+def cost_per_grasp(quality_rtol: float | None = None,
+                   robustness: Robustness | None = None) -> int:
+    """What labelling one grasp costs, in exact-test verdicts."""
+    cost = 1 + (EPSILON_COST if quality_rtol is not None else 0)
+    if robustness is not None:
+        cost += RADII_COST + (HOLDS_COST if robustness.holds else 0)
+        if robustness.probability:
+            cost += PROBABILITY_SAMPLE_COST * robustness.samples
+    return cost
+
+
+def default_chunk_size(quality_rtol: float | None = None,
+                       robustness: Robustness | None = None) -> int:
+    """Grasps per chunk for the columns asked for: :data:`DEFAULT_CHUNK_SIZE` for the
+    verdicts, :data:`CHUNK_WORK` verdicts' worth for costlier columns."""
+    cost = cost_per_grasp(quality_rtol, robustness)
+    return DEFAULT_CHUNK_SIZE if cost == 1 else max(1, min(DEFAULT_CHUNK_SIZE,
+                                                           CHUNK_WORK // cost))
 
 
 @dataclass(frozen=True)
@@ -67,8 +118,9 @@ class Plan:
     ----------
     sources : sequence of Source
         :mod:`~grasp_fc_ros.labelling.sources` objects, in output order.
-    chunk_size : int
-        Grasps per chunk (the last chunk of a source may be smaller).
+    chunk_size : int or None
+        Grasps per chunk and output part (the last chunk of a source may be smaller);
+        None: :func:`default_chunk_size` of the columns asked for.
     use_filter : bool or "auto"
         Run the torque filter before the exact test: as ``check_force_closure`` takes it
         (same verdicts either way; "auto" runs it where it pays).
@@ -77,19 +129,26 @@ class Plan:
     quality_rtol : float or None
         Also label the certified Ferrari-Canny epsilon, to this relative accuracy
         (``--quality``); None: not.
+    robustness : Robustness or None
+        Also label the robustness columns (``--robustness``); None: not.
     """
 
     sources: Sequence[Source]
-    chunk_size: int = DEFAULT_CHUNK_SIZE
+    chunk_size: int | None = None
     use_filter: bool | str = "auto"
     origins: str = "seed"
     quality_rtol: float | None = None
+    robustness: Robustness | None = None
 
     def __post_init__(self) -> None:
-        drawn = {getattr(source, "chunk_size", self.chunk_size) for source in self.sources}
-        if drawn - {self.chunk_size}:
-            raise ValueError("grasps drawn on objects must be drawn with the plan's chunk "
-                             f"size {self.chunk_size}, got {sorted(drawn)}")
+        if self.chunk_size is None:
+            object.__setattr__(self, "chunk_size",
+                               default_chunk_size(self.quality_rtol, self.robustness))
+
+    @property
+    def rows_per_chunk(self) -> int:
+        assert self.chunk_size is not None  # set by __post_init__
+        return self.chunk_size
 
     @classmethod
     def from_files(cls, paths: Iterable[str | os.PathLike[str]], **settings: Any) -> Plan:
@@ -109,9 +168,10 @@ class Plan:
 
     @property
     def chunks(self) -> list[Chunk]:
-        return [Chunk(s, index, start, min(start + self.chunk_size, source.n_grasps))
+        size = self.rows_per_chunk
+        return [Chunk(s, index, start, min(start + size, source.n_grasps))
                 for s, source in enumerate(self.sources)
-                for index, start in enumerate(range(0, source.n_grasps, self.chunk_size))]
+                for index, start in enumerate(range(0, source.n_grasps, size))]
 
     @property
     def n_grasps(self) -> int:
@@ -121,14 +181,39 @@ class Plan:
     def schema(self) -> pa.Schema:
         with_grasps = any(source.object_name is not None for source in self.sources)
         fingers = self.sources[0].n_contacts if self.sources else 0
-        return output_schema(with_grasps, fingers, quality=self.quality_rtol is not None)
+        return output_schema(with_grasps, fingers, quality=self.quality_rtol is not None,
+                             robustness=self.robustness)
 
     def manifest(self) -> dict[str, Any]:
-        # quality_rtol only when set: outputs of runs without it keep their manifest.
-        quality = {} if self.quality_rtol is None else {"quality_rtol": self.quality_rtol}
+        # Entries of later options only when set: outputs of runs without them keep
+        # their manifest (and resume).
+        optional: dict[str, Any] = {}
+        if self.quality_rtol is not None:
+            optional["quality_rtol"] = self.quality_rtol
+        if self.robustness is not None:
+            optional["robustness"] = self.robustness.manifest()
+        blocks = {source.draw_block for source in self.sources
+                  if isinstance(source, SurfaceSource)}
+        if blocks - {self.chunk_size}:
+            optional["draw_block"] = sorted(blocks)
         return {"format": MANIFEST_FORMAT, "chunk_size": self.chunk_size,
-                "use_filter": self.use_filter, "origins": self.origins, **quality,
+                "use_filter": self.use_filter, "origins": self.origins, **optional,
                 "sources": [source.describe() for source in self.sources]}
+
+
+def check_ranges(chunks: Sequence[Chunk], rows: int = DEFAULT_CHUNK_SIZE) -> list[Chunk]:
+    """The row ranges that the checking pass reads: runs of consecutive ``chunks`` of one
+    source merged up to ``rows`` rows (or one chunk, if larger), so that small chunks of
+    costly columns do not multiply the checking tasks."""
+    ranges: list[Chunk] = []
+    for chunk in chunks:
+        last = ranges[-1] if ranges else None
+        if (last is not None and last.source == chunk.source and last.stop == chunk.start
+                and chunk.stop - last.start <= rows):
+            ranges[-1] = Chunk(last.source, last.index, last.start, chunk.stop)
+        else:
+            ranges.append(chunk)
+    return ranges
 
 
 @dataclass
@@ -157,15 +242,17 @@ def dask_client(scheduler: str | None = None, workers: int | None = None,
     The local cluster has ``workers`` processes (default: this machine's cores), one
     thread each (the core is single-threaded numpy and Clarabel), on 127.0.0.1 only.
     """
+    import dask
     from distributed import Client, LocalCluster
 
     if scheduler or scheduler_file:
         with Client(scheduler, scheduler_file=scheduler_file, timeout="30s") as client:
             yield client
         return
-    with LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
-                      processes=True, host="127.0.0.1", dashboard_address=None,
-                      silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
+    with dask.config.set(WORKER_CONFIG), LocalCluster(
+            n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+            host="127.0.0.1", dashboard_address=None,
+            silence_logs=logging.ERROR) as cluster, Client(cluster) as client:
         yield client
 
 
@@ -193,13 +280,23 @@ class Progress:
         left = (self.total_grasps - self.grasps) / rate if rate else float("inf")
         width = 30
         filled = int(width * self.grasps / max(self.total_grasps, 1))
+        digits = 0 if rate >= 10 else 2  # costly columns run at a few grasps/s a worker
         line = (f"[{'#' * filled}{'.' * (width - filled)}] {self.chunks}/{self.total_chunks} "
-                f"chunks, {self.grasps:,}/{self.total_grasps:,} grasps, {rate:,.0f} grasps/s, "
-                f"{left:,.0f} s left")
+                f"chunks, {self.grasps:,}/{self.total_grasps:,} grasps, "
+                f"{rate:,.{digits}f} grasps/s, {duration(left)} left")
         self.stream.write(("\r" + line) if self.tty else line + "\n")
         if self.tty and self.chunks == self.total_chunks:
             self.stream.write("\n")
         self.stream.flush()
+
+
+def duration(seconds: float) -> str:
+    """``seconds`` as ``H:MM:SS`` (``M:SS`` under an hour)."""
+    if not math.isfinite(seconds):
+        return "?"
+    minutes, secs = divmod(round(seconds), 60)
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes}:{secs:02d}"
 
 
 def run(plan: Plan, out: str | os.PathLike[str], client: Client,
@@ -233,7 +330,8 @@ def run(plan: Plan, out: str | os.PathLike[str], client: Client,
     sources = [client.submit(_identity, source, key=f"grasp-fc-source-{run_id}-{s}")
                for s, source in enumerate(plan.sources)]
 
-    problems = _map_chunks(client, validate_chunk, sources, todo, (), f"check-{run_id}",
+    problems = _map_chunks(client, validate_chunk, sources, check_ranges(todo),
+                           (plan.robustness is not None,), f"check-{run_id}",
                            stop_on=lambda problem: problem is not None)
     if problems:
         raise InputError(problems[0][1])
@@ -250,7 +348,8 @@ def run(plan: Plan, out: str | os.PathLike[str], client: Client,
         bar.update(table.num_rows)
 
     _map_chunks(client, label_chunk, sources, todo,
-                (plan.use_filter, plan.origins, plan.quality_rtol), f"label-{run_id}",
+                (plan.use_filter, plan.origins, plan.quality_rtol, plan.robustness),
+                f"label-{run_id}",
                 on_result=write)
     del sources
     output.finish([chunk.part for chunk in chunks], plan.schema)

@@ -332,8 +332,9 @@ def _open_parquet(path: str, id_offset: int) -> ParquetSource:
 class SurfaceSource:
     """Random grasps on one object, drawn on the worker (as the experiment draws them).
 
-    Chunk ``c`` of object ``index`` draws from ``default_rng([seed, index, c])``: the
-    grasps depend on the seed and the chunk size, never on the number of workers.
+    Block ``b`` (rows ``b * draw_block`` up to the next block) of object ``index`` is
+    drawn from ``default_rng([seed, index, b])``: the grasps depend on the seed and the
+    block size, never on the number of workers or on the chunks that read them.
     """
 
     surface: ContactSurface = field(repr=False)
@@ -344,7 +345,7 @@ class SurfaceSource:
     mu: float = 0.0
     seed: int = 0
     id_offset: int = 0
-    chunk_size: int = 1
+    draw_block: int = 1
 
     @property
     def object_name(self) -> str:
@@ -360,14 +361,21 @@ class SurfaceSource:
                 "mu": self.mu, "seed": self.seed}
 
     def read(self, start: int, stop: int) -> GraspChunk:
+        """Rows ``start:stop``: the blocks they overlap are drawn whole, then cut."""
         from grasp_fc_ros.objects import sample_grasps
 
-        if start % self.chunk_size:
-            raise ValueError("object grasps are drawn by whole chunks")
-        rng = np.random.default_rng([self.seed, self.index, start // self.chunk_size])
-        positions, normals = sample_grasps(self.surface, stop - start, self.n_contacts, rng)
-        return GraspChunk(ids=_default_ids(self.id_offset, start, stop), positions=positions,
-                          normals=normals, mu=np.asarray(self.mu, dtype=np.float64),
+        first = start // self.draw_block
+        blocks = range(first, max(first + 1, -(-stop // self.draw_block)))
+        drawn = [sample_grasps(self.surface,
+                               min(self.draw_block, self.n_grasps - b * self.draw_block),
+                               self.n_contacts,
+                               np.random.default_rng([self.seed, self.index, b]))
+                 for b in blocks]
+        rows = slice(start - first * self.draw_block, stop - first * self.draw_block)
+        return GraspChunk(ids=_default_ids(self.id_offset, start, stop),
+                          positions=np.concatenate([p for p, _ in drawn])[rows],
+                          normals=np.concatenate([n for _, n in drawn])[rows],
+                          mu=np.asarray(self.mu, dtype=np.float64),
                           torsional=None, rows=np.arange(start, stop))
 
 
@@ -416,8 +424,9 @@ def _builtin(name: str, points: int, seed: int) -> ContactSurface:
 
 def object_sources(builtin_names: Sequence[str], mesh_paths: Sequence[str],
                    grasps_per_object: int, fingers: int, mu: float, seed: int, points: int,
-                   chunk_size: int, id_offset: int = 0) -> list[SurfaceSource]:
-    """Sources of random grasps on built-in objects and on meshes/point clouds.
+                   draw_block: int, id_offset: int = 0) -> list[SurfaceSource]:
+    """Sources of random grasps on built-in objects and on meshes/point clouds, drawn
+    ``draw_block`` grasps per random stream (see :class:`SurfaceSource`).
 
     Raises
     ------
@@ -442,6 +451,6 @@ def object_sources(builtin_names: Sequence[str], mesh_paths: Sequence[str],
             raise InputError(f"{description.get('path', surface.name)}: {len(surface)} "
                              f"points, fewer than {fingers} fingers")
         sources.append(SurfaceSource(surface, description, index, grasps_per_object, fingers,
-                                     mu, seed, id_offset, chunk_size))
+                                     mu, seed, id_offset, draw_block))
         id_offset += grasps_per_object
     return sources

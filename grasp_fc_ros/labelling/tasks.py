@@ -16,9 +16,21 @@ from .sources import GraspChunk, InputError, Source
 if TYPE_CHECKING:
     import pyarrow as pa
 
+    from grasp_fc_ros.core.robustness import (
+        ForceClosureProbability,
+        HoldsUnder,
+        RobustnessRadii,
+    )
 
-def validate_chunk(source: Source, start: int, stop: int) -> str | None:
+    from .robustness import Robustness
+
+
+def validate_chunk(source: Source, start: int, stop: int,
+                   hard_only: bool = False) -> str | None:
     """The first problem of rows ``start:stop`` of ``source``, or None if all can be labelled.
+
+    With ``hard_only`` (``--robustness``, whose radii are for hard contacts), a soft finger
+    (torsional friction > 0) is a problem too.
 
     Returns
     -------
@@ -34,12 +46,20 @@ def validate_chunk(source: Source, start: int, stop: int) -> str | None:
     where = _grasp_names(source.path, chunk)
     validation = validate_grasps(chunk.positions, chunk.normals, chunk.mu,
                                  _torsional(chunk))
-    if validation.valid.all():
-        return None
-    g = int(np.argmin(validation.valid))
-    # The core names the grasp by its index in this chunk; name it by its file row and id.
-    detail = validation.reasons[g].removeprefix(f"grasp {g}")
-    return f"{where(g)}{detail}"
+    if not validation.valid.all():
+        g = int(np.argmin(validation.valid))
+        # The core names the grasp by its index in this chunk; name it by its file row
+        # and id.
+        detail = validation.reasons[g].removeprefix(f"grasp {g}")
+        return f"{where(g)}{detail}"
+    if hard_only and chunk.torsional is not None:
+        soft = np.broadcast_to(chunk.torsional, chunk.positions.shape[:2]) > 0.0
+        if soft.any():
+            g, c = (int(i) for i in np.argwhere(soft)[0])
+            return (f"{where(g)}, contact {c}: a soft finger (torsional friction "
+                    f"{np.broadcast_to(chunk.torsional, soft.shape)[g, c]:g}): the "
+                    "robustness columns are for hard contacts (docs/robustness.md#limits)")
+    return None
 
 
 def _grasp_names(path: str, chunk: GraspChunk) -> Callable[[int], str]:
@@ -53,9 +73,11 @@ def _torsional(chunk: GraspChunk) -> np.ndarray | float:
 
 
 def label_chunk(source: Source, start: int, stop: int, use_filter: bool | str, origins: str,
-                quality_rtol: float | None = None) -> pa.Table:
+                quality_rtol: float | None = None,
+                robustness: Robustness | None = None) -> pa.Table:
     """Labels of rows ``start:stop`` of ``source``, as a ``pyarrow.Table``; with
-    ``quality_rtol``, their certified epsilon to that accuracy too.
+    ``quality_rtol``, their certified epsilon to that accuracy too; with ``robustness``,
+    the robustness columns it asks for.
 
     See :mod:`grasp_fc_ros.labelling.schema` for the columns.
     """
@@ -71,4 +93,31 @@ def label_chunk(source: Source, start: int, stop: int, use_filter: bool | str, o
     epsilon = (None if quality_rtol is None else
                epsilon_quality(chunk.positions, chunk.normals, chunk.mu, rtol=quality_rtol,
                                torsional_friction=torsional))
-    return label_table(chunk, result, source.object_name, epsilon)
+    if robustness is None:
+        return label_table(chunk, result, source.object_name, epsilon)
+    return label_table(chunk, result, source.object_name, epsilon,
+                       *_robustness_results(chunk, robustness))
+
+
+def _robustness_results(chunk: GraspChunk, settings: Robustness) -> tuple[
+        RobustnessRadii, HoldsUnder | None, ForceClosureProbability | None]:
+    """The chunk's radii, and its holds_under and probability where asked for."""
+    from grasp_fc_ros.core.robustness import (
+        holds_under,
+        probability_of_force_closure,
+        robustness,
+    )
+
+    grasp = (chunk.positions, chunk.normals, chunk.mu)
+    radii = robustness(*grasp, torsional_friction=_torsional(chunk))
+    holds = (holds_under(*grasp, position_error=settings.position_error,
+                         normal_error=settings.normal_error,
+                         friction_error=settings.friction_error)
+             if settings.holds else None)
+    probability = (probability_of_force_closure(
+        *grasp, position_sigma=settings.position_sigma, normal_sigma=settings.normal_sigma,
+        friction_sigma=settings.friction_sigma, samples=settings.samples,
+        confidence=settings.confidence, seed=settings.seed,
+        torsional_friction=_torsional(chunk), grasp_ids=chunk.ids)
+        if settings.probability else None)
+    return radii, holds, probability

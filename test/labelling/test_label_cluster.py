@@ -1,11 +1,11 @@
 """grasp-fc-label on real Dask clusters: a LocalCluster of 2 worker processes, and a
 scheduler with workers started as separate processes on 127.0.0.1, one of them killed."""
 
+import contextlib
 import json
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -15,9 +15,10 @@ import pytest
 
 from grasp_fc_ros.core import check_force_closure
 from grasp_fc_ros.core.model.grasp_input import show_value
-from grasp_fc_ros.labelling import InputError, Plan, cli, dask_client, object_sources, run
+from grasp_fc_ros.labelling import InputError, Plan, cli, dask_client, object_sources, run, runner
 from grasp_fc_ros.labelling.output import Output
 from grasp_fc_ros.objects import make_object, sample_grasps
+from waiting import wait_for
 
 DASK = Path(sys.executable).with_name("dask")
 CHUNK = 700
@@ -152,7 +153,7 @@ def test_grasps_drawn_on_objects_and_relabelled(client, tmp_path):
     trimesh = pytest.importorskip("trimesh")
     trimesh.creation.box(extents=(0.08, 0.05, 0.03)).export(tmp_path / "brick.obj")
     sources = object_sources(["torus"], [tmp_path / "brick.obj"], grasps_per_object=900,
-                             fingers=4, mu=0.4, seed=3, points=800, chunk_size=400)
+                             fingers=4, mu=0.4, seed=3, points=800, draw_block=400)
     summary = run(Plan(sources, chunk_size=400), tmp_path / "ds", client, progress=False)
     assert summary.chunks_written == 6
     table = pq.read_table(tmp_path / "ds")
@@ -197,15 +198,45 @@ def test_quality_columns_on_the_cluster_equal_the_core(client, tmp_path):
     assert fc.any() and np.all((lower > 0) == fc)
 
 
+def test_cli_robustness_on_drawn_grasps_keeps_the_grasps_and_resumes(client, tmp_path,
+                                                                     capsys, monkeypatch):
+    from grasp_fc_ros.labelling.robustness import Robustness
+    from grasp_fc_ros.labelling.runner import default_chunk_size
+    from grasp_fc_ros.labelling.tasks import label_chunk
+
+    monkeypatch.setattr(runner, "dask_client", lambda *args: contextlib.nullcontext(client))
+    drawn = ["--objects", "box", "--grasps-per-object", "2000", "--fingers", "4", "--mu",
+             "0.6", "--seed", "5", "--no-progress"]
+    robust = ["--robustness", "--normal-error", "0.02", "--normal-sigma", "0.03",
+              "--samples", "20"]
+    assert cli.main([*drawn, "--out", str(tmp_path / "plain")]) == 0
+    assert cli.main([*drawn, *robust, "--out", str(tmp_path / "robust")]) == 0
+    capsys.readouterr()
+    settings = Robustness(normal_error=0.02, normal_sigma=0.03, samples=20, seed=5)
+    size = default_chunk_size(None, settings)
+    assert size < 2000  # chunks by cost, smaller than the blocks the grasps are drawn in
+    assert len(list((tmp_path / "robust").glob("part-*"))) == -(-2000 // size)
+    plain, robust_table = pq.read_table(tmp_path / "plain"), pq.read_table(tmp_path / "robust")
+    for key in ("id", "positions", "normals", "status"):
+        assert robust_table[key].equals(plain[key]), key  # the same grasps, the same labels
+    # The robustness columns are those of one chunk of all 2,000 grasps in one process.
+    source = object_sources(["box"], [], 2000, 4, 0.6, 5, 5000, draw_block=50_000)[0]
+    expected = label_chunk(source, 0, 2000, "auto", "seed", robustness=settings)
+    for key in ("holds", "holds_name", "holds_bound", "probability_successes"):
+        assert robust_table[key].equals(expected[key]), key
+    for key in ("normal_angle", "position_radius", "friction_drop", "probability_estimate",
+                "probability_lower", "probability_upper", "probability_normal_lower_bound"):
+        assert np.array_equal(robust_table[key].to_numpy(), expected[key].to_numpy(),
+                              equal_nan=True), key
+    # The same command resumes (nothing to do); other samples are refused, naming them.
+    assert cli.main([*drawn, *robust, "--out", str(tmp_path / "robust")]) == 0
+    assert f"({-(-2000 // size)} already written)" in capsys.readouterr().err
+    robust[-1] = "25"
+    assert cli.main([*drawn, *robust, "--out", str(tmp_path / "robust")]) == 2
+    assert "other options (--samples); remove it" in capsys.readouterr().err
+
+
 # --- a scheduler and workers as separate processes -------------------------------------
-
-
-def _wait_for(condition, timeout, what):
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.05)
 
 
 @pytest.fixture
@@ -225,7 +256,7 @@ def processes(tmp_path):
     try:
         start("scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
               "--scheduler-file", str(scheduler_file))
-        _wait_for(scheduler_file.exists, 60, "the scheduler")
+        wait_for(scheduler_file.exists, 60, "the scheduler")
         address = json.loads(scheduler_file.read_text())["address"]
 
         def worker():
@@ -265,14 +296,14 @@ def test_worker_killed_mid_run_loses_nothing(processes, tmp_path):
                                    "--out", str(out), "--chunk-size", "300", "--scheduler",
                                    address, "--no-progress"], stderr=subprocess.PIPE,
                                   text=True)
-        _wait_for(lambda: len(list(out.glob("part-*"))) >= 3, 120, "the first parts")
+        wait_for(lambda: len(list(out.glob("part-*"))) >= 3, 120, "the first parts")
         # Kill a worker while both run chunks (between two chunks one may be idle for a
         # moment, more so on a loaded machine).
         def both_busy_or_run_over():
             busy = dask.processing()
             return (len(busy) == 2 and all(busy.values())) or runner.poll() is not None
 
-        _wait_for(both_busy_or_run_over, 60, "both workers running chunks")
+        wait_for(both_busy_or_run_over, 60, "both workers running chunks")
         workers[0].kill()
         workers[0].wait()
         parts_at_kill = len(list(out.glob("part-*")))
@@ -307,7 +338,7 @@ def test_killed_client_resumes_on_the_same_cluster(processes, tmp_path, capsys):
     runner = subprocess.Popen([sys.executable, "-m", "grasp_fc_ros.labelling.cli", *command],
                               stderr=subprocess.DEVNULL)
     parts = Path(str(out) + ".parts")
-    _wait_for(lambda: len(list(parts.glob("part-*"))) >= 4, 120, "the first parts")
+    wait_for(lambda: len(list(parts.glob("part-*"))) >= 4, 120, "the first parts")
     runner.kill()
     runner.wait()
     done = len(list(parts.glob("part-*")))

@@ -1,6 +1,7 @@
 """grasp-fc-label without a cluster: lazy .npz and Parquet reading, chunk checks, output."""
 
 import json
+import re
 
 import numpy as np
 import pyarrow as pa
@@ -12,6 +13,7 @@ from hypothesis import strategies as st
 from grasp_fc_ros.labelling import OutputConflict, Plan, cli, open_input
 from grasp_fc_ros.labelling.npz_members import read_members
 from grasp_fc_ros.labelling.output import Output
+from grasp_fc_ros.labelling.runner import check_ranges
 from grasp_fc_ros.labelling.tasks import label_chunk, validate_chunk
 from grasp_fc_ros.objects import make_object, sample_grasps
 
@@ -171,6 +173,21 @@ def test_soft_grasps_are_labelled_with_their_torsional_friction(tmp_path):
                                rtol=1e-9, atol=1e-6)
 
 
+def test_soft_fingers_are_refused_for_robustness_naming_grasp_and_contact(tmp_path):
+    positions, normals = _grasps(8)
+    torsional = np.zeros((8, 4))
+    torsional[6, 2] = 0.004
+    np.savez(tmp_path / "t.npz", positions=positions, normals=normals, mu=0.5,
+             torsional_friction=torsional)
+    source = open_input(tmp_path / "t.npz")
+    assert validate_chunk(source, 0, 8) is None  # labelled as soft fingers
+    assert validate_chunk(source, 0, 8, hard_only=True) == (
+        f"{tmp_path / 't.npz'}: grasp 6 (id 6), contact 2: a soft finger (torsional "
+        "friction 0.004): the robustness columns are for hard contacts "
+        "(docs/robustness.md#limits)")
+    assert validate_chunk(source, 0, 6, hard_only=True) is None  # hard (gamma 0) rows
+
+
 def test_bad_torsional_friction_is_refused_naming_the_value(tmp_path):
     positions, normals = _grasps(8)
     torsional = np.zeros((8, 4))
@@ -219,6 +236,59 @@ def test_label_chunk_with_quality_adds_the_certified_epsilon(tmp_path):
     # without --quality the table is as before
     plain = label_chunk(open_input(tmp_path / "a.npz"), 0, 30, "auto", "seed")
     assert plain.column_names == table.column_names[:5]
+
+
+def test_label_chunk_with_robustness_adds_the_cores_columns(tmp_path):
+    from grasp_fc_ros.core.robustness import (
+        Holds,
+        holds_under,
+        probability_of_force_closure,
+        robustness,
+    )
+    from grasp_fc_ros.labelling.robustness import Robustness
+
+    positions, normals = _grasps(24, n_fingers=5, seed=6)
+    mu = np.random.default_rng(2).uniform(0.4, 0.9, (24, 5))  # per contact
+    ids = np.arange(24, dtype=np.uint64) * 7 + 1000
+    np.savez(tmp_path / "a.npz", positions=positions, normals=normals, mu=mu, ids=ids)
+    settings = Robustness(normal_error=0.03, friction_error=0.05, position_sigma=0.003,
+                          normal_sigma=0.04, samples=40, confidence=0.9, seed=11)
+    source = open_input(tmp_path / "a.npz")
+    table = label_chunk(source, 0, 24, "auto", "seed", robustness=settings)
+    assert table.schema.equals(Plan.from_files([tmp_path / "a.npz"],
+                                               robustness=settings).schema)
+    assert table.column_names[5:] == [
+        "normal_angle", "position_radius", "friction_drop", "holds", "holds_name",
+        "holds_bound", "probability_estimate", "probability_lower", "probability_upper",
+        "probability_successes", "probability_undecided", "probability_normal_lower_bound"]
+    radii = robustness(positions, normals, mu)
+    for key in ("normal_angle", "position_radius", "friction_drop"):
+        assert np.array_equal(table[key].to_numpy(), getattr(radii, key)), key
+    holds = holds_under(positions, normals, mu, normal_error=0.03, friction_error=0.05)
+    assert np.array_equal(table["holds"].to_numpy(), holds.status)
+    assert table["holds_name"].to_pylist() == [Holds(h).name for h in holds.status]
+    assert table["holds_bound"].to_pylist() == [str(b) for b in holds.bound]
+    assert {"HOLDS", "BREAKS"} <= set(table["holds_name"].to_pylist())
+    # Each grasp's noise comes from the run's seed and its id.
+    probability = probability_of_force_closure(
+        positions, normals, mu, position_sigma=0.003, normal_sigma=0.04, samples=40,
+        confidence=0.9, seed=11, grasp_ids=ids)
+    for key in ("estimate", "lower", "upper", "successes", "undecided"):
+        assert np.array_equal(table[f"probability_{key}"].to_numpy(),
+                              getattr(probability, key)), key
+    estimate = table["probability_estimate"].to_numpy()
+    assert 0 < estimate.mean() < 1 and len(np.unique(estimate)) > 3
+    # Another chunking of the same grasps: the same columns, probability included.
+    parts = [label_chunk(source, a, b, "auto", "seed", robustness=settings)
+             for a, b in ((0, 5), (5, 6), (6, 24))]
+    again = pa.concat_tables(parts)
+    for key in table.column_names[5:]:
+        if key != "probability_normal_lower_bound":
+            assert again[key].equals(table[key]), key
+    # Without holds or probability settings, the radii alone.
+    radii_only = label_chunk(source, 0, 24, "auto", "seed", robustness=Robustness(seed=3))
+    assert radii_only.column_names[5:] == ["normal_angle", "position_radius",
+                                           "friction_drop"]
 
 
 def test_quality_setting_in_schema_and_manifest(tmp_path):
@@ -334,14 +404,152 @@ def test_failed_part_write_leaves_nothing(tmp_path, monkeypatch):
     assert json.loads((tmp_path / "o" / "_grasp_fc_label.json").read_text()) == {"a": 1}
 
 
-def test_object_grasps_need_the_plans_chunk_size():
+def test_object_grasps_are_the_same_whatever_the_chunks():
     from grasp_fc_ros.labelling import object_sources
 
-    sources = object_sources(["box"], [], grasps_per_object=10, fingers=4, mu=0.5, seed=0,
-                             points=200, chunk_size=5)
-    assert [c.size for c in Plan(sources, chunk_size=5).chunks] == [5, 5]
-    with pytest.raises(ValueError, match="chunk size 6"):
-        Plan(sources, chunk_size=6)
+    sources = object_sources(["box"], [], grasps_per_object=12, fingers=4, mu=0.5, seed=0,
+                             points=200, draw_block=5)
+    assert [c.size for c in Plan(sources, chunk_size=5).chunks] == [5, 5, 2]
+    whole = [sources[0].read(c.start, c.stop) for c in Plan(sources, chunk_size=5).chunks]
+    for chunk_size in (1, 3, 4, 7, 12):
+        chunks = Plan(sources, chunk_size=chunk_size).chunks
+        read = [sources[0].read(c.start, c.stop) for c in chunks]
+        for key in ("positions", "normals", "ids"):
+            assert np.array_equal(np.concatenate([getattr(r, key) for r in read]),
+                                  np.concatenate([getattr(r, key) for r in whole])), key
+    # The blocks are in the manifest where they are not the chunks.
+    assert "draw_block" not in Plan(sources, chunk_size=5).manifest()
+    assert Plan(sources, chunk_size=3).manifest()["draw_block"] == [5]
+
+
+def test_chunk_size_follows_the_cost_of_the_columns(tmp_path):
+    from grasp_fc_ros.labelling.robustness import Robustness
+    from grasp_fc_ros.labelling.runner import (
+        CHUNK_WORK,
+        DEFAULT_CHUNK_SIZE,
+        EPSILON_COST,
+        RADII_COST,
+        cost_per_grasp,
+    )
+
+    positions, normals = _grasps(10)
+    np.savez(tmp_path / "a.npz", positions=positions, normals=normals, mu=0.5)
+
+    def plan(**settings):
+        return Plan.from_files([tmp_path / "a.npz"], **settings)
+
+    assert plan().chunk_size == DEFAULT_CHUNK_SIZE
+    assert plan(quality_rtol=1e-3).chunk_size == CHUNK_WORK // (1 + EPSILON_COST)
+    radii = Robustness()
+    assert plan(robustness=radii).chunk_size == CHUNK_WORK // (1 + RADII_COST)
+    probability = Robustness(normal_sigma=0.05, samples=2000)
+    assert cost_per_grasp(None, probability) == 1 + RADII_COST + 2000
+    assert plan(robustness=probability).chunk_size == CHUNK_WORK // (1 + RADII_COST + 2000)
+    assert plan(robustness=Robustness(normal_sigma=0.05, samples=10**8)).chunk_size == 1
+    # Chunks of costly columns are checked in blocks of the verdicts' size.
+    small = plan(robustness=probability, chunk_size=3)
+    assert [(c.start, c.stop) for c in check_ranges(small.chunks)] == [(0, 10)]
+    assert [(c.start, c.stop) for c in check_ranges(small.chunks, rows=6)] == [(0, 6),
+                                                                               (6, 10)]
+    assert [(c.start, c.stop) for c in check_ranges(small.chunks[1:2] + small.chunks[3:])
+            ] == [(3, 6), (9, 10)]
+
+
+def test_robustness_manifest_holds_what_changes_the_columns(tmp_path):
+    from grasp_fc_ros.labelling.robustness import Robustness
+
+    assert Robustness(samples=50, seed=3).manifest() == {}
+    assert Robustness(normal_error=0.1).manifest() == {
+        "position_error": 0.0, "normal_error": 0.1, "friction_error": 0.0}
+    assert set(Robustness(friction_sigma=0.1).manifest()) == {
+        "position_sigma", "normal_sigma", "friction_sigma", "samples", "confidence", "seed"}
+    assert not Robustness(normal_sigma=0.1, samples=0).probability
+    for bad, message in (({"normal_sigma": -1.0}, "normal_sigma must be finite and >= 0"),
+                         ({"normal_error": 4.0}, "normal_error must be <= pi rad"),
+                         ({"confidence": 1.0}, "confidence must be in (0, 1)")):
+        with pytest.raises(ValueError, match=re.escape(message)):
+            Robustness(**bad)
+
+
+@pytest.mark.parametrize("first, second, named", [
+    ([], ["--quality"], "--quality/--quality-rtol"),
+    (["--quality"], ["--quality", "--quality-rtol", "1e-4"], "--quality/--quality-rtol"),
+    (["--chunk-size", "4"], ["--chunk-size", "5"], "--chunk-size"),
+    (["--chunk-size", "4"], ["--chunk-size", "5", "--quality"],
+     "--quality/--quality-rtol; --chunk-size"),
+    ([], ["--robustness"], "--robustness"),
+    (["--robustness", "--normal-sigma", "0.1"],
+     ["--robustness", "--normal-sigma", "0.1", "--samples", "50"], "--samples"),
+    (["--robustness", "--normal-sigma", "0.1"],
+     ["--robustness", "--normal-sigma", "0.1", "--seed", "2"], "--seed"),
+    (["--robustness", "--normal-sigma", "0.1"], ["--robustness", "--normal-sigma", "0.2"],
+     "--normal-sigma"),
+    (["--robustness", "--normal-error", "0.1"],
+     ["--robustness", "--normal-error", "0.1", "--position-error", "0.01"],
+     "--position-error"),
+])
+def test_rerun_with_other_options_is_refused_naming_them(tmp_path, capsys, monkeypatch,
+                                                         first, second, named):
+    """Named as the user gives them; a default chunk size that follows the columns is not
+    named when the columns differ."""
+    import contextlib
+
+    from grasp_fc_ros.labelling import runner
+    from grasp_fc_ros.labelling.output import METADATA_KEY
+
+    positions, normals = _grasps(10)
+    np.savez(tmp_path / "a.npz", positions=positions, normals=normals, mu=0.5)
+    monkeypatch.setattr(runner, "dask_client", lambda *_: contextlib.nullcontext())
+    for out in (tmp_path / "dir", tmp_path / "one.parquet"):
+        command = [str(tmp_path / "a.npz"), "--out", str(out), "--no-progress"]
+        earlier = Output(out, cli.make_plan(cli.build_parser().parse_args(
+            [*command, *first])).manifest())
+        if out.suffix:  # a finished single file: its manifest is in its metadata
+            pq.write_table(pa.table({"x": [1]}).replace_schema_metadata(
+                {METADATA_KEY: earlier.text}), out)
+        else:
+            earlier.create()
+        assert earlier.existing_parts() in (set(), None)  # the same options: resumes
+        assert cli.main([*command, *second]) == 2
+        assert f"other options ({named}); remove it" in capsys.readouterr().err
+
+
+def test_robustness_options_need_robustness(tmp_path, capsys):
+    for options, message in ((["--normal-sigma", "0.1"], "--normal-sigma needs --robustness"),
+                             (["--samples", "10"], "--samples needs --robustness"),
+                             (["--robustness", "--confidence", "1"],
+                              "--confidence must be in (0, 1), got 1"),
+                             (["--robustness", "--position-error", "-1"],
+                              "must be finite and >= 0, got -1")):
+        with pytest.raises(SystemExit) as stop:
+            cli.main(["a.npz", "--out", str(tmp_path / "o"), *options])
+        assert stop.value.code == 2
+        assert message in capsys.readouterr().err
+    args = cli.build_parser().parse_args(["a.npz", "--out", "o", "--robustness", "--seed", "4",
+                                          "--normal-error", "0.1", "--friction-sigma", "0.2",
+                                          "--samples", "30"])
+    settings = cli.robustness_settings(args)
+    assert (settings.normal_error, settings.friction_sigma, settings.samples,
+            settings.seed) == (0.1, 0.2, 30, 4)
+    assert settings.holds and settings.probability
+
+
+def test_progress_line_has_rate_and_time_left():
+    import io
+
+    from grasp_fc_ros.labelling.runner import Progress, duration
+
+    assert [duration(s) for s in (0, 59.4, 61, 3600, 86399, float("inf"))] == [
+        "0:00", "0:59", "1:01", "1:00:00", "23:59:59", "?"]
+    stream = io.StringIO()
+    bar = Progress(1000, 4, stream=stream)
+    bar.start -= 10.0  # 10 s ago
+    for _ in range(4):
+        bar.update(250)
+    last = stream.getvalue().splitlines()[-1]
+    assert "4/4 chunks, 1,000/1,000 grasps" in last and "grasps/s, 0:00 left" in last
+    rate = float(last.split(" grasps/s")[0].rsplit(" ", 1)[1].replace(",", ""))
+    assert 90 < rate <= 100
 
 
 def test_labelling_imports_and_runs_without_ros(tmp_path):
