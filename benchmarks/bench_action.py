@@ -112,27 +112,39 @@ def bench_feedback(action: tuple[ActionClient, Node], batch: ContactArrayBatch,
 
 def bench_cancel(action: tuple[ActionClient, Node], batch: ContactArrayBatch,
                  expected: np.ndarray, n_cancels: int, after_s: float) -> bool:
-    latencies, lossless, prefixes = [], True, []
+    """Cancels ``n_cancels`` goals ``after_s`` after their first progress; True when every
+    answer is lossless. A goal that ended before its cancel reached the node (a loaded
+    machine can delay the cancel past the goal's end) is a complete, correct answer, not
+    a loss: it is counted apart and its latency left out."""
+    latencies, lossless, prefixes, ended_first = [], True, [], 0
     for _ in range(n_cancels):
         goal = TimedGoal(action, batch)
-        while not goal.feedback_times or goal.done_reported == 0:
+        # A goal may end before any progress was reported (the node is fast, or the
+        # feedback slow): its cancel then comes after its end.
+        while goal.ended is None and (not goal.feedback_times or goal.done_reported == 0):
             time.sleep(0.005)
         time.sleep(after_s)
         cancel_at = time.monotonic()
         goal.cancel()
         status, verdicts = goal.result()
         assert goal.ended is not None
-        latencies.append(goal.ended - cancel_at)
         n = len(verdicts)
         prefixes.append(n)
-        lossless &= (status == GoalStatus.STATUS_CANCELED and n >= goal.done_reported
-                     and np.array_equal(verdicts.ids, np.arange(n))
+        if status == GoalStatus.STATUS_SUCCEEDED:
+            ended_first += 1
+            complete = n == len(expected)
+        else:
+            latencies.append(goal.ended - cancel_at)
+            complete = status == GoalStatus.STATUS_CANCELED and n >= goal.done_reported
+        lossless &= (complete and np.array_equal(verdicts.ids, np.arange(n))
                      and np.array_equal(verdicts.status, expected[:n]))
-    ms = np.array(latencies) * 1e3
-    print(f"cancel latency over {n_cancels} cancels: median {np.median(ms):.1f} ms, "
-          f"max {ms.max():.1f} ms (target <= {TARGET_CANCEL_S * 1e3:.0f} ms: "
-          f"{'meets target' if ms.max() <= TARGET_CANCEL_S * 1e3 else 'BELOW target'}); "
-          f"prefixes of {min(prefixes)}-{max(prefixes)} grasps, "
+    if latencies:
+        ms = np.array(latencies) * 1e3
+        print(f"cancel latency over {len(ms)} cancels: median {np.median(ms):.1f} ms, "
+              f"max {ms.max():.1f} ms (target <= {TARGET_CANCEL_S * 1e3:.0f} ms: "
+              f"{'meets target' if ms.max() <= TARGET_CANCEL_S * 1e3 else 'BELOW target'})")
+    print(f"cancels: {n_cancels - ended_first} cut goals short, {ended_first} came after "
+          f"the goal ended; prefixes of {min(prefixes)}-{max(prefixes)} grasps, "
           f"{'0 lost, all equal the core' if lossless else 'LOST OR WRONG verdicts'}")
     return lossless
 
@@ -142,16 +154,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--goal-grasps", type=int, default=100_000,
                         help="grasps per goal (at most the node's max_batch, 100,000)")
     parser.add_argument("--cancels", type=int, default=10, help="goals cancelled")
-    parser.add_argument("--cancel-after", type=float, default=0.3,
+    # A 100,000-grasp goal takes ~0.5 s here and reports progress every ~0.25 s: a
+    # later cancel mostly comes after the goal's end.
+    parser.add_argument("--cancel-after", type=float, default=0.05,
                         help="seconds after a goal's first progress to cancel it")
     parser.add_argument("--rounds", type=int, default=3,
                         help="alternating goal/batch rounds for the throughput")
     parser.add_argument("--object", default="box", help="built-in object")
     parser.add_argument("--quick", action="store_true",
-                        help="the smoke test's form: 2 cancels 0.05 s in, one round")
+                        help="the smoke test's form: 2 cancels at the first progress, one round")
     args = parser.parse_args(argv)
     if args.quick:
-        args.cancels, args.cancel_after, args.rounds = 2, 0.05, 1
+        args.cancels, args.cancel_after, args.rounds = 2, 0.0, 1
 
     positions, normals = sample_grasps(make_object(args.object), min(N_UNIQUE, args.goal_grasps),
                                        N_FINGERS, np.random.default_rng(0))

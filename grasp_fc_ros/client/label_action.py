@@ -93,6 +93,11 @@ class LabelActionClient:
         unanswered)."""
         return 0 if self._last_job is None else self._last_job.resent
 
+    @property
+    def last_job_progress(self) -> JobProgress | None:
+        """How far the last job is (None before any); another thread may read it."""
+        return None if self._last_job is None else self._last_job.progress()
+
     def label(self, fields: BatchArrays, progress: bool, timeout: float | None,
               client_id: int = 0) -> Verdicts:
         """Send the grasps ``fields`` as one job, in goals of whole grasps of at most

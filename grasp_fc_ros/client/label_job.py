@@ -178,7 +178,8 @@ class LabelJob:
         """Grasps decided so far: the ended parts' verdicts and the feedback of those
         in flight."""
         done, _, force_closure = self._ended_counts
-        for feedback in self._feedback.values():
+        # A copy: another thread may read the progress while the spin thread adds feedback.
+        for feedback in list(self._feedback.values()):
             done += int(feedback.done)
             force_closure += int(feedback.force_closure)
         return JobProgress(done, self.total, force_closure)

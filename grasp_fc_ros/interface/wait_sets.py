@@ -42,6 +42,13 @@ from grasp_fc_ros.interface.rcl_take import take_serialized
 # wakes it at once through a guard condition), or a caller at rclpy's state and at
 # Python's signal handlers (Ctrl-C).
 WAIT_NS = 100_000_000
+# Until a caller's first response came, an unanswered request is sent again after this
+# long (s), then after twice as long, and so on. rmw_fastrtps drops a response when the
+# server has not yet discovered the client's response reader (it waits 100 ms, then
+# rclpy warns "failed to send response (timeout): client will not receive response"):
+# a new client's first request on a loaded machine. Once a response came, the server
+# knows the reader and no request is sent twice. The services' queries are idempotent.
+FIRST_RESPONSE_RESEND_S = 2.0
 
 
 class _WaitSetThread:
@@ -156,12 +163,15 @@ class ServiceCaller:
     response (the node serves one request at a time anyway); the requests of
     :meth:`call_each` take turns one by one, so another thread's call may go between
     them. A response that comes after its call timed out is dropped when the next call
-    waits.
+    waits. Until the first response came, an unanswered request is sent again
+    (:data:`FIRST_RESPONSE_RESEND_S`, doubling) and the first response to any copy is
+    the call's.
     """
 
     def __init__(self, client: Client) -> None:
         self._client = client
         self._lock = threading.Lock()
+        self._answered_once = False
         self._wait_set = _rclpy.WaitSet(0, 0, 0, 1, 0, 0, client.context.handle)
 
     def call(self, request: Any, timeout: float) -> Any:
@@ -197,10 +207,16 @@ class ServiceCaller:
             raise TimeoutError(self._timed_out(timeout))
         try:
             handle = self._client.handle
-            with handle:
-                sequence = handle.send_request(request)
+            sequences: set[int] = set()
+            resend_after = FIRST_RESPONSE_RESEND_S
+            resend_at = time.monotonic()
             while True:
-                remaining = deadline - time.monotonic()
+                now = time.monotonic()
+                if now >= resend_at and (not sequences or not self._answered_once):
+                    with handle:
+                        sequences.add(handle.send_request(request))
+                    resend_at, resend_after = now + resend_after, 2 * resend_after
+                remaining = deadline - now
                 if remaining <= 0:
                     raise TimeoutError(self._timed_out(timeout))
                 if not self._client.context.ok():
@@ -213,7 +229,8 @@ class ServiceCaller:
                 srv_type: Any = self._client.srv_type
                 with handle:
                     header, response = handle.take_response(srv_type.Response)
-                if header is not None and header.request_id.sequence_number == sequence:
+                if header is not None and header.request_id.sequence_number in sequences:
+                    self._answered_once = True
                     return response
         finally:
             self._lock.release()

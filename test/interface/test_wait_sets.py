@@ -158,6 +158,51 @@ def test_a_caller_times_out_without_a_server(ros):
         node.destroy_node()
 
 
+def test_a_new_callers_request_whose_response_is_lost_is_sent_again_until_one_came(ros):
+    """The response a server could not send (rmw_fastrtps drops it when it has not yet
+    discovered a new client's response reader) is made up for by a resend; once a
+    response came, a lost one is not (the call times out, its request sent once)."""
+    import os
+
+    from rclpy.node import Node
+    from std_srvs.srv import SetBool
+
+    from grasp_fc_ros.interface.wait_sets import (
+        FIRST_RESPONSE_RESEND_S,
+        ServiceCaller,
+        ServiceLoop,
+    )
+
+    calls = []
+
+    def callback(request, response):
+        calls.append(request.data)
+        if not request.data or len(calls) == 1:
+            raise RuntimeError("response lost")  # the loop sends nothing for it
+        response.message = f"call {len(calls)}"
+        return response
+
+    name = f"/lost_response_{os.getpid()}"
+    server = Node("lost_server", start_parameter_services=False)
+    loop = ServiceLoop([server.create_service(SetBool, name, callback)], server.context,
+                       lambda service, exc: None)
+    node = Node("lost_caller", start_parameter_services=False)
+    try:
+        own = node.create_client(SetBool, name)
+        assert own.wait_for_service(timeout_sec=SERVE_TIMEOUT_S)
+        caller = ServiceCaller(own)
+        started = time.monotonic()
+        assert caller.call(SetBool.Request(data=True), SERVE_TIMEOUT_S).message == "call 2"
+        assert time.monotonic() - started >= FIRST_RESPONSE_RESEND_S
+        with pytest.raises(TimeoutError):
+            caller.call(SetBool.Request(data=False), 2.5 * FIRST_RESPONSE_RESEND_S)
+        assert calls == [True, True, False]
+    finally:
+        loop.stop()
+        node.destroy_node()
+        server.destroy_node()
+
+
 # SubscriptionLoop: a topic's messages taken from a wait set on a thread of its own.
 
 TAKE_TIMEOUT_S = 10.0

@@ -77,8 +77,9 @@ ROUND_TRIP = rf"p50\s+{N} ms\s+p99\s+{N} ms"
 EXPECTED: dict[str, Run] = {
     "bench_action": Run(lines=(
         Line(rf"^feedback: {N} messages over {N} s = {N} per s, largest gap {N} s"),
-        Line(rf"^cancel latency over 2 cancels: median {N} ms, max {N} ms .*, "
-             r"0 lost, all equal the core$"),
+        # Either cancel may come after its goal ended on a loaded machine: then no latency.
+        Line(rf"^cancels: {N} cut goals short, {N} came after the goal ended; prefixes of "
+             rf"{N}-{N} grasps, 0 lost, all equal the core$"),
         Line(rf"^throughput \(medians of 1 alternating rounds\): action {N} grasps/s, "
              rf"batch topic {N} grasps/s, ratio {N}$"),
     ), timeout_s=240),
