@@ -32,7 +32,7 @@ datagrams each host dropped at a full socket receive buffer meanwhile (each one 
 again later by DDS, after a negative acknowledgement).
 
 With ``--udp-hosts`` the node and this process (with the sending processes) are on two
-simulated hosts: network namespaces joined by a veth pair, DDS over UDP only, as
+simulated hosts: network namespaces on one switch, DDS over UDP only, as
 between two machines on a LAN (:mod:`udp_hosts`; needs root: the run is skipped,
 saying why, where network namespaces cannot be made).
 
@@ -398,10 +398,10 @@ def on_udp_hosts(argv: list[str]) -> int:
     if reason is not None:
         print(f"two hosts over UDP: skipped: {reason}")
         return 0
-    with UdpHosts(str(os.getpid() % 100_000)) as hosts:
+    with UdpHosts() as hosts:
         print(f"two hosts over UDP: node in network namespace {hosts.namespaces['node']}, "
-              f"clients in {hosts.namespaces['client']}, joined by a veth pair; Fast DDS "
-              "on UDPv4 only", flush=True)
+              f"clients in {hosts.namespaces['client']}, on one switch (test/net_hosts.py); "
+              "Fast DDS on UDPv4 only", flush=True)
         return subprocess.run(hosts.command("client", [
             sys.executable, __file__, *argv, "--node-netns", hosts.namespaces["node"]])
         ).returncode

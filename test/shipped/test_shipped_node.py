@@ -28,12 +28,20 @@ import yaml
 from visualization_msgs.msg import MarkerArray
 
 from grasp_fc_ros.client import GraspClient
-from grasp_fc_ros.core import Status, check_force_closure, epsilon_quality, verify_certificates
+from grasp_fc_ros.core import (
+    Status,
+    check_force_closure,
+    epsilon_quality,
+    holds_under,
+    probability_of_force_closure,
+    robustness,
+    verify_certificates,
+)
 from grasp_fc_ros.markers.build import marker_namespace
 from grasp_fc_ros.markers.publisher import MARKER_QOS
 from grasp_fc_ros.node.dds_profile import READER_PROFILE
 from grasp_fc_ros.objects import make_object, sample_grasps
-from grasp_fc_ros.packed import Verdicts
+from grasp_fc_ros.packed import RobustnessQuery, Verdicts
 from ros_fixtures import REPLY_TIMEOUT_S, DiagnosticsWatch
 from shipped_run import PARAMS_FILE, ScriptRun, error_lines, other_middlewares, user_environment
 
@@ -220,6 +228,31 @@ def check_soft_contacts(served: Served) -> None:
     assert forces_ok.all()
 
 
+def check_robustness(served: Served) -> None:
+    """assess_robustness (always served) gives the core's radii, holds answers and
+    probabilities on the same grasps."""
+    positions, normals = served.positions[:8], served.normals[:8]
+    question = RobustnessQuery(position_error=0.002, normal_error=float(np.radians(3.0)),
+                               friction_error=0.1, position_sigma=0.002,
+                               normal_sigma=float(np.radians(3.0)), samples=200, seed=5)
+    got = served.client.assess_robustness(positions, normals, MU, question,
+                                          timeout=REPLY_TIMEOUT_S)
+    assert got.robustness is not None
+    rows, radii = got.robustness, robustness(positions, normals, MU)
+    for name in ("normal_angle", "position_radius", "friction_drop"):
+        np.testing.assert_array_equal(getattr(rows, name), getattr(radii, name), err_msg=name)
+    held = holds_under(positions, normals, MU, position_error=question.position_error,
+                       normal_error=question.normal_error,
+                       friction_error=question.friction_error)
+    np.testing.assert_array_equal(rows.holds, held.status)
+    chance = probability_of_force_closure(
+        positions, normals, MU, position_sigma=question.position_sigma,
+        normal_sigma=question.normal_sigma, samples=question.samples, seed=question.seed,
+        grasp_ids=np.arange(len(positions)))
+    np.testing.assert_array_equal(rows.probability, chance.estimate)
+    np.testing.assert_array_equal(rows.probability_lower, chance.lower)
+
+
 @dataclass(frozen=True)
 class Feature:
     """How a user switches a feature on (node parameters), and what they then see."""
@@ -234,6 +267,7 @@ FEATURES = {
     "certificates": Feature({"certificates": True}, check_certificates),
     "min_friction": Feature({"compute_min_friction": True}, check_min_friction),
     "soft_contacts": Feature({}, check_soft_contacts),
+    "robustness": Feature({}, check_robustness),
 }
 
 

@@ -16,7 +16,13 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from grasp_fc_ros.core import check_force_closure, epsilon_quality
+from grasp_fc_ros.core import (
+    check_force_closure,
+    epsilon_quality,
+    holds_under,
+    probability_of_force_closure,
+    robustness,
+)
 from shipped_run import ScriptRun, error_lines
 
 pytestmark = pytest.mark.timeout(300)
@@ -74,6 +80,35 @@ def check_quality(table) -> None:
                                    rtol=EPSILON_RTOL, atol=EPSILON_ATOL, err_msg=column)
 
 
+# --robustness at issue 29's question: 2 mm, 3 degrees, friction 0.1 off; the same noise.
+ROBUSTNESS_OPTIONS = ("--robustness", "--position-error", "0.002", "--normal-error", "0.0524",
+                      "--friction-error", "0.1", "--position-sigma", "0.002",
+                      "--normal-sigma", "0.0524", "--friction-sigma", "0.1", "--samples", "200")
+
+
+def check_robustness(table) -> None:
+    """The radii, holds and probability columns are the core's on the table's grasps
+    (each grasp's noise from the default --seed 0 and its id)."""
+    check_verdicts(table)
+    positions, normals, mu = grasps_of(table)
+    radii = robustness(positions, normals, mu)
+    for name in ("normal_angle", "position_radius", "friction_drop"):
+        np.testing.assert_array_equal(table.column(name).to_numpy(), getattr(radii, name),
+                                      err_msg=name)
+    held = holds_under(positions, normals, mu, position_error=0.002, normal_error=0.0524,
+                       friction_error=0.1)
+    np.testing.assert_array_equal(table.column("holds").to_numpy(), held.status)
+    chance = probability_of_force_closure(
+        positions, normals, mu, position_sigma=0.002, normal_sigma=0.0524,
+        friction_sigma=0.1, samples=200, seed=0,
+        grasp_ids=table.column("id").to_numpy().astype(np.int64))
+    for column, expected in (("probability_estimate", chance.estimate),
+                             ("probability_lower", chance.lower),
+                             ("probability_upper", chance.upper)):
+        np.testing.assert_array_equal(table.column(column).to_numpy(), expected,
+                                      err_msg=column)
+
+
 def grasps_of(table) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """positions, normals (N, n, 3) and mu (N, 1) of a label table's rows."""
     shape = (table.num_rows, LABEL_FINGERS, 3)
@@ -93,6 +128,7 @@ class LabelFeature:
 LABEL_FEATURES = {
     "verdicts": LabelFeature((), check_verdicts),
     "quality": LabelFeature(("--quality",), check_quality),
+    "robustness": LabelFeature(ROBUSTNESS_OPTIONS, check_robustness),
 }
 
 
