@@ -38,7 +38,8 @@ SCRIPTS = sorted(path.stem for path in BENCHMARKS.glob("bench_*.py"))
 DEFAULT_TIMEOUT_S = 300.0
 
 #: Printed only when a benchmark lost, miscounted or crashed.
-FAILURE_WORDS = re.compile(r"Traceback|INCOMPLETE|LOST|LOSS|miscount|SOUNDNESS VIOLATION")
+# Whole words: a name such as FAST_LOSS_CONFIG in a heading is not a failure.
+FAILURE_WORDS = re.compile(r"\b(Traceback|INCOMPLETE|LOST|LOSS|miscount|SOUNDNESS VIOLATION)\b")
 
 #: A figure: digits with optional thousands separators and decimals, captured.
 N = r"(\d[\d,]*(?:\.\d+)?)"
@@ -78,7 +79,7 @@ EXPECTED: dict[str, Run] = {
     "bench_action": Run(lines=(
         Line(rf"^feedback: {N} messages over {N} s = {N} per s, largest gap {N} s"),
         # Either cancel may come after its goal ended on a loaded machine: then no latency.
-        Line(rf"^cancels: {N} cut goals short, {N} came after the goal ended; prefixes of "
+        Line(r"^cancels: \d+ cut goals short, \d+ came after the goal ended; prefixes of "
              rf"{N}-{N} grasps, 0 lost, all equal the core$"),
         Line(rf"^throughput \(medians of 1 alternating rounds\): action {N} grasps/s, "
              rf"batch topic {N} grasps/s, ratio {N}$"),
