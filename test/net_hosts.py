@@ -1,12 +1,12 @@
 """Separate hosts on one machine: Linux network namespaces joined by a bridge.
 
-Used by the multi-host labelling test and by ``benchmarks/bench_label.py``. Each host is a
-network namespace with its own loopback and one veth link to a bridge that lives in a
-namespace of its own (the switch), so the hosts reach each other over a real IP network
-and nothing else: no route to or from the root namespace, and their addresses
-(10.231.0.1, .2, ...) exist only inside this run's namespaces, so concurrent runs never
-collide. Processes started on a host see the same filesystem as everyone (a shared
-filesystem, as clusters have) but only that host's network.
+Used by the multi-host labelling test and by ``benchmarks/bench_label_cluster.py``.
+Each host is a network namespace with its own loopback and one veth link to a bridge
+that lives in a namespace of its own (the switch), so the hosts reach each other over a
+real IP network and nothing else: no route to or from the root namespace, and their
+addresses (10.231.0.1, .2, ...) exist only inside this run's namespaces, so concurrent
+runs never collide. Processes started on a host see the same filesystem as everyone (a
+shared filesystem, as clusters have) but only that host's network.
 
 :meth:`Hosts.cut` pulls a host's cable (its switch port goes down) and then kills every
 process on it: the others get no FIN or RST, exactly as when a machine loses power.
@@ -206,9 +206,10 @@ class Hosts:
 
 SCHEDULER_PORT = 8786
 #: Dask settings under which a lost host costs seconds (docs/labelling.md measures them):
-#: the scheduler drops a worker that missed heartbeats for 5 s (its floor for <= 10
-#: workers), TCP keepalive declares a silent peer dead after 11 s (Dask's floor), and an
-#: unreachable nanny is given up after 3 s.
+#: the scheduler restarts a worker that missed heartbeats for 5 s (its floor for <= 10
+#: workers) through its nanny, and removes it when a hung nanny has not answered in 30 s
+#: (fixed in Dask), TCP keepalive declares a silent peer dead after 11 s (Dask's floor),
+#: and an unreachable nanny is given up after 3 s.
 FAST_LOSS_CONFIG = {
     "distributed.scheduler.worker-ttl": "5s",
     "distributed.comm.timeouts.tcp": "11s",

@@ -44,10 +44,10 @@ DEFAULT_CHUNK_SIZE = 50_000
 
 # Costlier columns get smaller chunks, sized by cost. The unit of cost is one exact-test
 # verdict of one grasp (~5 us of a core here, six fingers). A chunk of the costlier columns
-# is CHUNK_WORK verdicts' worth (~10 s of a core): the labeller's own cost per chunk
-# (task, transfer, part: milliseconds) is far below 5 % of it, a chunk lost with its worker
-# costs seconds, and 10^8 grasps at a 1,000-sample probability make 55,000 tasks, about
-# 100 a second on a thousand cores (docs/labelling.md, "Planning").
+# is CHUNK_WORK verdicts' worth (measured 6-11 s of a core): the labeller's own cost per
+# chunk (task, transfer, part: milliseconds) is within 5 % of it, a chunk lost with its
+# worker costs seconds, and 10^8 grasps at a 1,000-sample probability make 55,067 tasks,
+# about 150 a second on a thousand cores (docs/labelling.md, "Planning 10^8 grasps").
 CHUNK_WORK = 2_000_000
 # Verdicts' worth of one grasp's columns, measured on six-finger box grasps, mu 0.5, by CPU
 # time (bench_label_cluster.py, compute per chunk against the verdicts'; docs/
