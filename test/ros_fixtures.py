@@ -27,6 +27,7 @@ os.environ["ROS_DOMAIN_ID"] = str(claim_domain_id())
 # Keep discovery on this machine (no multicast on the network).
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
+import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from grasp_fc_msgs.msg import (  # noqa: E402  # noqa: E402
     ContactArray,
@@ -38,6 +39,10 @@ from grasp_fc_msgs.srv import CheckForceClosure  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 
+from grasp_fc_ros.interface.conversions import (  # noqa: E402
+    grasp_to_contact_array,
+    grasps_to_batch_msg,
+)
 from grasp_fc_ros.interface.names import QUERY_QOS as RELIABLE  # noqa: E402 - the documented QoS
 from grasp_fc_ros.interface.names import reply_topic  # noqa: E402
 
@@ -47,6 +52,13 @@ from grasp_fc_ros.interface.names import reply_topic  # noqa: E402
 DISCOVERY_TIMEOUT_S = 60.0
 REPLY_TIMEOUT_S = 60.0
 NODE_EXIT_TIMEOUT_S = 10.0
+# Id of wait_connected's probe queries and batches (no test uses it), and how often an
+# unanswered probe is sent again (s).
+PROBE_ID = 2 ** 64 - 1
+PROBE_PERIOD_S = 1.0
+# Two opposite fingers on a unit sphere: (positions, normals), (2, 3) each.
+PROBE_GRASP = (np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]]),
+               np.array([[-1.0, 0.0, 0.0], [1.0, 0.0, 0.0]]))
 
 
 class SpinThread:
@@ -89,6 +101,7 @@ class Client:
         self.batches: list[ForceClosureVerdictArray] = []
         self.diagnostics = []
         self._sent = 0
+        self._probes_answered: set[str] = set()
         self.contacts_pub = self.node.create_publisher(ContactArray, "contacts", RELIABLE)
         self.batch_pub = self.node.create_publisher(ContactArrayBatch, "contacts_batch", RELIABLE)
         self.node.create_subscription(ForceClosureVerdict, "verdicts", self._on_verdict, RELIABLE)
@@ -111,12 +124,18 @@ class Client:
 
     def _on_verdict(self, msg):
         with self._lock:
-            self.verdicts.append(msg)
+            if msg.id == PROBE_ID:
+                self._probes_answered.add("verdicts")
+            else:
+                self.verdicts.append(msg)
             self._lock.notify_all()
 
     def _on_batch(self, msg):
         with self._lock:
-            self.batches.append(msg)
+            if msg.request_id == PROBE_ID:
+                self._probes_answered.add("verdicts_batch")
+            else:
+                self.batches.append(msg)
             self._lock.notify_all()
 
     def _on_diagnostics(self, msg):
@@ -128,9 +147,11 @@ class Client:
         """Wait until the node's service, subscriptions and publishers are matched.
 
         ``node``: the node, when it runs in this process: then its answer publishers'
-        own matches are waited for. A node in another process is not seen from here, so
-        a grace period stands in for them (the two ends of a match see it at different
-        times, and a reliable, volatile publisher drops what it sends before).
+        own matches are waited for. A node in another process is not seen from here (the
+        two ends of a match see it at different times, and a reliable, volatile publisher
+        drops what it sends before): probe queries on both topics are sent until each
+        was answered, which only a matched answer publisher can do. Their answers are
+        not collected; the node counts them in its diagnostics.
         """
         deadline = time.monotonic() + timeout
         assert self.service.wait_for_service(timeout_sec=timeout), "service not found"
@@ -141,10 +162,34 @@ class Client:
                     and self.node.count_publishers("verdicts_batch") > 0
                     and (node is None or answers_matched(node))):
                 if node is None:
-                    time.sleep(0.5)
+                    self._probe(deadline)
                 return
             time.sleep(0.05)
         raise AssertionError("node topics not matched within timeout")
+
+    def _probe(self, deadline: float) -> None:
+        """Send a probe query and a probe batch (id PROBE_ID) every PROBE_PERIOD_S until
+        both were answered, by ``deadline`` (time.monotonic())."""
+        with self._lock:
+            self._probes_answered.clear()
+        positions, normals = PROBE_GRASP
+        single = grasp_to_contact_array(PROBE_ID, positions, normals)
+        batch = grasps_to_batch_msg(np.array([PROBE_ID], dtype=np.uint64), positions[None],
+                                    normals[None], request_id=PROBE_ID)
+        topics = {"verdicts": (self.contacts_pub, single),
+                  "verdicts_batch": (self.batch_pub, batch)}
+        while True:
+            with self._lock:
+                waiting = set(topics) - self._probes_answered
+            if not waiting:
+                return
+            assert time.monotonic() < deadline, f"no answer to probes on {sorted(waiting)}"
+            for topic in waiting:
+                publisher, msg = topics[topic]
+                publisher.publish(msg)
+            with self._lock:
+                self._lock.wait_for(lambda: set(topics) <= self._probes_answered,
+                                    PROBE_PERIOD_S)
 
     def wait_for(self, attribute: str, count: int, timeout=REPLY_TIMEOUT_S):
         """Wait until ``len(self.<attribute>) >= count``; return a copy of the list."""
