@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "test"))
-from net_hosts import BRIDGE, Hosts, _ip, unavailable  # noqa: E402
+from net_hosts import BRIDGE, Hosts, ip, unavailable  # noqa: E402
 
 __all__ = ["UDP_ENVIRONMENT", "UdpHosts", "in_namespace", "udp_drops", "unavailable"]
 
@@ -42,10 +42,10 @@ class UdpHosts:
         self._hosts.__enter__()
         try:
             # Discovery's multicast flooded to every port, not left to IGMP snooping.
-            _ip("-n", self._hosts.switch, "link", "set", BRIDGE, "type", "bridge",
+            ip("-n", self._hosts.switch, "link", "set", BRIDGE, "type", "bridge",
                 "mcast_snooping", "0")
             for namespace in self.namespaces.values():
-                _ip("-n", namespace, "route", "add", MULTICAST, "dev", "eth0")
+                ip("-n", namespace, "route", "add", MULTICAST, "dev", "eth0")
         except BaseException:
             self.__exit__()
             raise

@@ -44,7 +44,8 @@ BRIDGE = "br0"
 IP_TIMEOUT_S = 20
 
 
-def _ip(*args: str, check: bool = True) -> subprocess.CompletedProcess[str]:
+def ip(*args: str, check: bool = True) -> subprocess.CompletedProcess[str]:
+    """Run iproute2's ``ip`` with ``args`` (output captured; ``check``: raise on failure)."""
     return subprocess.run(["ip", *args], capture_output=True, text=True, check=check,
                           timeout=IP_TIMEOUT_S)
 
@@ -56,10 +57,10 @@ def unavailable() -> str | None:
     if os.geteuid() != 0:
         return "not root: network namespaces need CAP_SYS_ADMIN and CAP_NET_ADMIN"
     probe = f"{PREFIX}{os.getpid()}-probe-{secrets.token_hex(3)}"
-    made = _ip("netns", "add", probe, check=False)
+    made = ip("netns", "add", probe, check=False)
     if made.returncode:
         return f"`ip netns add` failed: {made.stderr.strip() or made.returncode}"
-    _ip("netns", "del", probe, check=False)
+    ip("netns", "del", probe, check=False)
     return None
 
 
@@ -75,21 +76,21 @@ def _alive(pid: int) -> bool:
 
 def sweep_stale() -> list[str]:
     """Delete the namespaces of runs whose process is gone; return their names."""
-    listing = _ip("netns", "list", check=False).stdout
+    listing = ip("netns", "list", check=False).stdout
     names = [line.split()[0] for line in listing.splitlines() if line.startswith(PREFIX)]
     swept = []
     for name in names:
         match = re.match(rf"{PREFIX}(\d+)-", name)
         if match and not _alive(int(match.group(1))):
             _kill_namespace_processes(name)
-            _ip("netns", "del", name, check=False)
+            ip("netns", "del", name, check=False)
             swept.append(name)
     return swept
 
 
 def _kill_namespace_processes(namespace: str) -> None:
     """SIGKILL every process inside ``namespace`` (all of them this run's)."""
-    pids = _ip("netns", "pids", namespace, check=False).stdout.split()
+    pids = ip("netns", "pids", namespace, check=False).stdout.split()
     for pid in pids:
         with contextlib.suppress(ProcessLookupError):
             os.kill(int(pid), signal.SIGKILL)
@@ -137,18 +138,18 @@ class Hosts:
         self.close()
 
     def _build(self) -> None:
-        _ip("netns", "add", self.switch)
-        _ip("-n", self.switch, "link", "add", BRIDGE, "type", "bridge")
-        _ip("-n", self.switch, "link", "set", BRIDGE, "up")
+        ip("netns", "add", self.switch)
+        ip("-n", self.switch, "link", "add", BRIDGE, "type", "bridge")
+        ip("-n", self.switch, "link", "set", BRIDGE, "up")
         for i, namespace in enumerate(self.namespaces):
-            _ip("netns", "add", namespace)
-            _ip("-n", namespace, "link", "set", "lo", "up")
+            ip("netns", "add", namespace)
+            ip("-n", namespace, "link", "set", "lo", "up")
             # Made with both ends already in their namespaces: no name in the root one.
-            _ip("link", "add", "eth0", "netns", namespace, "type", "veth", "peer", "name",
+            ip("link", "add", "eth0", "netns", namespace, "type", "veth", "peer", "name",
                 f"port{i}", "netns", self.switch)
-            _ip("-n", self.switch, "link", "set", f"port{i}", "master", BRIDGE, "up")
-            _ip("-n", namespace, "addr", "add", f"{self.address(i)}/24", "dev", "eth0")
-            _ip("-n", namespace, "link", "set", "eth0", "up")
+            ip("-n", self.switch, "link", "set", f"port{i}", "master", BRIDGE, "up")
+            ip("-n", namespace, "addr", "add", f"{self.address(i)}/24", "dev", "eth0")
+            ip("-n", namespace, "link", "set", "eth0", "up")
 
     def popen(self, host: int, argv: Sequence[str], env: dict[str, str] | None = None,
               **kwargs: object) -> subprocess.Popen[bytes]:
@@ -169,7 +170,7 @@ class Hosts:
     def cut(self, host: int) -> float:
         """Pull ``host``'s cable, then kill every process on it; return the time
         (``time.monotonic()``) at which the link went down."""
-        _ip("-n", self.switch, "link", "set", f"port{host}", "down")
+        ip("-n", self.switch, "link", "set", f"port{host}", "down")
         down = time.monotonic()
         _kill_namespace_processes(self.namespaces[host])
         for owner, proc in self.processes:
@@ -182,7 +183,7 @@ class Hosts:
         still answers TCP in its kernel; ``resume`` continues them (SIGCONT). Returns the
         time (``time.monotonic()``) of the signal."""
         signum = signal.SIGCONT if resume else signal.SIGSTOP
-        for pid in _ip("netns", "pids", self.namespaces[host], check=False).stdout.split():
+        for pid in ip("netns", "pids", self.namespaces[host], check=False).stdout.split():
             with contextlib.suppress(ProcessLookupError):
                 os.kill(int(pid), signum)
         return time.monotonic()
@@ -199,7 +200,7 @@ class Hosts:
         for log in self._logs.values():
             log.close()
         for namespace in [*self.namespaces, self.switch]:
-            _ip("netns", "del", namespace, check=False)
+            ip("netns", "del", namespace, check=False)
 
 
 # --- a Dask cluster over the hosts ----------------------------------------------------
